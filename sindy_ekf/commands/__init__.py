@@ -1,0 +1,1 @@
+"""One module per ``sindy-ekf`` command: ``add_parser(sub, common)`` and ``run(args)``."""
