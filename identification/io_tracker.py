@@ -1,0 +1,208 @@
+"""Reading tracker campaigns (data contract, part 1) with rosbags into typed raw runs.
+
+A run's topics may be spread over several bags (ROS1 ``.bag`` files and/or ROS2 bag folders);
+every topic is looked up by name across all of them. Nothing here interprets the data beyond
+typing and validating it: synchronisation is :mod:`identification.sync`.
+
+Validation follows the contract: a run that cannot go on (no bags, a required topic missing or
+empty, stamps going backwards, non-finite stamps) raises :class:`InputError` from
+:func:`read_tracker_run`; :func:`read_tracker_campaign` skips such a run with a warning and lists
+it in ``TrackerCampaign.skipped`` so that the other runs can go on. Tracker samples with NaN
+coordinates are kept (their stamps still carry clock information); the synchroniser drops and
+counts them.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from identification.types import PointSeries, RawRun, TrackerCampaign
+from sindy_ekf.errors import InputError
+
+log = logging.getLogger(__name__)
+
+TOPIC_TRIGGER = "/rpi/trigger"
+TOPIC_AT960 = "/at960/measurement"
+TOPIC_LTD800 = "/ltd800/measurement"
+TOPIC_JOY = "/joy_teleop/joy"
+TOPIC_HUB = "/turning_hub/azimuth"
+REQUIRED_TOPICS = (TOPIC_TRIGGER, TOPIC_AT960, TOPIC_LTD800, TOPIC_JOY)
+OPTIONAL_TOPICS = (TOPIC_HUB,)  # without it the hub model (eq. 5.25) is skipped, poses are not
+SPLITS = ("train", "test")
+
+
+def find_bags(run_dir: Path) -> list[Path]:
+    """Return the bags of a run folder: ``*.bag`` files and ROS2 bag folders (with metadata.yaml)."""
+    run_dir = Path(run_dir)
+    bags = sorted(p for p in run_dir.glob("*.bag") if p.is_file())
+    bags += sorted(p for p in run_dir.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file())
+    return bags
+
+
+def is_tracker_campaign(path: str | Path) -> bool:
+    """Return True if ``path`` looks like a tracker campaign (campaign.yaml and bags under runs/)."""
+    path = Path(path)
+    if not (path / "campaign.yaml").is_file() or not (path / "runs").is_dir():
+        return False
+    return any(find_bags(d) for d in (path / "runs").iterdir() if d.is_dir())
+
+
+def read_campaign_yaml(path: Path) -> tuple[str, list[tuple[str, str]]]:
+    """Return the campaign name and its ``(run, split)`` list from ``campaign.yaml``."""
+    file = Path(path) / "campaign.yaml"
+    if not file.is_file():
+        raise InputError(f"{path}: not a campaign (no campaign.yaml)")
+    try:
+        doc = yaml.safe_load(file.read_text())
+    except yaml.YAMLError as exc:
+        raise InputError(f"{file}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("runs"), list) or not doc["runs"]:
+        raise InputError(f"{file}: key 'runs' missing or not a non-empty list")
+    runs = []
+    for i, entry in enumerate(doc["runs"]):
+        if not isinstance(entry, dict) or not isinstance(entry.get("name"), str):
+            raise InputError(f"{file}: runs[{i}] has no 'name'")
+        split = entry.get("split")
+        if split not in SPLITS:
+            raise InputError(f"{file}: runs[{i}] ({entry['name']}): key 'split' must be train or test, got {split!r}")
+        runs.append((entry["name"], split))
+    names = [r[0] for r in runs]
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise InputError(f"{file}: run {dup!r} listed twice under 'runs'")
+    return str(doc.get("name", Path(path).name)), runs
+
+
+def _stamp(stamp) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def _read_topics(bags: list[Path], topics: tuple[str, ...]) -> dict[str, list]:
+    """Return the deserialised messages per topic, gathered across all bags of a run."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    # AnyReader opens several ROS1 bags together but reads ROS2 folders one recording at a time.
+    groups = [[b for b in bags if b.suffix == ".bag"]] + [[b] for b in bags if b.suffix != ".bag"]
+    out: dict[str, list] = {t: [] for t in topics}
+    typestore = get_typestore(Stores.ROS1_NOETIC)
+    for group in (g for g in groups if g):
+        try:
+            with AnyReader(group, default_typestore=typestore) as reader:
+                conns = [c for c in reader.connections if c.topic in out]
+                for conn, _, raw in reader.messages(connections=conns):
+                    out[conn.topic].append(reader.deserialize(raw, conn.msgtype))
+        except InputError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a corrupt bag is bad input, named by file
+            raise InputError(f"{group[0]}: cannot read bag ({type(exc).__name__}: {exc})") from None
+    return out
+
+
+def _check_stamps(t: np.ndarray, run: str, topic: str, strict: bool) -> None:
+    """Raise InputError unless the stamps are finite and increasing (strictly if ``strict``)."""
+    if not np.all(np.isfinite(t)):
+        raise InputError(f"run {run}: topic {topic}: non-finite stamp at message {int(np.argmin(np.isfinite(t)))}")
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0 if strict else dt < 0)
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(f"run {run}: topic {topic}: stamps not monotonic at message {i + 1} "
+                         f"({t[i]:.6f} then {t[i + 1]:.6f}; {bad.size} such steps)")
+
+
+def _points(msgs: list, run: str, topic: str) -> PointSeries:
+    t = np.array([_stamp(m.header.stamp) for m in msgs], dtype=float)
+    xyz = np.array([(m.point.x, m.point.y, m.point.z) for m in msgs], dtype=float).reshape(-1, 3)
+    _check_stamps(t, run, topic, strict=True)
+    return PointSeries(t_tracker=t, xyz=xyz)
+
+
+def read_tracker_run(run_dir: str | Path, name: str | None = None, split: str = "train") -> RawRun:
+    """Return one run of a tracker campaign as a :class:`RawRun`, validated against the contract.
+
+    Raises
+    ------
+    InputError
+        Naming the run and topic: no bags, a required topic missing or empty, stamps going
+        backwards or non-finite, a Joy or JointState message too short.
+    """
+    run_dir = Path(run_dir)
+    name = name or run_dir.name
+    if not run_dir.is_dir():
+        raise InputError(f"run {name}: folder {run_dir} missing")
+    bags = find_bags(run_dir)
+    if not bags:
+        raise InputError(f"run {name}: no bags (*.bag or ROS2 folders) in {run_dir}")
+    msgs = _read_topics(bags, REQUIRED_TOPICS + OPTIONAL_TOPICS)
+    for topic in REQUIRED_TOPICS:
+        if not msgs[topic]:
+            raise InputError(f"run {name}: topic {topic} missing or empty")
+
+    t_trigger = np.array([_stamp(m.time_ref) for m in msgs[TOPIC_TRIGGER]], dtype=float)
+    _check_stamps(t_trigger, name, TOPIC_TRIGGER, strict=True)
+    at960 = _points(msgs[TOPIC_AT960], name, TOPIC_AT960)
+    ltd800 = _points(msgs[TOPIC_LTD800], name, TOPIC_LTD800)
+
+    joy = msgs[TOPIC_JOY]
+    if any(len(m.axes) < 2 for m in joy):
+        raise InputError(f"run {name}: topic {TOPIC_JOY}: a message has fewer than 2 axes")
+    t_joy = np.array([_stamp(m.header.stamp) for m in joy], dtype=float)
+    u_joy = np.array([(m.axes[1], m.axes[0]) for m in joy], dtype=float).reshape(-1, 2)
+    _check_stamps(t_joy, name, TOPIC_JOY, strict=False)
+    if not np.all(np.isfinite(u_joy)):
+        raise InputError(f"run {name}: topic {TOPIC_JOY}: non-finite axes")
+
+    hub = msgs[TOPIC_HUB]
+    t_hub = np.array([_stamp(m.header.stamp) for m in hub], dtype=float)
+    az = np.empty((len(hub), 2))
+    for i, m in enumerate(hub):  # name order is [front, rear] by contract, but look it up
+        names = list(m.name)
+        try:
+            az[i] = m.position[names.index("front")], m.position[names.index("rear")]
+        except (ValueError, IndexError):
+            raise InputError(f"run {name}: topic {TOPIC_HUB}: message {i} lacks 'front'/'rear' "
+                             f"(name={names})") from None
+    _check_stamps(t_hub, name, TOPIC_HUB, strict=False)
+    if not hub:
+        log.warning("run %s: topic %s missing: no turning-hub model for this run", name, TOPIC_HUB)
+
+    return RawRun(name=name, split=split, t_trigger_utc=t_trigger, at960=at960, ltd800=ltd800,
+                  t_joy_utc=t_joy, u_joy=u_joy, t_hub_utc=t_hub, hub_azimuth=az)
+
+
+def read_tracker_campaign(path: str | Path) -> TrackerCampaign:
+    """Return a tracker campaign read from disk: survey plus every run that can be used.
+
+    Runs that cannot go on are skipped with a warning and listed in ``skipped`` (run -> one-line
+    reason). ``calibration.yaml`` is read by :func:`identification.io_survey.read_survey`.
+
+    Raises
+    ------
+    InputError
+        If ``path`` is not a campaign, ``campaign.yaml`` or ``calibration.yaml`` is invalid, or
+        no run can be used.
+    """
+    from identification.io_survey import read_survey
+
+    root = Path(path)
+    name, runs = read_campaign_yaml(root)
+    calib = root / "calibration.yaml"
+    if not calib.is_file():
+        raise InputError(f"{root}: calibration.yaml missing")
+    survey = read_survey(calib)
+    good, skipped = [], {}
+    for run_name, split in runs:
+        try:
+            good.append(read_tracker_run(root / "runs" / run_name, run_name, split))
+        except InputError as exc:
+            log.warning("skipping %s", exc)
+            skipped[run_name] = str(exc)
+    if not good:
+        first = next(iter(skipped.values()))
+        raise InputError(f"{root}: no usable run ({len(skipped)} skipped; first: {first})")
+    return TrackerCampaign(root=root, name=name, survey=survey, runs=tuple(good), skipped=skipped)
