@@ -15,6 +15,7 @@ counts them.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,18 @@ TOPIC_HUB = "/turning_hub/azimuth"
 REQUIRED_TOPICS = (TOPIC_TRIGGER, TOPIC_AT960, TOPIC_LTD800, TOPIC_JOY)
 OPTIONAL_TOPICS = (TOPIC_HUB,)  # without it the hub model (eq. 5.25) is skipped, poses are not
 SPLITS = ("train", "test")
+
+
+@dataclass(frozen=True)
+class BagRun(RawRun):
+    """A :class:`RawRun` plus the bag (receive) times of the tracker messages, UTC s.
+
+    The receive times are the recording computer's clock, good to a fraction of a second; the
+    synchroniser uses them only to break a tie between cross-correlation peaks that the
+    periodic gap pattern (one skipped pulse every 3 s) leaves 3 s apart.
+    """
+
+    t_receive_utc: dict[str, np.ndarray] = field(default_factory=dict)  # tracker -> (n,)
 
 
 def find_bags(run_dir: Path) -> list[Path]:
@@ -89,13 +102,15 @@ def _read_topics(bags: list[Path], topics: tuple[str, ...]) -> dict[str, list]:
     # AnyReader opens several ROS1 bags together but reads ROS2 folders one recording at a time.
     groups = [[b for b in bags if b.suffix == ".bag"]] + [[b] for b in bags if b.suffix != ".bag"]
     out: dict[str, list] = {t: [] for t in topics}
+    out.update({("receive", t): [] for t in topics})
     typestore = get_typestore(Stores.ROS1_NOETIC)
     for group in (g for g in groups if g):
         try:
             with AnyReader(group, default_typestore=typestore) as reader:
                 conns = [c for c in reader.connections if c.topic in out]
-                for conn, _, raw in reader.messages(connections=conns):
+                for conn, t_bag_ns, raw in reader.messages(connections=conns):
                     out[conn.topic].append(reader.deserialize(raw, conn.msgtype))
+                    out[("receive", conn.topic)].append(t_bag_ns)
         except InputError:
             raise
         except Exception as exc:  # noqa: BLE001 - a corrupt bag is bad input, named by file
@@ -115,15 +130,18 @@ def _check_stamps(t: np.ndarray, run: str, topic: str, strict: bool) -> None:
                          f"({t[i]:.6f} then {t[i + 1]:.6f}; {bad.size} such steps)")
 
 
-def _points(msgs: list, run: str, topic: str) -> PointSeries:
+def _points(msgs: list, t_bag_ns: list, run: str, topic: str) -> tuple[PointSeries, np.ndarray]:
     t = np.array([_stamp(m.header.stamp) for m in msgs], dtype=float)
     xyz = np.array([(m.point.x, m.point.y, m.point.z) for m in msgs], dtype=float).reshape(-1, 3)
+    t_bag = np.asarray(t_bag_ns, dtype=np.int64)
+    # not sorted: stamps going backwards mean a clock reset, which no linear clock model fits
     _check_stamps(t, run, topic, strict=True)
-    return PointSeries(t_tracker=t, xyz=xyz)
+    return PointSeries(t_tracker=t, xyz=xyz), t_bag * 1e-9
 
 
-def read_tracker_run(run_dir: str | Path, name: str | None = None, split: str = "train") -> RawRun:
-    """Return one run of a tracker campaign as a :class:`RawRun`, validated against the contract.
+def read_tracker_run(run_dir: str | Path, name: str | None = None, split: str = "train") -> BagRun:
+    """Return one run of a tracker campaign as a :class:`BagRun` (a :class:`RawRun` with bag
+    receive times), validated against the contract.
 
     Raises
     ------
@@ -145,8 +163,8 @@ def read_tracker_run(run_dir: str | Path, name: str | None = None, split: str = 
 
     t_trigger = np.array([_stamp(m.time_ref) for m in msgs[TOPIC_TRIGGER]], dtype=float)
     _check_stamps(t_trigger, name, TOPIC_TRIGGER, strict=True)
-    at960 = _points(msgs[TOPIC_AT960], name, TOPIC_AT960)
-    ltd800 = _points(msgs[TOPIC_LTD800], name, TOPIC_LTD800)
+    at960, rx_at960 = _points(msgs[TOPIC_AT960], msgs[("receive", TOPIC_AT960)], name, TOPIC_AT960)
+    ltd800, rx_ltd800 = _points(msgs[TOPIC_LTD800], msgs[("receive", TOPIC_LTD800)], name, TOPIC_LTD800)
 
     joy = msgs[TOPIC_JOY]
     if any(len(m.axes) < 2 for m in joy):
@@ -171,8 +189,9 @@ def read_tracker_run(run_dir: str | Path, name: str | None = None, split: str = 
     if not hub:
         log.warning("run %s: topic %s missing: no turning-hub model for this run", name, TOPIC_HUB)
 
-    return RawRun(name=name, split=split, t_trigger_utc=t_trigger, at960=at960, ltd800=ltd800,
-                  t_joy_utc=t_joy, u_joy=u_joy, t_hub_utc=t_hub, hub_azimuth=az)
+    return BagRun(name=name, split=split, t_trigger_utc=t_trigger, at960=at960, ltd800=ltd800,
+                  t_joy_utc=t_joy, u_joy=u_joy, t_hub_utc=t_hub, hub_azimuth=az,
+                  t_receive_utc={"at960": rx_at960, "ltd800": rx_ltd800})
 
 
 def read_tracker_campaign(path: str | Path) -> TrackerCampaign:

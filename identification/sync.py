@@ -42,6 +42,9 @@ GAP_MATCH_TOL_S = 0.004  # thesis 5.2.2
 MAX_INTERP_GAP_S = 0.05  # interpolate across one missing sample at most, never across a dropout
 MAX_LOST_STRETCH = 3  # longer stretches of unmatched triggers are a silent tracker, not lost pulses
 MIN_CLOCK_GAPS = 3
+AMBIGUOUS_RATIO = 0.9  # a second xcorr peak this high: the periodic gaps leave the shift open
+RECEIVE_WINDOW_S = 1.0  # half the 3 s gap period: bag receive times pick the peak within this
+MAX_BASELINE_SPREAD_M = 0.02  # above it after synchronisation the two trackers disagree
 
 
 @dataclass(frozen=True)
@@ -124,7 +127,8 @@ class SyncedRun:
     s_trigger: np.ndarray  # (n,) trigger times relative to t0, s
     p_front_local: np.ndarray  # (n, 3) m
     p_rear_local: np.ndarray  # (n, 3) m
-    clock: dict[str, ClockModel]  # "at960", "ltd800"
+    clock: dict[str, ClockModel]  # "at960", "ltd800"; the offset is folded into offset_tracker's d
+    offset_tracker: str  # the tracker found to measure late (the AT960 in the thesis)
     offset: OffsetEstimate
     baseline_before_m: np.ndarray  # (n,) eq. 5.13 with the clock models only (NaN where unknown)
     baseline_after_m: np.ndarray  # (n,) after the AT960 offset (eq. 5.24)
@@ -196,14 +200,26 @@ def xcorr_gap_signals(s_trigger: np.ndarray, s_tracker: np.ndarray,
     return tau, corr
 
 
-def coarse_shift(s_trigger: np.ndarray, s_tracker: np.ndarray,
+def coarse_shift(s_trigger: np.ndarray, s_tracker: np.ndarray, s_receive: np.ndarray | None = None,
                  rate_hz: float = XCORR_RATE_HZ) -> tuple[float, float]:
     """Return ``(tau, peak_ratio)``: the shift at the correlation maximum (eq. 5.8) and the ratio
-    of the best peak more than 0.5 s away to it (near 1 means the alignment is ambiguous)."""
+    of the best peak more than 0.5 s away to it (near 1 means the alignment is ambiguous).
+
+    The gaps repeat every 3 s, so when a tracker covers only part of the run, shifts 3 s apart
+    correlate equally well. Then, if given, the bag receive times of the tracker messages
+    (``s_receive``, relative to the run's first trigger, good to a fraction of a second) choose
+    the peak: the maximum within ``RECEIVE_WINDOW_S`` of the shift they imply.
+    """
     tau, corr = xcorr_gap_signals(s_trigger, s_tracker, rate_hz)
     best = int(np.argmax(corr))
     far = np.abs(tau - tau[best]) > 0.5
     ratio = float(corr[far].max() / corr[best]) if far.any() and corr[best] > 0 else 0.0
+    if ratio > AMBIGUOUS_RATIO and s_receive is not None and np.size(s_receive):
+        # receive times lag the measurement by the latency, so this shift is a lower bound
+        tau_rx = float(np.median(s_tracker - s_receive))
+        near = np.abs(tau - tau_rx) <= RECEIVE_WINDOW_S
+        if near.any():
+            best = int(np.flatnonzero(near)[np.argmax(corr[near])])
     return float(tau[best]), ratio
 
 
@@ -239,8 +255,8 @@ def fit_linear_clock(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float,
     return 1.0 + sol[0], float(sol[1]), float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1])), s0
 
 
-def fit_clock_model(tracker: str, s_trigger: np.ndarray, t_tracker: np.ndarray,
-                    run: str = "?") -> tuple[ClockModel, np.ndarray, np.ndarray]:
+def fit_clock_model(tracker: str, s_trigger: np.ndarray, t_tracker: np.ndarray, run: str = "?",
+                    s_receive: np.ndarray | None = None) -> tuple[ClockModel, np.ndarray, np.ndarray]:
     """Return the tracker's clock model and the matched ``(trigger, sample)`` index pairs.
 
     Implements eqs. 5.6 to 5.12: gaps (35 ms), coarse shift by cross-correlation, gap matching
@@ -262,7 +278,10 @@ def fit_clock_model(tracker: str, s_trigger: np.ndarray, t_tracker: np.ndarray,
         which = "/rpi/trigger" if gaps_rpi.size < MIN_CLOCK_GAPS else topic
         raise InputError(f"run {run}: topic {which}: no detectable gaps of the trigger pattern "
                          f"(need {MIN_CLOCK_GAPS} steps > {GAP_THRESHOLD_S * 1e3:.0f} ms)")
-    tau, ratio = coarse_shift(s_trigger, s_tr)
+    tau, ratio = coarse_shift(s_trigger, s_tr, s_receive)
+    if ratio > AMBIGUOUS_RATIO and s_receive is None:
+        log.warning("run %s: topic %s: gap cross-correlation ambiguous (peaks 3 s apart, ratio "
+                    "%.3f) and no bag receive times to decide", run, topic, ratio)
     k, d = 1.0, 0.0
     for _ in range(3):  # eq. 5.9 and matching; then again with the fitted drift
         mapped = k * (gaps_tr - tau) + d
@@ -348,33 +367,34 @@ def timing_error_correlation(baseline_m: np.ndarray, v_forward: np.ndarray) -> f
     return pearson_r(baseline_m - np.nanmean(baseline_m), v_forward)
 
 
-def _spread(dt: np.ndarray, s: np.ndarray, p_front: np.ndarray, s_rear: np.ndarray,
-            xyz_rear: np.ndarray) -> np.ndarray:
+def _spread(dt: np.ndarray, s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray,
+            xyz_late: np.ndarray) -> np.ndarray:
     """Return the baseline spread s_r(dt) for each offset in ``dt`` (eqs. 5.15 to 5.17)."""
-    p_rear = interpolate_at(s[None, :] - np.asarray(dt)[:, None], s_rear, xyz_rear)
-    length = np.linalg.norm(p_front[None] - p_rear, axis=-1)
+    p_late = interpolate_at(s[None, :] - np.asarray(dt)[:, None], s_late, xyz_late)
+    length = np.linalg.norm(p_ref[None] - p_late, axis=-1)
     ok = np.isfinite(length).all(axis=0)  # the same triggers for every offset
     return length[:, ok].std(axis=1, ddof=1)
 
 
-def fit_rear_offset(s: np.ndarray, p_front: np.ndarray, s_rear: np.ndarray, xyz_rear: np.ndarray,
-                    search_s: float = 0.01, run: str = "?") -> OffsetEstimate:
-    """Return the extra offset of the rear tracker's times that minimises the baseline spread.
+def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_late: np.ndarray,
+                     search_s: float = 0.01, run: str = "?") -> OffsetEstimate:
+    """Return the extra offset of one tracker's times that minimises the baseline spread.
 
     Implements eqs. 5.13 to 5.22: ``s_r`` is sampled over ``[-search_s, search_s]`` (coarse,
     then finer around the minimum), a quadratic (5.19) is fitted to ten samples around the
     minimum, its vertex is the offset (5.20) and its standard deviation follows by error
     propagation of the coefficients' covariance (5.21, 5.22). The sign is that of eq. 5.24:
-    the rear positions at trigger time ``t`` are the samples at ``t - dt`` on the clock model.
+    the shifted tracker's positions at trigger time ``t`` are its samples at ``t - dt`` on its
+    clock model; ``p_ref`` are the other tracker's positions at the trigger times ``s``.
     """
-    if np.sum(np.isfinite(p_front[:, 0])) < 50:
-        raise InputError(f"run {run}: fewer than 50 trigger times with the front prism seen; "
+    if np.sum(np.isfinite(p_ref[:, 0])) < 50:
+        raise InputError(f"run {run}: fewer than 50 trigger times with both prisms seen; "
                          "cannot estimate the AT960 offset")
     coarse = np.arange(-search_s, search_s + 1e-12, 2.5e-4)
-    spread_c = _spread(coarse, s, p_front, s_rear, xyz_rear)
+    spread_c = _spread(coarse, s, p_ref, s_late, xyz_late)
     best = coarse[np.argmin(spread_c)]
     fine = best + np.arange(-5e-4, 5e-4 + 1e-12, 2e-5)
-    spread_f = _spread(fine, s, p_front, s_rear, xyz_rear)
+    spread_f = _spread(fine, s, p_ref, s_late, xyz_late)
     c = int(np.clip(np.argmin(spread_f), 5, fine.size - 5))
     dt_fit, spread_fit = fine[c - 5:c + 5], spread_f[c - 5:c + 5]
     x0 = dt_fit.mean()  # centre for conditioning; the vertex is shifted back below
@@ -383,11 +403,11 @@ def fit_rear_offset(s: np.ndarray, p_front: np.ndarray, s_rear: np.ndarray, xyz_
     res = spread_fit - A @ coef
     cov = (res @ res / (10 - 3)) * np.linalg.inv(A.T @ A)
     a, b, _ = coef
-    if a <= 0:
+    dt = x0 - b / (2 * a) if a > 0 else np.inf  # eq. 5.20
+    if not dt_fit[0] - 1e-4 <= dt <= dt_fit[-1] + 1e-4:
         raise InputError(f"run {run}: baseline spread has no minimum near {best * 1e3:.3f} ms; "
                          "cannot estimate the AT960 offset")
     F = np.array([b / (2 * a**2), -1 / (2 * a), 0.0])  # eq. 5.22
-    dt = x0 - b / (2 * a)  # eq. 5.20
     all_dt = np.concatenate([coarse, fine])
     order = np.argsort(all_dt)
     return OffsetEstimate(dt=float(dt), dt_std=float(np.sqrt(F @ cov @ F)), coeffs=coef, cov=cov,
@@ -422,8 +442,10 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
     s = raw.t_trigger_utc - t0
     series = {"at960": raw.at960, "ltd800": raw.ltd800}
     clock, counts, resid, mapped, xyz_local = {}, {}, {}, {}, {}
+    receive = getattr(raw, "t_receive_utc", {})  # BagRun: bag times break xcorr ties
     for tracker, ps in series.items():
-        model, i_trig, j_tr = fit_clock_model(tracker, s, ps.t_tracker, run=raw.name)
+        s_rx = receive[tracker] - t0 if tracker in receive else None
+        model, i_trig, j_tr = fit_clock_model(tracker, s, ps.t_tracker, run=raw.name, s_receive=s_rx)
         s_tr = model.s_trigger_from_tracker(ps.t_tracker)
         finite = np.isfinite(ps.xyz).all(axis=1)
         clock[tracker] = model
@@ -437,23 +459,30 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
             log.warning("run %s: topic /%s/measurement: %d samples with NaN coordinates dropped",
                         raw.name, tracker, counts[tracker].dropped_nan)
 
-    front, rear = prism_tracker["front"], prism_tracker["rear"]
-    p_front = interpolate_at(s, mapped[front], xyz_local[front], max_interp_gap_s)
-    p_rear_0 = interpolate_at(s, mapped[rear], xyz_local[rear], max_interp_gap_s)
-    offset = fit_rear_offset(s, p_front, mapped[rear], xyz_local[rear], run=raw.name)
-    # eq. 5.24 for the rear (AT960) tracker; the front keeps eq. 5.23
-    p_rear = interpolate_at(s - offset.dt, mapped[rear], xyz_local[rear], max_interp_gap_s)
-    base_0 = np.linalg.norm(p_front - p_rear_0, axis=1)
-    base_1 = np.linalg.norm(p_front - p_rear, axis=1)
+    # The extra offset goes to the tracker whose stamps scatter more about the trigger times
+    # (a varying duty cycle shows there, thesis fig. 5.4): found from the data, not assumed.
+    late = max(clock, key=lambda k: clock[k].residual_std)
+    ref = "ltd800" if late == "at960" else "at960"
+    p_ref = interpolate_at(s, mapped[ref], xyz_local[ref], max_interp_gap_s)
+    p_late_0 = interpolate_at(s, mapped[late], xyz_local[late], max_interp_gap_s)
+    offset = fit_extra_offset(s, p_ref, mapped[late], xyz_local[late], run=raw.name)
+    p_late = interpolate_at(s - offset.dt, mapped[late], xyz_local[late], max_interp_gap_s)
+    base_0 = np.linalg.norm(p_ref - p_late_0, axis=1)
+    base_1 = np.linalg.norm(p_ref - p_late, axis=1)
+    if np.nanstd(base_1) > MAX_BASELINE_SPREAD_M:
+        raise InputError(f"run {raw.name}: the trackers disagree after synchronisation (baseline "
+                         f"spread {np.nanstd(base_1) * 1e3:.1f} mm); clock alignment failed")
+    p = {ref: p_ref, late: p_late}
+    p_front, p_rear = p[prism_tracker["front"]], p[prism_tracker["rear"]]
     v_fwd = forward_speed(s, p_front, p_rear)
     r0, r1 = timing_error_correlation(base_0, v_fwd), timing_error_correlation(base_1, v_fwd)
     log.info("run %s: baseline vs forward speed r = %.2f before, %.2f after the %s offset of "
-             "%.4f ms", raw.name, r0, r1, rear, offset.dt * 1e3)
-    clock[rear] = _with_offset(clock[rear], offset.dt)
+             "%.4f ms", raw.name, r0, r1, late, offset.dt * 1e3)
+    clock[late] = _with_offset(clock[late], offset.dt)
     return SyncedRun(name=raw.name, split=raw.split, t0_utc=t0, s_trigger=s, p_front_local=p_front,
-                     p_rear_local=p_rear, clock=clock, offset=offset, baseline_before_m=base_0,
-                     baseline_after_m=base_1, v_forward=v_fwd, r_speed_before=r0, r_speed_after=r1,
-                     counts=counts, residuals=resid)
+                     p_rear_local=p_rear, clock=clock, offset_tracker=late, offset=offset,
+                     baseline_before_m=base_0, baseline_after_m=base_1, v_forward=v_fwd,
+                     r_speed_before=r0, r_speed_after=r1, counts=counts, residuals=resid)
 
 
 def _with_offset(model: ClockModel, dt: float) -> ClockModel:
