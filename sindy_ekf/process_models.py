@@ -156,8 +156,9 @@ class BodyModelProcess(ProcessModel):
     """Process model around a body model ``f(x3, u)`` with ``x3 = [v_x, v_y, omega]`` (eq. 5.63).
 
     ``body`` needs ``f(x3, u) -> (..., 3)``, ``J_f_x(x3, u) -> (..., 3, 3)`` and
-    ``J_f_u(x3, u) -> (..., 3, 2)``; this is the interface of ``identification.model.SindyModel``.
-    If it has ``check_envelope``, :meth:`in_envelope` asks it.
+    ``J_f_u(x3, u) -> (..., 3, 2)``; this is the interface of ``identification.model.SindyModel``
+    (its ``f_and_jacobians`` is used when present). An ``envelope`` attribute (variable name to
+    ``[min, max]``) drives :meth:`in_envelope`.
     """
 
     def __init__(self, body, name: str = "sindy"):
@@ -168,17 +169,27 @@ class BodyModelProcess(ProcessModel):
         """Return the body model's accelerations and its Jacobians padded to six states."""
         x3 = x6[..., 3:]
         u = np.broadcast_to(u, x3.shape[:-1] + (N_U,))
-        return (np.asarray(self.body.f(x3, u)), _embed_body_jac(np.asarray(self.body.J_f_x(x3, u))),
-                np.asarray(self.body.J_f_u(x3, u)))
+        both = getattr(self.body, "f_and_jacobians", None)
+        if both is not None:  # one pass through the feature library instead of three
+            a, J_x, J_u = both(x3, u)
+        else:
+            a, J_x, J_u = self.body.f(x3, u), self.body.J_f_x(x3, u), self.body.J_f_u(x3, u)
+        return np.asarray(a), _embed_body_jac(np.asarray(J_x)), np.asarray(J_u)
 
-    def in_envelope(self, x6, u):
-        """Return True where the body model's own envelope check accepts ``(x3, u)``."""
-        check = getattr(self.body, "check_envelope", None)
-        if check is None:
-            return super().in_envelope(x6, u)
+    def in_envelope(self, x6, u, margin: float = 0.1):
+        """Return True per sample where ``[v_x, v_y, omega, u1, u2]`` lies in the body model's
+        training envelope (``body.envelope``: name -> [min, max]) widened by ``margin`` of its
+        width, the rule of ``SindyModel.check_envelope``."""
+        env = getattr(self.body, "envelope", None)
         x6 = np.asarray(x6, dtype=float)
-        out = check(x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (N_U,)))
-        return np.asarray(out if out is not None else True, dtype=bool)
+        if not env:
+            return super().in_envelope(x6, u)
+        z = np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (N_U,))], axis=-1)
+        names = ("vx", "vy", "omega", "u1", "u2")
+        lo = np.array([env[v][0] if v in env else -np.inf for v in names])
+        hi = np.array([env[v][1] if v in env else np.inf for v in names])
+        pad = margin * np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        return np.all((z >= lo - pad) & (z <= hi + pad), axis=-1)
 
 
 class TrueDynamicsProcess(ProcessModel):

@@ -72,6 +72,15 @@ def _models():
     B = np.random.default_rng(4).normal(size=(6, 2))
     models = [BodyModelProcess(PolyBody()), TrueDynamicsProcess(PoseTimeDynamics()),
               ConstantVelocityProcess(), UnicycleProcess(0.9, 0.3, 0.7, 0.15), LinearProcess(A, B)]
+    try:  # the real identified-model class (helper H6), poly3 library
+        from identification.model import model_from_terms
+
+        sindy = model_from_terms({"vx": {"u1": 2.0, "vx": -3.0, "omega vy": 0.4, "u2^2 vx": -0.2},
+                                  "vy": {"vy": -5.0, "omega vx": -0.3},
+                                  "omega": {"u2": 1.5, "omega": -2.5, "u2 vx": 0.1}})
+        models.append(BodyModelProcess(sindy, name="sindy_model"))
+    except ImportError:
+        pass
     try:  # the real oracle when the simulator provides it
         from simulation.robot import RobotParams, TrueDynamics
 
@@ -174,3 +183,14 @@ def test_non_increasing_state_times_name_the_run():
     s = StateSeries("run_07", np.array([0.0, 0.02, 0.02, 0.04]), np.zeros((4, 6)), np.zeros((4, 2)))
     with pytest.raises(Exception, match="run_07"):
         fit_process_noise(ConstantVelocityProcess(), [s])
+
+
+def test_envelope_flags_states_outside_the_training_range():
+    class Enveloped(PolyBody):
+        envelope = {"vx": [-0.5, 1.0], "vy": [-0.1, 0.1], "omega": [-1.0, 1.0], "u1": [-1, 1], "u2": [-1, 1]}
+
+    model = BodyModelProcess(Enveloped())
+    x = np.zeros((3, 6))
+    x[1, 3] = 1.2  # beyond 1.0 + 10 % of the 1.5 m/s width = 1.15
+    x[2, 3] = 1.1  # inside the widened envelope
+    np.testing.assert_array_equal(model.in_envelope(x, np.zeros(2)), [True, False, True])
