@@ -60,7 +60,6 @@ import numpy as np
 import yaml
 
 from sindy_ekf.errors import InputError
-from sindy_ekf.io_utils import atomic_write_text
 
 FORMAT = "sindy-ekf-truth/1"
 STATE_COLUMNS = ("t_utc", "t_rel", "x", "y", "z", "psi", "pitch", "vx", "vy", "omega", "u1", "u2", "at960_duty_s")
@@ -191,13 +190,19 @@ def format_states_csv(states: TrueStates) -> str:
 
 
 def write_truth(campaign_dir: str | Path, truth: CampaignTruth) -> Path:
-    """Write ``truth/truth.yaml`` and ``truth/runs/<run>/states.csv``; return the truth folder."""
+    """Write ``truth/truth.yaml`` and ``truth/runs/<run>/states.csv``; return the truth folder.
+
+    Plain writes: the caller builds the campaign in a temporary folder that is renamed into
+    place as a whole (:func:`sindy_ekf.io_utils.atomic_output_dir`).
+    """
     root = Path(campaign_dir) / "truth"
     for r in truth.runs:
         if r.states is not None:
-            atomic_write_text(root / "runs" / r.name / "states.csv", format_states_csv(r.states))
+            (root / "runs" / r.name).mkdir(parents=True, exist_ok=True)
+            (root / "runs" / r.name / "states.csv").write_text(format_states_csv(r.states))
+    root.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(_plain(truth.to_yaml()), sort_keys=False, default_flow_style=None, width=100)
-    atomic_write_text(root / "truth.yaml", text)
+    (root / "truth.yaml").write_text(text)
     return root
 
 

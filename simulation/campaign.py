@@ -1,0 +1,227 @@
+"""A simulated laser-tracker campaign, written exactly as the data contract (part 1) says.
+
+``simulate_campaign`` drives the simulated Husky (``simulation.robot.simulate_run``) through
+the nine runs of thesis table 6.4 and records what the instruments of chapter 4 would have
+recorded: the Raspberry Pi trigger, both trackers (their clocks, edges, lost and spurious
+pulses, dropouts and noise: :mod:`simulation.clocks`, :mod:`simulation.measurement`), the
+turning hubs (:mod:`simulation.hubs`) and the joystick, in two ROS1 bags per run
+(:mod:`simulation.bags`: the robot's and the tracker server's), plus ``calibration.yaml`` (the
+survey, tables 6.1-6.3) and ``truth/`` (:mod:`simulation.truth`).
+
+The true geometry is the thesis's result from that survey, so survey and simulation agree to
+the survey's precision: LTD800-to-AT960 transform from table 7.2, lever arms from table 7.1,
+hub eccentricities from table 7.5, clock drifts from table 7.3 and AT960 offsets from table 7.4
+(each run's value plus a small random deviation). The body origin (centre of the wheel hubs)
+runs at ``BODY_ORIGIN_Z_LOCAL_M``: the mean of the table-6.3 hub screw heads, transformed into
+the leveled AT960 frame with table 7.2 (-1.2505 m); the simulator's ``z`` is added to it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from dataclasses import asdict, is_dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from simulation import bags, truth as truth_io
+from simulation.clocks import NS, simulate_tracker_clock
+from simulation.hubs import baseline_geometry
+from simulation.measurement import AT960, LTD800
+from simulation.tracker_run import RunSetup, simulate_tracker_run
+from sindy_ekf.errors import InputError
+from sindy_ekf.io_utils import atomic_output_dir, check_output_dir
+from sindy_ekf.progress import progress
+
+log = logging.getLogger(__name__)
+
+# thesis table 6.4: run, length (s), split
+RUNS_TABLE_6_4 = (
+    ("run_01", 100.0, "test"), ("run_02", 390.0, "train"), ("run_03", 340.0, "train"),
+    ("run_04", 300.0, "train"), ("run_05", 100.0, "test"), ("run_06", 470.0, "train"),
+    ("run_07", 125.0, "train"), ("run_08", 440.0, "train"), ("run_09", 460.0, "test"),
+)
+MIN_RUN_S = 15.0
+MAX_MINUTES = 600.0
+# thesis table 7.3: clock drifts per run (ppm)
+DRIFT_PPM_TABLE_7_3 = {
+    "ltd800": (16.2078, 16.2395, 16.2986, 16.2387, 16.2179, 16.2666, 16.2801, 16.2976, 16.3236),
+    "at960": (-28.6908, -28.4536, -28.4882, -28.5271, -28.6187, -28.5428, -28.6317, -28.5384, -28.5425),
+}
+# thesis table 7.4: additional AT960 offset (mean duty cycle) per run (s)
+AT960_OFFSET_TABLE_7_4 = tuple(v * 1e-3 for v in (1.3180, 1.3179, 1.3537, 1.3312, 1.3247, 1.3536, 1.4718, 1.3454, 1.3517))
+# thesis table 7.2: x_at960 = R (x_ltd800 + t_table), R = Rz Ry Rx
+T_TABLE_7_2_M = (-2.050360, -8.757229, -0.086725)
+ROTATION_TABLE_7_2_DEG = (-0.374896, -0.180820, 142.749476)  # rx, ry, rz
+# thesis table 7.1: lever arms in the body frame (m)
+LEVER_ARMS_TABLE_7_1_M = {"front": (0.4671355, 0.0655364, 0.5167336), "rear": (-0.2600713, -0.1627405, 0.6546911)}
+# thesis table 7.5 (means): eccentricity radii as eq. 5.25 sees them (m)
+HUB_RADIUS_TABLE_7_5_M = {"front": 0.21e-3, "rear": 0.12e-3}
+BODY_ORIGIN_Z_LOCAL_M = -1.2505  # table 6.3 hub screw heads through table 7.2 (module docstring)
+CAMPAIGN_START = datetime(2022, 12, 21, 9, 30, tzinfo=timezone.utc)  # thesis 6: 21.12.2022
+CALIBRATION_YAML = Path(__file__).resolve().parent / "data" / "calibration.yaml"
+
+
+def rotation_from_deg(rx: float, ry: float, rz: float) -> np.ndarray:
+    """Return ``Rz(rz) Ry(ry) Rx(rx)`` (eqs. 5.2 to 5.5) for angles in degrees."""
+    a, b, c = np.radians([rx, ry, rz])
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    Rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def true_transform() -> dict:
+    """Return the true LTD800-to-AT960 transform (table 7.2) in both conventions."""
+    R = rotation_from_deg(*ROTATION_TABLE_7_2_DEG)
+    t_table = np.array(T_TABLE_7_2_M)
+    return {"translation_m": (R @ t_table).tolist(), "rotation_deg": list(ROTATION_TABLE_7_2_DEG),
+            "t_table_m": list(T_TABLE_7_2_M), "R": R.tolist()}
+
+
+def run_durations(minutes: float | None) -> np.ndarray:
+    """Return the nine run durations (s): table 6.4, or scaled to ``minutes`` in total.
+
+    Scaling keeps the proportions of table 6.4 with every run at least ``MIN_RUN_S`` long
+    (the short runs are lifted to the minimum and the others share the rest).
+    """
+    base = np.array([r[1] for r in RUNS_TABLE_6_4])
+    if minutes is None:
+        return base
+    low = len(base) * MIN_RUN_S / 60.0
+    if not np.isfinite(minutes) or not low <= minutes <= MAX_MINUTES:
+        raise InputError(f"minutes={minutes}: out of range [{low}, {MAX_MINUTES}] (nine runs of at least {MIN_RUN_S:g} s)")
+    total = minutes * 60.0
+    fixed = np.zeros(len(base), dtype=bool)
+    while True:  # water-filling: at most nine passes
+        scale = (total - MIN_RUN_S * fixed.sum()) / base[~fixed].sum()
+        newly = ~fixed & (base * scale < MIN_RUN_S)
+        if not newly.any():
+            return np.where(fixed, MIN_RUN_S, base * scale)
+        fixed |= newly
+
+
+def check_effects(effects) -> tuple:
+    """Return ``effects`` as a tuple of ``simulation.effects.Effect``; parse ``NAME=VALUE`` strings."""
+    from simulation.effects import Effect, parse_effect
+
+    out = []
+    for e in effects or ():
+        out.append(parse_effect(e) if isinstance(e, str) else e)
+        if not isinstance(out[-1], Effect):
+            raise InputError(f"effect {e!r}: not a simulation.effects.Effect or NAME=VALUE text")
+    if len(out) > 1:
+        raise InputError(f"effects {[f'{e.name}={e.value}' for e in out]}: only one effect per campaign")
+    return tuple(out)
+
+
+def _robot_summary() -> dict:
+    from simulation import robot
+
+    params = robot.RobotParams()
+    return truth_io._plain(asdict(params)) if is_dataclass(params) else {}
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _bag_stamp(t_ns: int) -> str:
+    return datetime.fromtimestamp(t_ns // NS, tz=timezone.utc).strftime("%Y-%m-%d-%H-%M-%S")
+
+
+def simulate_campaign(
+    out: str | Path, seed: int = 0, minutes: float | None = None, effects=(), force: bool = False
+) -> truth_io.CampaignTruth:
+    """Return the truth of a simulated tracker campaign written to ``out``.
+
+    Parameters
+    ----------
+    out
+        Campaign folder to create (data contract part 1 plus ``truth/``); built in a temporary
+        sibling and renamed at the end, so a failure leaves nothing behind.
+    seed
+        Seed of ``np.random.default_rng``; the same seed gives the same bytes.
+    minutes
+        Total driving time; ``None`` is table 6.4 (45.4 min), otherwise the nine runs are
+        scaled to it (each at least 15 s) with the same split.
+    effects
+        At most one ``simulation.effects.Effect`` (or ``NAME=VALUE`` text) for the dynamics.
+    force
+        Replace an existing non-empty ``out``.
+    """
+    effects = check_effects(effects)
+    durations = run_durations(minutes)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"seed={seed!r}: must be a non-negative integer")
+    check_output_dir(out, force=force)
+    if not CALIBRATION_YAML.is_file():
+        raise InputError(f"{CALIBRATION_YAML}: package data missing")
+
+    transform = true_transform()
+    levers = {k: np.array(v) for k, v in LEVER_ARMS_TABLE_7_1_M.items()}
+    cos_elev = baseline_geometry(levers["front"], levers["rear"])[1]
+    radius = {k: v / cos_elev for k, v in HUB_RADIUS_TABLE_7_5_M.items()}
+    root = np.random.SeedSequence(int(seed))
+    rng_campaign = np.random.default_rng(root.spawn(1)[0])
+    run_seeds = root.spawn(len(RUNS_TABLE_6_4) + 1)[1:]
+    t_boot_ns = {k: int(CAMPAIGN_START.timestamp() * NS) - int(rng_campaign.uniform(2, 8) * 3600 * NS)
+                 for k in ("at960", "ltd800")}
+    effect = effects[0] if effects else None
+
+    t0_ns = int(CAMPAIGN_START.timestamp()) * NS
+    runs = []
+    with atomic_output_dir(out, force=force) as tmp:
+        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
+        for r, ((name, _, split), duration) in enumerate(progress(list(zip(RUNS_TABLE_6_4, durations)),
+                                                                  desc="simulate runs")):
+            rng = np.random.default_rng(run_seeds[r])
+            setup = RunSetup(
+                name=name, split=split, duration_s=float(duration), t0_ns=t0_ns,
+                clocks={k: simulate_tracker_clock(DRIFT_PPM_TABLE_7_3[k][r] + rng.normal(0, 0.01), t_boot_ns[k], rng)
+                        for k in ("at960", "ltd800")},
+                at960_duty_mean_s=AT960_OFFSET_TABLE_7_4[r] + rng.normal(0.0, 5e-6),
+                lost_fraction=rng.uniform(0.002, 0.01), spurious_fraction=rng.uniform(0.001, 0.005),
+                hub_radius_m=radius, hub_phase_rad={k: rng.uniform(-np.pi, np.pi) for k in ("front", "rear")},
+                lever_arms_m=levers, R_at960_ltd800=np.array(transform["R"]),
+                t_at960_ltd800=np.array(transform["translation_m"]), body_origin_z_m=BODY_ORIGIN_Z_LOCAL_M,
+                ntp_offset_s=rng.choice([-1, 1]) * rng.uniform(1e-4, 1e-3), effect=effect,
+            )
+            husky, server, run_truth = simulate_tracker_run(setup, rng)
+            run_dir = tmp / "runs" / name
+            run_dir.mkdir(parents=True)
+            stamp = _bag_stamp(t0_ns)
+            bags.write_bag(run_dir / f"husky_{stamp}.bag", husky)
+            bags.write_bag(run_dir / f"server_{stamp}.bag", server)
+            runs.append(run_truth)
+            t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
+
+        campaign = {
+            "name": f"husky-lab-sim-2022-12-21-seed{seed}",
+            "runs": [{"name": n, "split": s} for n, _, s in RUNS_TABLE_6_4],
+            "notes": (f"Simulated by sindy-ekf (simulation.campaign, seed {seed}, "
+                      f"{'table 6.4 durations' if minutes is None else f'{minutes:g} min'}"
+                      f"{', effect ' + effects[0].name + '=' + str(effects[0].value) if effects else ''}). "
+                      "Mirrors the thesis campaign of 21.12.2022; truth/ holds the true values."),
+        }
+        (tmp / "campaign.yaml").write_text(yaml.safe_dump(campaign, sort_keys=False, width=100))
+        shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
+        truth = truth_io.CampaignTruth(
+            seed=int(seed), minutes=None if minutes is None else float(minutes),
+            effects=tuple((e.name, float(e.value)) for e in effects), transform=transform,
+            lever_arms_m={k: v.tolist() for k, v in levers.items()}, body_origin_z_local_m=BODY_ORIGIN_Z_LOCAL_M,
+            baseline_length_m=float(np.linalg.norm(levers["front"] - levers["rear"])),
+            hubs={k: {"radius_m": radius[k], "radius_eq525_m": HUB_RADIUS_TABLE_7_5_M[k]} for k in radius},
+            noise={s.name: {"a_m": s.noise_a_m, "b": s.noise_b, "timing_std_s": s.timing_std_s,
+                            "resolution_s": s.resolution_s} for s in (AT960, LTD800)},
+            robot=_robot_summary(), runs=tuple(runs),
+        )
+        truth_io.write_truth(tmp, truth)
+    log.info("simulated campaign %s: %d runs, %.1f min", out, len(runs), durations.sum() / 60)
+    return truth

@@ -1,0 +1,234 @@
+"""One simulated run as the instruments recorded it: true trajectory -> messages of both bags.
+
+Time line of a run (``t_rel``, s after ``t0``): the robot simulation starts at 0 and the
+robot's bag records from then on; the trigger starts ``lead`` later and runs for the run's
+duration (table 6.4); the robot simulation goes on for ``TAIL_S`` after the last pulse so that
+the AT960's falling edges and the last joystick messages are covered.
+
+Latencies (bag time = receive time, UTC): trigger messages 0.2-1 ms after publishing, tracker
+measurements 1-5 ms after the measured instant (server), hub commands 1-3 ms after
+publishing, joystick 0.1-0.5 ms after its stamp. The hub node sees a tracker measurement
+3-12 ms after it was taken, publishes at ``HUB_RATE_HZ`` and a command moves the hub
+``HUB_DELAY_S`` later.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+
+from simulation import bags
+from simulation.clocks import NS, TrackerClock, simulate_trigger, stamp_tracker
+from simulation.hubs import baseline_geometry, eccentric_offset_body, hub_angle, hub_commands
+from simulation.measurement import (
+    AT960, LTD800, in_intervals, simulate_dropouts, simulate_duty_cycle, simulate_lost, simulate_spurious,
+)
+from simulation.truth import RunTruth, TrueStates
+
+TAIL_S = 0.5
+HUB_RATE_HZ = 15.0
+HUB_DELAY_S = 0.03
+
+
+@dataclass(frozen=True)
+class RunSetup:
+    """The true parameters of one run chosen by the campaign."""
+
+    name: str
+    split: str
+    duration_s: float
+    t0_ns: int  # UTC ns of the run's simulation start
+    clocks: dict  # "at960"/"ltd800" -> TrackerClock
+    at960_duty_mean_s: float
+    lost_fraction: float
+    spurious_fraction: float
+    hub_radius_m: dict  # front/rear -> physical eccentricity radius
+    hub_phase_rad: dict  # front/rear -> Phi of eq. 5.25
+    lever_arms_m: dict  # front/rear -> (3,) body frame
+    R_at960_ltd800: np.ndarray
+    t_at960_ltd800: np.ndarray
+    body_origin_z_m: float
+    ntp_offset_s: float
+    effect: object = None
+
+
+class Trajectory:
+    """Interpolates a true run at arbitrary times: cubic Hermite for x, y, psi, linear else.
+
+    The Hermite slopes are the exact derivatives (eq. 5.75 kinematics and omega), so positions
+    between the 2 ms integration steps are accurate to well below a micrometre.
+    """
+
+    def __init__(self, run, z0: float):
+        t = np.asarray(run.t, float)
+        c, s = np.cos(run.psi), np.sin(run.psi)
+        self.t = t
+        self.run = run
+        self.z0 = z0
+        self._x = CubicHermiteSpline(t, run.x, run.vx * c - run.vy * s)
+        self._y = CubicHermiteSpline(t, run.y, run.vx * s + run.vy * c)
+        self._psi = CubicHermiteSpline(t, run.psi, run.omega)
+
+    def lin(self, name: str, t: np.ndarray) -> np.ndarray:
+        """Return field ``name`` of the true run linearly interpolated at ``t``."""
+        return np.interp(t, self.t, np.asarray(getattr(self.run, name), float))
+
+    def pose(self, t: np.ndarray):
+        """Return ``(p_origin_local (n, 3), psi, pitch)`` at ``t``."""
+        p = np.column_stack([self._x(t), self._y(t), self.z0 + self.lin("z", t)])
+        return p, self._psi(t), self.lin("pitch", t)
+
+    def prism_local(self, t: np.ndarray, lever_body: np.ndarray, offset_body: np.ndarray | None = None) -> np.ndarray:
+        """Return (n, 3) prism positions in the local frame: ``p + Rz(psi) Ry(pitch) (lever + offset)``."""
+        p, psi, pitch = self.pose(t)
+        v = np.broadcast_to(lever_body, p.shape).copy()
+        if offset_body is not None:
+            v += offset_body
+        cp, sp = np.cos(pitch), np.sin(pitch)
+        vx, vz = cp * v[:, 0] + sp * v[:, 2], -sp * v[:, 0] + cp * v[:, 2]
+        cy, sy = np.cos(psi), np.sin(psi)
+        return p + np.column_stack([cy * vx - sy * v[:, 1], sy * vx + cy * v[:, 1], vz])
+
+    def states_at(self, t: np.ndarray) -> dict:
+        """Return the true states at ``t`` (inputs as the motors saw them: last value held)."""
+        p, psi, pitch = self.pose(t)
+        i = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1)
+        u = np.asarray(self.run.u_motor, float)[i]
+        return dict(x=p[:, 0], y=p[:, 1], z=p[:, 2], psi=psi, pitch=pitch, vx=self.lin("vx", t),
+                    vy=self.lin("vy", t), omega=self.lin("omega", t), u1=u[:, 0], u2=u[:, 1])
+
+
+def _monotonic(t: np.ndarray) -> np.ndarray:
+    return np.maximum.accumulate(t) if len(t) else t
+
+
+def _ns(t0_ns: int, t_rel: np.ndarray) -> np.ndarray:
+    return np.int64(t0_ns) + np.rint(np.asarray(t_rel) * NS).astype(np.int64)
+
+
+def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
+    """Return ``(husky_topics, server_topics, RunTruth)`` of one simulated run.
+
+    Implements the measurement chain of thesis chapter 4 on a trajectory of
+    ``simulation.robot.simulate_run``; see the module docstrings of
+    :mod:`simulation.clocks`, :mod:`simulation.measurement` and :mod:`simulation.hubs`.
+    """
+    from simulation.robot import simulate_run
+
+    rng_robot, rng_meas = rng.spawn(2)
+    lead = float(rng_meas.uniform(0.5, 1.5))
+    true = simulate_run(lead + setup.duration_s + TAIL_S, rng_robot, effect=setup.effect)
+    traj = Trajectory(true, setup.body_origin_z_m)
+    trig = simulate_trigger(lead, setup.duration_s, setup.t0_ns, rng_meas)
+    t_first, t_last = trig.t_rise_rel[0], trig.t_rise_rel[-1]
+    R, t_vec = setup.R_at960_ltd800, setup.t_at960_ltd800
+    lever = setup.lever_arms_m
+
+    # --- which instants each tracker measures (edges, lost/spurious pulses, dropouts)
+    n = trig.slot.size
+    duty = simulate_duty_cycle(n, setup.at960_duty_mean_s, rng_meas)
+    lost = simulate_lost(n, setup.lost_fraction, rng_meas)
+    t_spur = simulate_spurious(trig.t_rise_rel, setup.spurious_fraction, rng_meas)
+    drop = {k: simulate_dropouts(t_first, t_last, rng_meas) for k in ("at960", "ltd800")}
+    in_drop_ltd = in_intervals(trig.t_rise_rel, drop["ltd800"])
+    t_ltd = trig.t_rise_rel[~in_drop_ltd]  # LTD800: rising edge
+    t_fall = trig.t_rise_rel + duty  # AT960: falling edge
+    in_drop_at = in_intervals(t_fall, drop["at960"])
+    spur_ok = ~in_intervals(t_spur, drop["at960"])
+    t_at = np.concatenate([t_fall[~lost & ~in_drop_at], t_spur[spur_ok]])
+    is_spur = np.concatenate([np.zeros((~lost & ~in_drop_at).sum(), bool), np.ones(spur_ok.sum(), bool)])
+    order = np.argsort(t_at, kind="stable")
+    t_at, is_spur = t_at[order], is_spur[order]
+
+    # --- tracker stamps (own clocks) and noise draws (fixed across the hub iterations)
+    stamp_ltd = stamp_tracker(setup.clocks["ltd800"], t_ltd, setup.t0_ns, rng_meas,
+                              timing_std_s=LTD800.timing_std_s, resolution_s=LTD800.resolution_s)
+    stamp_at = stamp_tracker(setup.clocks["at960"], t_at, setup.t0_ns, rng_meas,
+                             timing_std_s=AT960.timing_std_s, resolution_s=AT960.resolution_s)
+    z_ltd, z_at = rng_meas.normal(size=(t_ltd.size, 3)), rng_meas.normal(size=(t_at.size, 3))
+    arrive_ltd = _monotonic(t_ltd + rng_meas.uniform(3e-3, 12e-3, t_ltd.size))
+    arrive_at = _monotonic(t_at + rng_meas.uniform(3e-3, 12e-3, t_at.size))
+    t_hub = t_first + np.arange(0.0, t_last - t_first, 1.0 / HUB_RATE_HZ)
+    t_hub = _monotonic(t_hub + rng_meas.normal(0.0, 2e-3, t_hub.size))
+    beta = {"front": baseline_geometry(lever["front"], lever["rear"])[0],
+            "rear": baseline_geometry(lever["rear"], lever["front"])[0]}
+
+    def measure(cmd):
+        """Tracker points given hub commands (None: no eccentricity yet)."""
+        out = {}
+        for prism, tracker, t_ev, z, spec in (("front", "ltd800", t_ltd, z_ltd, LTD800),
+                                              ("rear", "at960", t_at, z_at, AT960)):
+            off = None
+            if cmd is not None:
+                phi = hub_angle(t_ev, cmd["t"] + HUB_DELAY_S, cmd[prism])
+                off = eccentric_offset_body(phi, setup.hub_radius_m[prism], setup.hub_phase_rad[prism], beta[prism])
+            p_local = traj.prism_local(t_ev, lever[prism], off)
+            p = p_local if tracker == "at960" else (p_local - t_vec) @ R  # R^T (x_at960 - t)
+            rng_m = np.linalg.norm(p, axis=1, keepdims=True)
+            out[tracker] = p + z * (spec.noise_a_m + spec.noise_b * rng_m)
+        return out
+
+    def commands(meas):
+        """Hub commands from the measurements that reached the node (eqs. 4.1-4.6)."""
+        ltd_in_at = meas["ltd800"] @ R.T + t_vec
+        at_in_ltd = (meas["at960"] - t_vec) @ R
+        front = hub_commands(t_hub, arrive_ltd, meas["ltd800"], arrive_at, at_in_ltd)
+        rear = hub_commands(t_hub, arrive_at, meas["at960"], arrive_ltd, ltd_in_at)
+        ok = np.isfinite(front) & np.isfinite(rear)
+        return {"t": t_hub[ok], "front": front[ok], "rear": rear[ok]}
+
+    # the eccentricity (0.2 mm) changes the azimuths by ~3e-4 rad: two fixed-point passes make
+    # the published commands consistent with the published points to ~1e-7 rad
+    cmd = commands(measure(None))
+    cmd = commands(measure(cmd))
+    meas = measure(cmd)
+
+    # --- messages
+    t0 = setup.t0_ns
+    server = [
+        bags.TopicData("/rpi/trigger", "sensor_msgs/msg/TimeReference", "/rpi_trigger",
+                       _ns(t0, _monotonic(trig.t_publish_rel + rng_meas.uniform(2e-4, 1e-3, n))),
+                       bags.serialize_time_reference(_ns(t0, trig.t_publish_rel), trig.time_ref_ns, "gnss_pps")),
+        bags.TopicData("/at960/measurement", "geometry_msgs/msg/PointStamped", "/at960_server",
+                       _ns(t0, _monotonic(t_at + rng_meas.uniform(1e-3, 5e-3, t_at.size))),
+                       bags.serialize_point_stamped(stamp_at, meas["at960"], "at960")),
+        bags.TopicData("/ltd800/measurement", "geometry_msgs/msg/PointStamped", "/ltd800_server",
+                       _ns(t0, _monotonic(t_ltd + rng_meas.uniform(1e-3, 5e-3, t_ltd.size))),
+                       bags.serialize_point_stamped(stamp_ltd, meas["ltd800"], "ltd800")),
+        bags.TopicData("/turning_hub/azimuth", "sensor_msgs/msg/JointState", "/turning_hub",
+                       _ns(t0, _monotonic(cmd["t"] + rng_meas.uniform(1e-3, 3e-3, cmd["t"].size))),
+                       bags.serialize_joint_state(_ns(t0, cmd["t"]), ["front", "rear"],
+                                                  np.column_stack([cmd["front"], cmd["rear"]]))),
+    ]
+    t_joy = np.asarray(true.t_joy, float)
+    u_joy = np.asarray(true.u_joy, float)
+    stamp_joy = _monotonic(t_joy + setup.ntp_offset_s + rng_meas.normal(0.0, 30e-6, t_joy.size))
+    husky = [bags.TopicData("/joy_teleop/joy", "sensor_msgs/msg/Joy", "/joy_teleop/joy_node",
+                            _ns(t0, _monotonic(stamp_joy + rng_meas.uniform(1e-4, 5e-4, t_joy.size))),
+                            bags.serialize_joy(_ns(t0, stamp_joy), u_joy))]
+
+    # --- truth
+    st = traj.states_at(trig.t_rise_rel)
+    states = TrueStates(t_utc_ns=_ns(t0, trig.t_rise_rel), t_rel=trig.t_rise_rel, at960_duty_s=duty, **st)
+    registered = ~lost & ~in_drop_at
+    utc = lambda iv: (np.asarray(iv) + t0 * 1e-9).tolist()  # noqa: E731 - UTC s of intervals
+    clocks = {k: {"k": c.k, "d_ns": int(c.d_ns), "d_s": c.d_ns * 1e-9, "drift_ppm": c.drift_ppm}
+              for k, c in setup.clocks.items()}
+    run_truth = RunTruth(
+        name=setup.name, split=setup.split, t0_utc_ns=int(t0), duration_s=float(setup.duration_s),
+        n_slots=int(round(setup.duration_s / 0.02)), n_trigger=int(n), skip_phase=trig.skip_phase, clocks=clocks,
+        at960={"offset_s": float(duty[registered].mean()), "duty_mean_s": float(setup.at960_duty_mean_s),
+               "duty_jitter_std_s": 30e-6, "lost_fraction": float(setup.lost_fraction),
+               "spurious_fraction": float(setup.spurious_fraction), "n_lost": int((lost & ~in_drop_at).sum()),
+               "n_spurious": int(spur_ok.sum()), "n_dropout_pulses": int(in_drop_at.sum()),
+               "n_messages": int(t_at.size), "dropouts_utc": utc(drop["at960"])},
+        ltd800={"n_dropout_pulses": int(in_drop_ltd.sum()), "n_messages": int(t_ltd.size),
+                "dropouts_utc": utc(drop["ltd800"])},
+        hubs={"front": {"phase_rad": float(setup.hub_phase_rad["front"])},
+              "rear": {"phase_rad": float(setup.hub_phase_rad["rear"])}, "n_messages": int(cmd["t"].size)},
+        joy={"ntp_offset_s": float(setup.ntp_offset_s), "n_messages": int(t_joy.size)},
+        states=states,
+    )
+    return husky, server, run_truth
