@@ -125,3 +125,15 @@ def write_bag(path: str | Path, topics: list[TopicData]) -> Path:
     finally:
         writer.close()
     return path
+
+
+def count_messages(run_dir: str | Path) -> dict[str, int]:
+    """Return the number of messages per topic over all ROS1 bags of a run folder."""
+    from rosbags.rosbag1 import Reader
+
+    counts: dict[str, int] = {}
+    for path in sorted(Path(run_dir).glob("*.bag")):
+        with Reader(path) as reader:
+            for conn in reader.connections:
+                counts[conn.topic] = counts.get(conn.topic, 0) + conn.msgcount
+    return dict(sorted(counts.items()))
