@@ -1,0 +1,156 @@
+"""Clock synchronisation and the AT960 offset (thesis 5.2.2) against synthetic truth.
+
+The synthetic runs (tests/tracker_synth.py) know their drifts, duty cycles, lost and spurious
+pulses; the simulator-based checks are in test_preprocess.py.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from tracker_synth import R_LT, T_LT, synth_run
+
+from identification import sync
+from identification.types import PointSeries
+from sindy_ekf.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def run_and_truth():
+    raw, truth = synth_run(seed=11, minutes=1.0)
+    return raw, truth, sync.sync_run(raw, R_LT, T_LT)
+
+
+def test_gap_detection_finds_exactly_the_skipped_pulses():
+    slot = np.arange(2000)
+    slot = slot[slot % 150 != 7]
+    t = slot * 0.02
+    gaps = sync.detect_gaps(t)
+    expected = (np.arange(7, 2000, 150) - 1) * 0.02  # stamp before each skipped slot
+    np.testing.assert_allclose(gaps, expected[expected < t[-1]])
+
+
+def test_xcorr_recovers_a_known_shift():
+    rng = np.random.default_rng(0)
+    slot = np.arange(3000)
+    s = (slot[(slot + 5) % 150 != 0]) * 0.02
+    tau_true = 12.3456
+    s_tracker = s[200:] + tau_true + rng.normal(0, 1e-6, s.size - 200)  # starts later too
+    s_tracker -= s_tracker[0]
+    tau, _ = sync.coarse_shift(s, s_tracker, s_receive=s[200:])
+    # tau maps tracker time to trigger time: s_tracker - tau = s (to the 1 ms grid)
+    assert abs((s_tracker[0] - tau) - s[200]) <= 1.5e-3
+
+
+def test_match_nearest_is_one_to_one_and_agrees_with_brute_force():
+    rng = np.random.default_rng(1)
+    a = np.sort(rng.uniform(0, 10, 300))
+    b = np.sort(rng.uniform(0, 10, 250))
+    ia, ib = sync.match_nearest(a, b, tol=0.01)
+    assert np.unique(ib).size == ib.size
+    d = np.abs(a[:, None] - b[None, :])
+    for i, j in zip(ia, ib):
+        assert d[i, j] <= 0.01 and d[i, j] == d[i].min()
+    # every a whose nearest b is within tol and uncontested is matched
+    near = d.argmin(axis=1)
+    ok = d.min(axis=1) <= 0.01
+    uncontested = ok & (np.bincount(near[ok], minlength=b.size)[near] == 1)
+    assert set(np.flatnonzero(uncontested)) <= set(ia)
+
+
+def test_linear_clock_fit_agrees_with_polyfit_and_its_covariance():
+    rng = np.random.default_rng(2)
+    x = np.sort(rng.uniform(0, 300, 200))
+    y = (1 + 28.5e-6) * x + 0.7 + rng.normal(0, 2e-6, x.size)
+    k, d, k_std, d_std, s0 = sync.fit_linear_clock(x, y)
+    (k2, d2), cov = np.polyfit(x, y, 1, cov="unscaled")
+    assert abs(k - k2) < 1e-12 and abs(d - d2) < 1e-9
+    s0_ref = np.sqrt(np.sum((y - k2 * x - d2) ** 2) / (x.size - 2))
+    assert k_std == pytest.approx(s0_ref * np.sqrt(cov[0, 0]), rel=1e-6)
+    assert s0 == pytest.approx(2e-6, rel=0.15)
+
+
+def test_clock_drifts_against_truth(run_and_truth):
+    _, truth, r = run_and_truth
+    ltd, at = r.clock["ltd800"], r.clock["at960"]
+    assert abs(ltd.drift_ppm - truth["drift_ltd_ppm"]) < 0.05
+    assert abs(at.drift_ppm - truth["drift_at_ppm"]) < 3 * at.drift_std_ppm
+    assert ltd.n_gaps_matched >= 18 and at.n_gaps_matched >= 15
+
+
+def test_extra_offset_found_from_data_within_20_us(run_and_truth):
+    _, truth, r = run_and_truth
+    assert r.offset_tracker == "at960"  # the one whose stamps scatter (varying duty cycle)
+    assert abs(r.offset.dt - truth["mean_duty_s"]) < 20e-6
+    # the timing error shows as correlation with speed before, and is gone after
+    assert abs(r.r_speed_before) > 0.8 and abs(r.r_speed_after) < 0.3
+    assert r.baseline_rms_m("after") < 0.2 * r.baseline_rms_m("before")
+
+
+def test_offset_std_is_the_propagated_vertex_std(run_and_truth):
+    _, _, r = run_and_truth
+    o = r.offset
+    a, b, c = o.coeffs
+
+    def vertex(p):
+        return -p[1] / (2 * p[0])
+
+    J = np.array([(vertex(o.coeffs + h) - vertex(o.coeffs - h)) / (2 * h[i])
+                  for i, h in enumerate(np.diag([1e-6 * abs(a), 1e-6 * max(abs(b), 1e-12), 1e-6]))])
+    assert np.sqrt(J @ o.cov @ J) == pytest.approx(o.dt_std, rel=1e-4)
+
+
+def test_counts_match_the_generated_lost_and_spurious_pulses(run_and_truth):
+    raw, truth, r = run_and_truth
+    c = r.counts["at960"]
+    assert c.samples == raw.at960.t_tracker.size
+    assert c.matched + c.spurious == c.samples
+    assert abs(c.lost - truth["lost_at960"]) <= 3
+    assert abs(c.spurious - truth["spurious_at960"]) <= 3
+    assert r.counts["ltd800"].lost == 0 and r.counts["ltd800"].spurious == 0
+
+
+def test_interpolation_is_exact_for_linear_motion_and_refuses_long_gaps():
+    s = np.array([0.0, 0.02, 0.04, 0.2, 0.22])
+    xyz = np.column_stack([s * 2, s * -1, s * 0 + 3])
+    q = np.array([0.01, 0.03, 0.1, 0.21, 0.3])
+    p = sync.interpolate_at(q, s, xyz)
+    np.testing.assert_allclose(p[[0, 1, 3]], np.column_stack([q * 2, -q, q * 0 + 3])[[0, 1, 3]])
+    assert np.isnan(p[2]).all() and np.isnan(p[4]).all()
+
+
+def test_nan_coordinates_are_dropped_and_counted():
+    raw, _ = synth_run(seed=4, minutes=0.5)
+    xyz = raw.ltd800.xyz.copy()
+    xyz[100:105] = np.nan
+    r = sync.sync_run(replace(raw, ltd800=PointSeries(raw.ltd800.t_tracker, xyz)), R_LT, T_LT)
+    assert r.counts["ltd800"].dropped_nan == 5
+    assert np.isfinite(r.baseline_after_m).sum() > 0.9 * r.s_trigger.size
+
+
+def test_ambiguous_alignment_is_decided_by_receive_times():
+    raw, truth = synth_run(seed=5, minutes=1.0)
+    ps = raw.at960
+    keep = ps.t_tracker - ps.t_tracker[0] > 4.5  # the AT960 starts 4.5 s late: gaps 3 s apart tie
+    late = replace(raw, at960=PointSeries(ps.t_tracker[keep], ps.xyz[keep]),
+                   t_receive_utc={**raw.t_receive_utc, "at960": raw.t_receive_utc["at960"][keep]})
+    r = sync.sync_run(late, R_LT, T_LT)
+    assert r.clock["at960"].xcorr_peak_ratio > sync.AMBIGUOUS_RATIO
+    assert abs(r.offset.dt - truth["mean_duty_s"]) < 20e-6
+
+
+def test_no_gaps_names_run_and_topic():
+    raw, _ = synth_run(seed=6, minutes=0.5)
+    s = np.arange(raw.ltd800.t_tracker.size) * 0.02 + 100.0  # a tracker clock without gaps
+    bad = replace(raw, ltd800=PointSeries(s, raw.ltd800.xyz))
+    with pytest.raises(InputError, match=r"run run_01: topic /ltd800/measurement: no detectable gaps"):
+        sync.sync_run(bad, R_LT, T_LT)
+
+
+def test_trackers_that_disagree_are_refused():
+    raw, _ = synth_run(seed=7, minutes=0.5)
+    wrong = replace(raw, ltd800=PointSeries(raw.ltd800.t_tracker, raw.ltd800.xyz[::-1].copy()))
+    with pytest.raises(InputError, match=r"run run_01: .*(disagree|no minimum)"):
+        sync.sync_run(wrong, R_LT, T_LT)
