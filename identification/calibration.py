@@ -245,14 +245,16 @@ def _solve_gauss_helmert(x_at, cov_at, x_ltd, cov_ltd, use, max_iter, tol):
         # Misclosure w = Phi(L, X_k); Phi is linear in L, so this equals
         # Phi(L_hat, X_k) + B (L - L_hat) of the iterated Gauss-Helmert model.
         w = x_at - params[:, None, :3] - np.einsum("kij,nj->kni", R, x_ltd)
-        A = _jacobian(x_ltd_hat, dR)  # (k, n, 3, 6), sign: Phi = x_at - f, so A = -J
+        # J = d(t + R x_ltd)/dX at the corrected observations; the A of eq. 2.15 is -J, and
+        # the two signs cancel in the normal equations below.
+        J = _jacobian(x_ltd_hat, dR)  # (k, n, 3, 6)
         cov_w = cov_at + R[:, None] @ cov_ltd @ np.swapaxes(R, 1, 2)[:, None]
         W = np.linalg.inv(cov_w) * mask[..., None, None]  # dropped points weigh nothing
-        N = np.einsum("knai,knab,knbj->kij", A, W, A)
-        b = np.einsum("knai,knab,knb->ki", A, W, w)
+        N = np.einsum("knai,knab,knbj->kij", J, W, J)
+        b = np.einsum("knai,knab,knb->ki", J, W, w)
         dx = np.linalg.solve(N, b[..., None])[..., 0]
         params = params + dx
-        k_mult = np.einsum("knab,knb->kna", W, w - np.einsum("knai,ki->kna", A, dx))
+        k_mult = np.einsum("knab,knb->kna", W, w - np.einsum("knai,ki->kna", J, dx))
         # Corrections of eq. 2.23, v = Q_ll B^T k with B_ltd = -R and k = -k_mult.
         x_ltd_hat = x_ltd + np.einsum("nab,kcb,knc->kna", cov_ltd, R, k_mult)
         if np.max(np.abs(dx)) < tol:
@@ -364,16 +366,15 @@ def fit_body_frame(survey: Survey) -> BodyFrameFit:
         A hub whose screw heads are collinear, or hub labels that put the front wheels behind
         the rear axle (left/right or front/rear swapped).
     """
-    centres, normals, radii, rms = [], [], [], []
+    circles = []  # one fit per hub: four hubs, each with its own number of screw heads
     for hub in HUBS:
         p = survey.wheel_hubs[hub][:, :3]
         s = np.linalg.svd(p - p.mean(axis=0), compute_uv=False)
         if s[1] < 1e-3 * s[0]:
             raise InputError(f"calibration.yaml: 'body_survey.wheel_hubs.{hub}' screw heads are "
                              "collinear, no circle can be fitted")
-        c, nrm, r, e = fit_circle_3d(p)
-        centres.append(c), normals.append(nrm), radii.append(r), rms.append(e)
-    centres = np.array(centres)
+        circles.append(fit_circle_3d(p))
+    centres, normals, radii, rms = (np.array(v) for v in zip(*circles))
     origin = centres.mean(axis=0)
     _, sv, Vt = np.linalg.svd(centres - origin)
     z = Vt[2] if Vt[2, 2] >= 0 else -Vt[2]  # trackers are levelled: up is +z of their frame
@@ -395,8 +396,8 @@ def fit_body_frame(survey: Survey) -> BodyFrameFit:
     cov = {k: R.T @ np.diag(survey.prisms[k][3:] ** 2) @ R for k in PRISMS}
     return BodyFrameFit(
         frame=survey.body_frame, hub_names=HUBS, hub_centres_survey=centres,
-        hub_normals_survey=np.array(normals), hub_radii_m=np.array(radii),
-        hub_rms_m=np.array(rms), plane_rms_m=float(sv[2] / 2.0), origin_survey=origin,
+        hub_normals_survey=normals, hub_radii_m=radii, hub_rms_m=rms,
+        plane_rms_m=float(sv[2] / np.sqrt(len(centres))), origin_survey=origin,
         R_survey_body=R, lever_arms_body=lever, lever_arms_cov=cov)
 
 
