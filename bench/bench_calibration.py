@@ -35,6 +35,11 @@ def fmt(v, nd=2):
     return "[" + ", ".join(f"{x:+.{nd}f}" for x in np.atleast_1d(v)) + "]"
 
 
+def max_miss(arms):
+    """Return the largest absolute lever-arm component difference to table 7.1, m."""
+    return max(np.abs(arms[k] - TABLE_7_1[k]).max() for k in TABLE_7_1)
+
+
 def body_variant(survey, body, variant):
     """Return front/rear lever arms with another axis definition (for the comparison table)."""
     c = dict(zip(body.hub_names, body.hub_centres_survey))
@@ -94,13 +99,12 @@ def main() -> int:
     lines += ["", "Other axis definitions (same circles, plane and origin), worst lever-arm "
               "component miss:", "", "| body axes | max abs miss [um] |", "|---|---|",
               "| y = rear axle projected into the hub plane, x = y cross z (implemented) | "
-              f"{max(np.abs(body.lever_arms_body[k] - TABLE_7_1[k]).max() for k in TABLE_7_1) * 1e6:.3f} |"]
+              f"{max_miss(body.lever_arms_body) * 1e6:.3f} |"]
     for variant in ("x along the left wheels (section 5.1 wording)",
                     "x along the mid line of the axles",
                     "y = rear axle, not projected into the plane"):
         arms = body_variant(survey, body, variant)
-        miss = max(np.abs(arms[k] - TABLE_7_1[k]).max() for k in TABLE_7_1) * 1e6
-        lines.append(f"| {variant} | {miss:.1f} |")
+        lines.append(f"| {variant} | {max_miss(arms) * 1e6:.1f} |")
     lines += ["", f"Hub circle radii {fmt(body.hub_radii_m * 1e3, 3)} mm, screw heads off their "
               f"circle (RMS) {fmt(body.hub_rms_m * 1e6, 1)} um, hub centres off their plane "
               f"(RMS) {body.plane_rms_m * 1e6:.0f} um.", ""]

@@ -62,8 +62,8 @@ def survey_from_mapping(data: Any, source: str = "calibration.yaml") -> Survey:
     if not isinstance(data, Mapping):
         raise InputError(f"{source}: expected a mapping with keys network, body_survey, prisms")
     network = _mapping(data, "network", source)
-    lists = {tr: _point_dict(_mapping(network, tr, source, f"network.{tr}"), source, f"network.{tr}")
-             for tr in TRACKERS}
+    lists = {tr: _point_dict(_mapping(network, tr, source, f"network.{tr}"), source,
+                             f"network.{tr}") for tr in TRACKERS}
     _check_same_ids(lists, source)
     if len(lists["at960"]) < MIN_NETWORK_POINTS:
         raise InputError(f"{source}: network has {len(lists['at960'])} common points, "

@@ -219,8 +219,8 @@ def test_lever_arms_reproduce_table_7_1(survey):
     R = body.R_survey_body
     np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-14)
     assert np.linalg.det(R) > 0
-    # Body x points from the LTD800 position towards... the robot faced the tracker (6.2):
-    # the tracker origin lies ahead of the robot.
+    # Section 6.2: the robot stood about 5 m from the LTD800 with its x axis pointing at it,
+    # so the tracker lies ahead of the robot on body x.
     assert body.body_from_survey(np.zeros(3))[0] > 3.0
     # Hub radii: the screw circle of the Husky hub (about 17.5 mm), all four alike.
     np.testing.assert_allclose(body.hub_radii_m, 0.0175, atol=1e-4)
@@ -273,7 +273,7 @@ def test_circle_fit_recovers_a_known_circle():
     assert abs(abs(n @ normal) - 1.0) < 1e-12
 
 
-def test_swapped_hub_labels_are_reported(raw, tmp_path):
+def test_swapped_hub_labels_are_reported(raw):
     data = yaml.safe_load(yaml.safe_dump(raw))
     hubs = data["body_survey"]["wheel_hubs"]
     hubs["front_left"], hubs["rear_left"] = hubs["rear_left"], hubs["front_left"]
