@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.io_tracker import read_tracker_campaign
 from identification.sync import SyncedRun, sync_run
 from identification.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun
 from sindy_ekf.errors import InputError
@@ -191,9 +190,31 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
                      seconds=sec)
 
 
+def _read_and_process(job: tuple) -> tuple[str, RunResult | None, str | None]:
+    """Read one run's bags and preprocess it (a worker: one run per call, in any process)."""
+    from identification.io_tracker import read_tracker_run
+
+    root, name, split, calibration, smoothing, plots_dir = job
+    tic = time.perf_counter()
+    try:
+        raw = read_tracker_run(Path(root) / "runs" / name, name, split)
+        t_read = time.perf_counter() - tic
+        result = preprocess_run(raw, calibration, smoothing)
+    except InputError as exc:
+        return name, None, str(exc)
+    result.seconds["read"] = t_read
+    if plots_dir is not None:
+        tic = time.perf_counter()
+        from identification.sync_plots import plot_run
+
+        plot_run(raw, result, Path(plots_dir) / name)
+        result.seconds["plots"] = time.perf_counter() - tic
+    return name, result, None
+
+
 def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                         smoothing: float = DEFAULT_SMOOTHING, force: bool = False,
-                        plots_dir: str | Path | None = None) -> PreprocessResult:
+                        plots_dir: str | Path | None = None, jobs: int = 1) -> PreprocessResult:
     """Return the preprocessing of a tracker campaign, written as a trajectory campaign.
 
     Parameters
@@ -208,54 +229,66 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     force : bool
         Replace a non-empty ``out_dir``.
     plots_dir : path, optional
-        If given, the figures of each step (thesis figs. 5.1 to 5.7, 7.2, 7.3) are saved there.
+        If given, the figures of each step (thesis figs. 5.1 to 5.7, 7.2, 7.3) are saved there,
+        one folder per run.
+    jobs : int
+        Runs processed in parallel (processes); runs are independent after calibration.
 
     Raises
     ------
     InputError
         On bad input that stops the whole campaign (no campaign.yaml, bad calibration, output
-        folder not writable, no usable run). Single bad runs are skipped and listed.
+        folder not writable, no usable run). Single bad runs are skipped, logged and listed.
     """
     from identification.calibration import calibrate
+    from identification.io_survey import read_survey
+    from identification.io_tracker import read_campaign_yaml
     from identification.trajectory import write_trajectory_campaign
 
     check_output_dir(out_dir, force=force)  # fail before the work, not after it
+    root = Path(campaign_dir)
     seconds: dict[str, float] = {}
     tic = time.perf_counter()
-    campaign = read_tracker_campaign(campaign_dir)
-    seconds["read"] = time.perf_counter() - tic
-    tic = time.perf_counter()
-    calibration = calibrate(campaign.survey)
+    name, run_list = read_campaign_yaml(root)
+    if not (root / "calibration.yaml").is_file():
+        raise InputError(f"{root}: calibration.yaml missing")
+    calibration = calibrate(read_survey(root / "calibration.yaml"))
     seconds["calibrate"] = time.perf_counter() - tic
 
+    jobs_args = [(root, n, split, calibration, smoothing, plots_dir) for n, split in run_list]
+    tic = time.perf_counter()
+    if jobs > 1 and len(jobs_args) > 1:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)),
+                                 mp_context=mp.get_context("fork")) as pool:
+            done = list(progress(pool.map(_read_and_process, jobs_args), desc="preprocess",
+                                 total=len(jobs_args)))
+    else:
+        done = [_read_and_process(a) for a in progress(jobs_args, desc="preprocess", total=len(jobs_args))]
+    seconds["runs_wall"] = time.perf_counter() - tic
     runs: dict[str, RunResult] = {}
-    skipped = dict(campaign.skipped)
-    for raw in progress(campaign.runs, desc="preprocess", total=len(campaign.runs)):
-        try:
-            runs[raw.name] = preprocess_run(raw, calibration, smoothing)
-        except InputError as exc:
-            log.warning("skipping %s", exc)
-            skipped[raw.name] = str(exc)
+    skipped: dict[str, str] = {}
+    for run_name, result, reason in done:
+        if result is None:
+            log.warning("skipping %s", reason)
+            skipped[run_name] = reason
+        else:
+            runs[run_name] = result
     if not runs:
         raise InputError(f"{campaign_dir}: no run could be preprocessed "
                          f"(first: {next(iter(skipped.values()), 'none')})")
-    for stage in ("sync", "hub", "poses", "states"):
-        seconds[stage] = sum(r.seconds[stage] for r in runs.values())
+    for stage in ("read", "sync", "hub", "poses", "states", "plots"):
+        seconds[stage] = sum(r.seconds.get(stage, 0.0) for r in runs.values())
 
     tic = time.perf_counter()
     traj = [(TrajectoryRun(name=n, split=r.synced.split, poses=r.poses, inputs=r.inputs), r.states)
             for n, r in runs.items()]
-    write_trajectory_campaign(out_dir, campaign.name, traj, force=force,
-                              source=f"sindy-ekf preprocess {Path(campaign_dir).resolve()}",
+    write_trajectory_campaign(out_dir, name, traj, force=force,
+                              source=f"sindy-ekf preprocess {root.resolve()}",
                               ground_truth="laser trackers AT960 + LTD800 (thesis 5.2)",
                               skipped_runs=dict(skipped))
     seconds["write"] = time.perf_counter() - tic
-    result = PreprocessResult(out_dir=Path(out_dir), name=campaign.name, calibration=calibration,
-                              runs=runs, skipped=skipped, smoothing=smoothing, seconds=seconds)
-    if plots_dir is not None:
-        tic = time.perf_counter()
-        from identification.sync_plots import plot_preprocess
-
-        plot_preprocess(result, campaign, plots_dir)
-        seconds["plots"] = time.perf_counter() - tic
-    return result
+    return PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
+                            runs=runs, skipped=skipped, smoothing=smoothing, seconds=seconds)

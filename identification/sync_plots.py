@@ -1,9 +1,9 @@
 """Figures of the synchronisation steps, drawn only on request (thesis figs. 5.1 to 5.7).
 
 Each ``plot_*`` returns a matplotlib Figure (built without pyplot, so Agg and no global state)
-and saves it when given ``path``. :func:`plot_preprocess` draws them all for every run of a
-:class:`~identification.preprocess.PreprocessResult`, plus the hub and pose figures of
-:mod:`identification.hub` and :mod:`identification.poses` when those modules provide them.
+and saves it when given ``path``. :func:`plot_run` draws them all for one preprocessed run,
+plus the hub and pose figures of :mod:`identification.hub` and :mod:`identification.poses`
+when those modules provide them.
 """
 
 from __future__ import annotations
@@ -140,24 +140,20 @@ def plot_baseline_vs_speed(synced: SyncedRun, path=None):
     return _save(fig, path)
 
 
-def plot_preprocess(result, campaign, plots_dir) -> list[Path]:
-    """Save every figure of every run under ``plots_dir/<run>/``; return the files written."""
-    plots_dir = Path(plots_dir)
-    raws = {r.name: r for r in campaign.runs}
-    written = []
-    for name, run in result.runs.items():
-        d, raw, s = plots_dir / name, raws[name], run.synced
-        figs = {"fig5_1_gap_signal.png": lambda p: plot_gap_signal(raw, "ltd800", p),
-                "fig5_2_xcorr.png": lambda p: plot_xcorr(raw, s, p),
-                "fig5_4_clock_residuals.png": lambda p: plot_clock_residuals(s, p),
-                "fig5_5_baseline.png": lambda p: plot_baseline(s, p),
-                "fig5_6_offset_fit.png": lambda p: plot_offset_fit(s, p),
-                "baseline_vs_speed.png": lambda p: plot_baseline_vs_speed(s, p)}
-        figs.update(_other_figures(run))
-        for fname, draw in figs.items():
-            draw(d / fname)
-            written.append(d / fname)
-    return written
+def plot_run(raw: RawRun, run, out_dir) -> list[Path]:
+    """Save every figure of one preprocessed run (a ``RunResult``) in ``out_dir``; return the
+    files written."""
+    out_dir, s = Path(out_dir), run.synced
+    figs = {"fig5_1_gap_signal.png": lambda p: plot_gap_signal(raw, "ltd800", p),
+            "fig5_2_xcorr.png": lambda p: plot_xcorr(raw, s, p),
+            "fig5_4_clock_residuals.png": lambda p: plot_clock_residuals(s, p),
+            "fig5_5_baseline.png": lambda p: plot_baseline(s, p),
+            "fig5_6_offset_fit.png": lambda p: plot_offset_fit(s, p),
+            "baseline_vs_speed.png": lambda p: plot_baseline_vs_speed(s, p)}
+    figs.update(_other_figures(run))
+    for fname, draw in figs.items():
+        draw(out_dir / fname)
+    return [out_dir / f for f in figs]
 
 
 def _other_figures(run) -> dict:

@@ -43,8 +43,12 @@ def prisms(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def synth_run(seed: int = 0, minutes: float = 1.0, drift_ltd_ppm: float = 16.2,
               drift_at_ppm: float = -28.5, duty_s: tuple[float, float] = (1.3e-3, 1.5e-3),
               p_lost: float = 0.01, p_spur: float = 0.005, noise_m: float = 10e-6,
-              name: str = "run_01", receive: bool = True) -> tuple[BagRun, dict]:
-    """Return a synthetic raw run and its truth (drifts in ppm, mean duty, lost/spurious)."""
+              name: str = "run_01", receive: bool = True, R_at960_ltd800: np.ndarray = R_LT,
+              t_at960_ltd800: np.ndarray = T_LT) -> tuple[BagRun, dict]:
+    """Return a synthetic raw run and its truth (drifts in ppm, mean duty, lost/spurious).
+
+    The LTD800 sees the front prism through ``x_at960 = t + R x_ltd800`` (eq. 5.1).
+    """
     rng = np.random.default_rng(seed)
     n = int(minutes * 60 * 50)
     slot = np.arange(int(n * 1.01) + 2)
@@ -65,7 +69,7 @@ def synth_run(seed: int = 0, minutes: float = 1.0, drift_ltd_ppm: float = 16.2,
     _, rear = prisms(sm_a)
     front += rng.normal(0, noise_m, front.shape)
     rear += rng.normal(0, noise_m, rear.shape)
-    x_ltd = (front - T_LT) @ R_LT  # R^T (x - t)
+    x_ltd = (front - t_at960_ltd800) @ R_at960_ltd800  # R^T (x - t)
     t_joy = T0_UTC + np.sort(rng.uniform(0, s[-1], 400))
     rx = {"at960": T0_UTC + sm_a + 0.004, "ltd800": T0_UTC + sm_l + 0.004} if receive else {}
     raw = BagRun(name=name, split="train", t_trigger_utc=T0_UTC + s,

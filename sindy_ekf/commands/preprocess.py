@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 
 def add_parser(sub, common) -> argparse.ArgumentParser:
@@ -19,6 +20,8 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
                    help="spline smoothing factor s of eq. 5.68 (default 0.0005)")
     p.add_argument("--plots", metavar="DIR", help="save the figures of each step there")
     p.add_argument("--force", action="store_true", help="replace a non-empty output folder")
+    p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                   help="runs preprocessed in parallel (default: 2 or the cores there are)")
     return p
 
 
@@ -50,12 +53,15 @@ def run(args) -> int:
 
     smoothing = DEFAULT_SMOOTHING if args.smoothing is None else args.smoothing
     result = preprocess_campaign(args.campaign, args.out, smoothing=smoothing, force=args.force,
-                                 plots_dir=args.plots)
+                                 plots_dir=args.plots, jobs=args.jobs)
     if not args.quiet:
         print(format_summary(result))
         t = result.seconds
-        print(f"wrote {len(result.runs)} runs to {result.out_dir} in {sum(t.values()):.1f} s "
-              f"({', '.join(f'{k} {v:.1f}' for k, v in t.items())})")
+        wall = t.get("calibrate", 0) + t.get("runs_wall", 0) + t.get("write", 0)
+        stages = ", ".join(f"{k} {t[k]:.1f}" for k in ("read", "sync", "hub", "poses", "states", "plots")
+                           if t.get(k))
+        print(f"wrote {len(result.runs)} runs to {result.out_dir} in {wall:.1f} s "
+              f"(summed over runs: {stages})")
     if args.json:
         atomic_write_json(args.json, result.to_json_dict())
     return 0
