@@ -97,12 +97,13 @@ def run_durations(minutes: float | None) -> np.ndarray:
         raise InputError(f"minutes={minutes}: out of range [{low}, {MAX_MINUTES}] (nine runs of at least {MIN_RUN_S:g} s)")
     total = minutes * 60.0
     fixed = np.zeros(len(base), dtype=bool)
-    while True:  # water-filling: at most nine passes
+    while not fixed.all():  # water-filling: at most nine passes
         scale = (total - MIN_RUN_S * fixed.sum()) / base[~fixed].sum()
         newly = ~fixed & (base * scale < MIN_RUN_S)
         if not newly.any():
             return np.where(fixed, MIN_RUN_S, base * scale)
         fixed |= newly
+    return np.full(len(base), total / len(base))
 
 
 def check_effects(effects) -> tuple:
