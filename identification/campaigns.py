@@ -26,7 +26,6 @@ log = logging.getLogger(__name__)
 
 CACHE_SUBDIR = Path(".sindy-ekf") / "preprocessed"
 KEY_FILE = "cache_key.json"
-RESULT_FILE = "preprocess.json"
 # modules whose source decides what preprocessing writes: a change invalidates the cache
 _CODE_MODULES = ("io_tracker", "io_survey", "calibration", "sync", "hub", "poses", "states",
                  "preprocess", "trajectory")
@@ -58,15 +57,12 @@ def campaign_kind(path: str | Path) -> str:
 
 
 def _code_hash() -> str:
-    import importlib.util
-
     import sindy_ekf
 
     h = hashlib.sha256(sindy_ekf.__version__.encode())
     for name in _CODE_MODULES:
-        spec = importlib.util.find_spec(f"identification.{name}")
-        if spec is not None and spec.origin:
-            h.update(Path(spec.origin).read_bytes())
+        source = Path(__file__).with_name(f"{name}.py")
+        h.update(source.read_bytes() if source.is_file() else name.encode())
     return h.hexdigest()[:16]
 
 
@@ -119,8 +115,7 @@ def preprocessed_dir(path: str | Path, smoothing: float | None = None) -> Path:
         except (json.JSONDecodeError, OSError):
             pass
         log.info("%s: cached preprocessing is stale; preprocessing again", root)
-    result = preprocess_campaign(root, out, smoothing=smoothing, force=True)
-    atomic_write_json(out / RESULT_FILE, result.to_json_dict())
+    preprocess_campaign(root, out, smoothing=smoothing, force=True)  # writes preprocess.json too
     atomic_write_json(key_file, {"key": key})  # written last: its presence marks a valid cache
     return out
 

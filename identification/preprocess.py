@@ -27,11 +27,12 @@ import numpy as np
 from identification.sync import SyncedRun, sync_run
 from identification.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun
 from sindy_ekf.errors import InputError
-from sindy_ekf.io_utils import check_output_dir
+from sindy_ekf.io_utils import atomic_write_json, check_output_dir
 from sindy_ekf.progress import progress
 
 log = logging.getLogger(__name__)
 
+REPORT_FILE = "preprocess.json"  # in the output folder: the --json dict of the run
 DEFAULT_SMOOTHING = 0.0005  # thesis table 5.1 tests 0, 0.0005, 0.005, 0.01 (eq. 5.68)
 
 # Per-coordinate point noise std ``a + b * range`` from the repeatability of thesis table 3.2,
@@ -290,5 +291,9 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                               ground_truth="laser trackers AT960 + LTD800 (thesis 5.2)",
                               skipped_runs=dict(skipped))
     seconds["write"] = time.perf_counter() - tic
-    return PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
-                            runs=runs, skipped=skipped, smoothing=smoothing, seconds=seconds)
+    result = PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
+                              runs=runs, skipped=skipped, smoothing=smoothing, seconds=seconds)
+    # the report beside the data (readers ignore unknown files); the data folder is complete
+    # before it, so a crash in between loses only the report, never half the data
+    atomic_write_json(Path(out_dir) / REPORT_FILE, result.to_json_dict())
+    return result
