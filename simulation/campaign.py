@@ -178,51 +178,54 @@ def simulate_campaign(
 
     t0_ns = int(CAMPAIGN_START.timestamp()) * NS
     runs = []
-    with atomic_output_dir(out, force=force) as tmp:
-        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
-        for r, ((name, _, split), duration) in enumerate(progress(list(zip(RUNS_TABLE_6_4, durations)),
-                                                                  desc="simulate runs")):
-            rng = np.random.default_rng(run_seeds[r])
-            setup = RunSetup(
-                name=name, split=split, duration_s=float(duration), t0_ns=t0_ns,
-                clocks={k: simulate_tracker_clock(DRIFT_PPM_TABLE_7_3[k][r] + rng.normal(0, 0.01), t_boot_ns[k], rng)
-                        for k in ("at960", "ltd800")},
-                at960_duty_mean_s=AT960_OFFSET_TABLE_7_4[r] + rng.normal(0.0, 5e-6),
-                lost_fraction=rng.uniform(0.002, 0.01), spurious_fraction=rng.uniform(0.001, 0.005),
-                hub_radius_m=radius, hub_phase_rad={k: rng.uniform(-np.pi, np.pi) for k in ("front", "rear")},
-                lever_arms_m=levers, R_at960_ltd800=np.array(transform["R"]),
-                t_at960_ltd800=np.array(transform["translation_m"]), body_origin_z_m=BODY_ORIGIN_Z_LOCAL_M,
-                ntp_offset_s=rng.choice([-1, 1]) * rng.uniform(1e-4, 1e-3), effect=effect,
-            )
-            husky, server, run_truth = simulate_tracker_run(setup, rng)
-            run_dir = tmp / "runs" / name
-            run_dir.mkdir(parents=True)
-            stamp = _bag_stamp(t0_ns)
-            bags.write_bag(run_dir / f"husky_{stamp}.bag", husky)
-            bags.write_bag(run_dir / f"server_{stamp}.bag", server)
-            runs.append(run_truth)
-            t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
+    try:
+        with atomic_output_dir(out, force=force) as tmp:
+            tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
+            for r, ((name, _, split), duration) in enumerate(progress(list(zip(RUNS_TABLE_6_4, durations)),
+                                                                      desc="simulate runs")):
+                rng = np.random.default_rng(run_seeds[r])
+                setup = RunSetup(
+                    name=name, split=split, duration_s=float(duration), t0_ns=t0_ns,
+                    clocks={k: simulate_tracker_clock(DRIFT_PPM_TABLE_7_3[k][r] + rng.normal(0, 0.01), t_boot_ns[k], rng)
+                            for k in ("at960", "ltd800")},
+                    at960_duty_mean_s=AT960_OFFSET_TABLE_7_4[r] + rng.normal(0.0, 5e-6),
+                    lost_fraction=rng.uniform(0.002, 0.01), spurious_fraction=rng.uniform(0.001, 0.005),
+                    hub_radius_m=radius, hub_phase_rad={k: rng.uniform(-np.pi, np.pi) for k in ("front", "rear")},
+                    lever_arms_m=levers, R_at960_ltd800=np.array(transform["R"]),
+                    t_at960_ltd800=np.array(transform["translation_m"]), body_origin_z_m=BODY_ORIGIN_Z_LOCAL_M,
+                    ntp_offset_s=rng.choice([-1, 1]) * rng.uniform(1e-4, 1e-3), effect=effect,
+                )
+                husky, server, run_truth = simulate_tracker_run(setup, rng)
+                run_dir = tmp / "runs" / name
+                run_dir.mkdir(parents=True)
+                stamp = _bag_stamp(t0_ns)
+                bags.write_bag(run_dir / f"husky_{stamp}.bag", husky)
+                bags.write_bag(run_dir / f"server_{stamp}.bag", server)
+                runs.append(run_truth)
+                t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
 
-        campaign = {
-            "name": f"husky-lab-sim-2022-12-21-seed{seed}",
-            "runs": [{"name": n, "split": s} for n, _, s in RUNS_TABLE_6_4],
-            "notes": (f"Simulated by sindy-ekf (simulation.campaign, seed {seed}, "
-                      f"{'table 6.4 durations' if minutes is None else f'{minutes:g} min'}"
-                      f"{', effect ' + effects[0].name + '=' + str(effects[0].value) if effects else ''}). "
-                      "Mirrors the thesis campaign of 21.12.2022; truth/ holds the true values."),
-        }
-        (tmp / "campaign.yaml").write_text(yaml.safe_dump(campaign, sort_keys=False, width=100))
-        shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
-        truth = truth_io.CampaignTruth(
-            seed=int(seed), minutes=None if minutes is None else float(minutes),
-            effects=tuple((e.name, float(e.value)) for e in effects), transform=transform,
-            lever_arms_m={k: v.tolist() for k, v in levers.items()}, body_origin_z_local_m=BODY_ORIGIN_Z_LOCAL_M,
-            baseline_length_m=float(np.linalg.norm(levers["front"] - levers["rear"])),
-            hubs={k: {"radius_m": radius[k], "radius_eq525_m": HUB_RADIUS_TABLE_7_5_M[k]} for k in radius},
-            noise={s.name: {"a_m": s.noise_a_m, "b": s.noise_b, "timing_std_s": s.timing_std_s,
-                            "resolution_s": s.resolution_s} for s in (AT960, LTD800)},
-            robot=_robot_summary(), runs=tuple(runs),
-        )
-        truth_io.write_truth(tmp, truth)
+            campaign = {
+                "name": f"husky-lab-sim-2022-12-21-seed{seed}",
+                "runs": [{"name": n, "split": s} for n, _, s in RUNS_TABLE_6_4],
+                "notes": (f"Simulated by sindy-ekf (simulation.campaign, seed {seed}, "
+                          f"{'table 6.4 durations' if minutes is None else f'{minutes:g} min'}"
+                          f"{', effect ' + effects[0].name + '=' + str(effects[0].value) if effects else ''}). "
+                          "Mirrors the thesis campaign of 21.12.2022; truth/ holds the true values."),
+            }
+            (tmp / "campaign.yaml").write_text(yaml.safe_dump(campaign, sort_keys=False, width=100))
+            shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
+            truth = truth_io.CampaignTruth(
+                seed=int(seed), minutes=None if minutes is None else float(minutes),
+                effects=tuple((e.name, float(e.value)) for e in effects), transform=transform,
+                lever_arms_m={k: v.tolist() for k, v in levers.items()}, body_origin_z_local_m=BODY_ORIGIN_Z_LOCAL_M,
+                baseline_length_m=float(np.linalg.norm(levers["front"] - levers["rear"])),
+                hubs={k: {"radius_m": radius[k], "radius_eq525_m": HUB_RADIUS_TABLE_7_5_M[k]} for k in radius},
+                noise={s.name: {"a_m": s.noise_a_m, "b": s.noise_b, "timing_std_s": s.timing_std_s,
+                                "resolution_s": s.resolution_s} for s in (AT960, LTD800)},
+                robot=_robot_summary(), runs=tuple(runs),
+            )
+            truth_io.write_truth(tmp, truth)
+    except OSError as exc:  # unwritable or vanished output, full disk: one line, nothing left
+        raise InputError(f"{out}: cannot write the campaign there ({exc.strerror or exc})") from None
     log.info("simulated campaign %s: %d runs, %.1f min", out, len(runs), durations.sum() / 60)
     return truth

@@ -1,0 +1,125 @@
+"""``sindy-ekf simulate`` and ``demo``: a working run, and every kind of bad input ending with
+exit code 2, one line naming the culprit, and nothing (half-)written."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+import yaml
+
+from simulation import bags as bags_module
+from simulation.campaign import simulate_campaign
+from sindy_ekf.cli import main
+from sindy_ekf.errors import InputError
+
+
+def _listing(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_simulate_writes_a_campaign_and_json(tmp_path, capsys):
+    out, js = tmp_path / "camp", tmp_path / "sim.json"
+    assert main(["simulate", str(out), "--seed", "3", "--minutes", "2.25", "--json", str(js), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "9 runs" in printed and "run_09" in printed
+    camp = yaml.safe_load((out / "campaign.yaml").read_text())
+    assert [r["split"] for r in camp["runs"]].count("test") == 3
+    assert all(len(list((out / "runs" / r["name"]).glob("*.bag"))) == 2 for r in camp["runs"])
+    summary = json.loads(js.read_text())
+    assert summary["seed"] == 3 and set(summary["runs"]) == {r["name"] for r in camp["runs"]}
+    run1 = summary["runs"]["run_01"]
+    counts = bags_module.count_messages(out / "runs" / "run_01")
+    assert counts["/at960/measurement"] == run1["at960"]["n_messages"]
+    assert counts["/rpi/trigger"] == run1["n_trigger"]
+    assert 16.0 < run1["clock"]["ltd800"]["drift_ppm"] < 16.5
+    assert _listing(tmp_path) == ["camp", "sim.json"]  # no temporary siblings left
+
+
+def _fails(argv, capsys, culprit):
+    code = main(argv + ["--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and culprit in err, err
+    return err
+
+
+def test_unknown_effect(tmp_path, capsys):
+    _fails(["simulate", str(tmp_path / "o"), "--effect", "warp_drive=1", "--minutes", "2.25"], capsys, "warp_drive")
+    assert _listing(tmp_path) == []
+
+
+def test_effect_value_out_of_range(tmp_path, capsys):
+    from simulation.effects import parse_effect
+
+    # a catalogued family with an absurd value: the catalogue must refuse it by name
+    name = next(n for n in ("input_delay", "deadband", "asymmetry", "lateral_slip") if _known(parse_effect, n))
+    _fails(["simulate", str(tmp_path / "o"), "--effect", f"{name}=1e9", "--minutes", "2.25"], capsys, name)
+    assert _listing(tmp_path) == []
+
+
+def _known(parse_effect, name):
+    try:
+        parse_effect(f"{name}=0")
+    except InputError as exc:
+        return "unknown" not in str(exc).lower()
+    return True
+
+
+def test_minutes_out_of_range(tmp_path, capsys):
+    _fails(["simulate", str(tmp_path / "o"), "--minutes", "1"], capsys, "minutes")
+    assert _listing(tmp_path) == []
+
+
+def test_non_empty_output_needs_force_and_is_left_alone(tmp_path, capsys):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    _fails(["simulate", str(out), "--minutes", "2.25"], capsys, str(out))
+    assert _listing(out) == ["keep.txt"] and _listing(tmp_path) == ["o"]
+    assert main(["simulate", str(out), "--minutes", "2.25", "--force", "--quiet"]) == 0
+    assert "keep.txt" not in _listing(out) and "campaign.yaml" in _listing(out)
+
+
+def test_unwritable_output(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    _fails(["simulate", str(blocker / "o"), "--minutes", "2.25"], capsys, str(blocker / "o"))
+    if os.geteuid() != 0:  # root ignores permission bits
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o500)
+        try:
+            _fails(["simulate", str(ro / "o"), "--minutes", "2.25"], capsys, str(ro / "o"))
+        finally:
+            ro.chmod(0o700)
+    assert _listing(tmp_path) in (["file"], ["file", "ro"])
+
+
+def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
+    calls = []
+
+    def broken(path, topics):
+        calls.append(path)
+        if len(calls) == 5:
+            raise OSError(28, "No space left on device")
+        return real(path, topics)
+
+    real = bags_module.write_bag
+    monkeypatch.setattr(bags_module, "write_bag", broken)
+    with pytest.raises(InputError, match="No space left"):
+        simulate_campaign(tmp_path / "o", seed=0, minutes=2.25)
+    assert len(calls) == 5 and _listing(tmp_path) == []
+
+
+def test_bad_seed(tmp_path):
+    with pytest.raises(InputError, match="seed=-1"):
+        simulate_campaign(tmp_path / "o", seed=-1, minutes=2.25)
+
+
+def test_demo_prints_what_the_campaign_holds(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--minutes", "2.25", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("run_0") == 9 and "lost" in printed and (out / "truth" / "truth.yaml").is_file()
