@@ -137,6 +137,58 @@ def _bag_stamp(t_ns: int) -> str:
     return datetime.fromtimestamp(t_ns // NS, tz=timezone.utc).strftime("%Y-%m-%d-%H-%M-%S")
 
 
+def _run_setup(r: int, duration_s: float, t0_ns: int, t_boot_ns: dict, rng: np.random.Generator,
+               effect) -> RunSetup:
+    """Return the true parameters of run ``r``: thesis tables 7.1-7.5 plus small deviations."""
+    name, _, split = RUNS_TABLE_6_4[r]
+    levers = {k: np.array(v) for k, v in LEVER_ARMS_TABLE_7_1_M.items()}
+    transform = true_transform()
+    return RunSetup(
+        name=name, split=split, duration_s=float(duration_s), t0_ns=t0_ns,
+        clocks={k: simulate_tracker_clock(DRIFT_PPM_TABLE_7_3[k][r] + rng.normal(0.0, 0.01), t_boot_ns[k], rng)
+                for k in ("at960", "ltd800")},
+        at960_duty_mean_s=AT960_OFFSET_TABLE_7_4[r] + rng.normal(0.0, 5e-6),
+        lost_fraction=rng.uniform(0.002, 0.01), spurious_fraction=rng.uniform(0.001, 0.005),
+        hub_radius_m=hub_radii_m(), hub_phase_rad={k: rng.uniform(-np.pi, np.pi) for k in ("front", "rear")},
+        lever_arms_m=levers, R_at960_ltd800=np.array(transform["R"]),
+        t_at960_ltd800=np.array(transform["translation_m"]), body_origin_z_m=BODY_ORIGIN_Z_LOCAL_M,
+        ntp_offset_s=rng.choice([-1, 1]) * rng.uniform(1e-4, 1e-3), effect=effect,
+    )
+
+
+def hub_radii_m() -> dict:
+    """Return the physical eccentricity radii: table 7.5's eq.-5.25 radii over cos(elevation)."""
+    cos_elev = baseline_geometry(np.array(LEVER_ARMS_TABLE_7_1_M["front"]), np.array(LEVER_ARMS_TABLE_7_1_M["rear"]))[1]
+    return {k: v / cos_elev for k, v in HUB_RADIUS_TABLE_7_5_M.items()}
+
+
+def _campaign_truth(seed, minutes, effects, runs) -> truth_io.CampaignTruth:
+    levers = {k: list(v) for k, v in LEVER_ARMS_TABLE_7_1_M.items()}
+    radius = hub_radii_m()
+    return truth_io.CampaignTruth(
+        seed=int(seed), minutes=None if minutes is None else float(minutes),
+        effects=tuple((e.name, float(e.value)) for e in effects), transform=true_transform(),
+        lever_arms_m=levers, body_origin_z_local_m=BODY_ORIGIN_Z_LOCAL_M,
+        baseline_length_m=float(np.linalg.norm(np.subtract(levers["front"], levers["rear"]))),
+        hubs={k: {"radius_m": radius[k], "radius_eq525_m": HUB_RADIUS_TABLE_7_5_M[k]} for k in radius},
+        noise={s.name: {"a_m": s.noise_a_m, "b": s.noise_b, "timing_std_s": s.timing_std_s,
+                        "resolution_s": s.resolution_s} for s in (AT960, LTD800)},
+        robot=_robot_summary(), runs=tuple(runs),
+    )
+
+
+def _campaign_yaml(seed, minutes, effects) -> str:
+    what = "table 6.4 durations" if minutes is None else f"{minutes:g} min"
+    effect = "".join(f", effect {e.name}={e.value:g}" for e in effects)
+    doc = {
+        "name": f"husky-lab-sim-2022-12-21-seed{seed}",
+        "runs": [{"name": n, "split": s} for n, _, s in RUNS_TABLE_6_4],
+        "notes": (f"Simulated by sindy-ekf (simulation.campaign, seed {seed}, {what}{effect}). Mirrors the "
+                  "thesis campaign of 21.12.2022; truth/ holds the true values."),
+    }
+    return yaml.safe_dump(doc, sort_keys=False, width=100)
+
+
 def simulate_campaign(
     out: str | Path, seed: int = 0, minutes: float | None = None, effects=(), force: bool = False
 ) -> truth_io.CampaignTruth:
@@ -148,7 +200,7 @@ def simulate_campaign(
         Campaign folder to create (data contract part 1 plus ``truth/``); built in a temporary
         sibling and renamed at the end, so a failure leaves nothing behind.
     seed
-        Seed of ``np.random.default_rng``; the same seed gives the same bytes.
+        Seed of the random generators; the same seed gives the same bytes.
     minutes
         Total driving time; ``None`` is table 6.4 (45.4 min), otherwise the nine runs are
         scaled to it (each at least 15 s) with the same split.
@@ -156,6 +208,12 @@ def simulate_campaign(
         At most one ``simulation.effects.Effect`` (or ``NAME=VALUE`` text) for the dynamics.
     force
         Replace an existing non-empty ``out``.
+
+    Raises
+    ------
+    InputError
+        Unknown effect or value out of range, ``minutes`` or ``seed`` out of range, output
+        folder not empty (without ``force``) or not writable. Nothing is left behind.
     """
     effects = check_effects(effects)
     durations = run_durations(minutes)
@@ -165,65 +223,32 @@ def simulate_campaign(
     if not CALIBRATION_YAML.is_file():
         raise InputError(f"{CALIBRATION_YAML}: package data missing")
 
-    transform = true_transform()
-    levers = {k: np.array(v) for k, v in LEVER_ARMS_TABLE_7_1_M.items()}
-    cos_elev = baseline_geometry(levers["front"], levers["rear"])[1]
-    radius = {k: v / cos_elev for k, v in HUB_RADIUS_TABLE_7_5_M.items()}
+    # one independent stream per run, so a run's data do not depend on the others' lengths
     root = np.random.SeedSequence(int(seed))
-    rng_campaign = np.random.default_rng(root.spawn(1)[0])
-    run_seeds = root.spawn(len(RUNS_TABLE_6_4) + 1)[1:]
-    t_boot_ns = {k: int(CAMPAIGN_START.timestamp() * NS) - int(rng_campaign.uniform(2, 8) * 3600 * NS)
-                 for k in ("at960", "ltd800")}
+    seeds = root.spawn(len(RUNS_TABLE_6_4) + 1)
+    rng_campaign = np.random.default_rng(seeds[0])
+    start_ns = int(CAMPAIGN_START.timestamp()) * NS
+    t_boot_ns = {k: start_ns - int(rng_campaign.uniform(2, 8) * 3600 * NS) for k in ("at960", "ltd800")}
     effect = effects[0] if effects else None
 
-    t0_ns = int(CAMPAIGN_START.timestamp()) * NS
-    runs = []
+    t0_ns, runs = start_ns, []
     try:
         with atomic_output_dir(out, force=force) as tmp:
             tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
-            for r, ((name, _, split), duration) in enumerate(progress(list(zip(RUNS_TABLE_6_4, durations)),
-                                                                      desc="simulate runs")):
-                rng = np.random.default_rng(run_seeds[r])
-                setup = RunSetup(
-                    name=name, split=split, duration_s=float(duration), t0_ns=t0_ns,
-                    clocks={k: simulate_tracker_clock(DRIFT_PPM_TABLE_7_3[k][r] + rng.normal(0, 0.01), t_boot_ns[k], rng)
-                            for k in ("at960", "ltd800")},
-                    at960_duty_mean_s=AT960_OFFSET_TABLE_7_4[r] + rng.normal(0.0, 5e-6),
-                    lost_fraction=rng.uniform(0.002, 0.01), spurious_fraction=rng.uniform(0.001, 0.005),
-                    hub_radius_m=radius, hub_phase_rad={k: rng.uniform(-np.pi, np.pi) for k in ("front", "rear")},
-                    lever_arms_m=levers, R_at960_ltd800=np.array(transform["R"]),
-                    t_at960_ltd800=np.array(transform["translation_m"]), body_origin_z_m=BODY_ORIGIN_Z_LOCAL_M,
-                    ntp_offset_s=rng.choice([-1, 1]) * rng.uniform(1e-4, 1e-3), effect=effect,
-                )
+            for r in progress(range(len(RUNS_TABLE_6_4)), desc="simulate runs"):
+                rng = np.random.default_rng(seeds[r + 1])
+                setup = _run_setup(r, durations[r], t0_ns, t_boot_ns, rng, effect)
                 husky, server, run_truth = simulate_tracker_run(setup, rng)
-                run_dir = tmp / "runs" / name
+                run_dir = tmp / "runs" / setup.name
                 run_dir.mkdir(parents=True)
                 stamp = _bag_stamp(t0_ns)
                 bags.write_bag(run_dir / f"husky_{stamp}.bag", husky)
                 bags.write_bag(run_dir / f"server_{stamp}.bag", server)
                 runs.append(run_truth)
                 t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
-
-            campaign = {
-                "name": f"husky-lab-sim-2022-12-21-seed{seed}",
-                "runs": [{"name": n, "split": s} for n, _, s in RUNS_TABLE_6_4],
-                "notes": (f"Simulated by sindy-ekf (simulation.campaign, seed {seed}, "
-                          f"{'table 6.4 durations' if minutes is None else f'{minutes:g} min'}"
-                          f"{', effect ' + effects[0].name + '=' + str(effects[0].value) if effects else ''}). "
-                          "Mirrors the thesis campaign of 21.12.2022; truth/ holds the true values."),
-            }
-            (tmp / "campaign.yaml").write_text(yaml.safe_dump(campaign, sort_keys=False, width=100))
+            (tmp / "campaign.yaml").write_text(_campaign_yaml(seed, minutes, effects))
             shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
-            truth = truth_io.CampaignTruth(
-                seed=int(seed), minutes=None if minutes is None else float(minutes),
-                effects=tuple((e.name, float(e.value)) for e in effects), transform=transform,
-                lever_arms_m={k: v.tolist() for k, v in levers.items()}, body_origin_z_local_m=BODY_ORIGIN_Z_LOCAL_M,
-                baseline_length_m=float(np.linalg.norm(levers["front"] - levers["rear"])),
-                hubs={k: {"radius_m": radius[k], "radius_eq525_m": HUB_RADIUS_TABLE_7_5_M[k]} for k in radius},
-                noise={s.name: {"a_m": s.noise_a_m, "b": s.noise_b, "timing_std_s": s.timing_std_s,
-                                "resolution_s": s.resolution_s} for s in (AT960, LTD800)},
-                robot=_robot_summary(), runs=tuple(runs),
-            )
+            truth = _campaign_truth(seed, minutes, effects, runs)
             truth_io.write_truth(tmp, truth)
     except OSError as exc:  # unwritable or vanished output, full disk: one line, nothing left
         raise InputError(f"{out}: cannot write the campaign there ({exc.strerror or exc})") from None
