@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 
 REPORT_FILE = "preprocess.json"  # in the output folder: the --json dict of the run
 DEFAULT_SMOOTHING = 0.0005  # thesis table 5.1 tests 0, 0.0005, 0.005, 0.01 (eq. 5.68)
+HUB_CORRECTION = True  # refer the prisms to the hub axes with the eq. 5.25 model before poses
 
 # Per-coordinate point noise std ``a + b * range`` from the repeatability of thesis table 3.2,
 # read as 2 sigma (AT960 7.5 um + 3 um/m; LTD800 12 um near, 5 um/m far): the instruments'
@@ -65,6 +66,7 @@ class PreprocessResult:
     runs: dict[str, RunResult]
     skipped: dict[str, str]  # run -> one-line reason
     smoothing: float
+    hub_correction: bool = HUB_CORRECTION
     seconds: dict[str, float] = field(default_factory=dict)  # stage -> total wall time
 
     def to_json_dict(self) -> dict:
@@ -73,6 +75,7 @@ class PreprocessResult:
         out["runs"] = {name: run_json(r) for name, r in self.runs.items()}
         out["skipped_runs"] = dict(self.skipped)
         out["smoothing"] = self.smoothing
+        out["hub_correction"] = self.hub_correction
         out["out_dir"] = str(self.out_dir)
         out["seconds"] = {k: round(v, 3) for k, v in self.seconds.items()}
         return out
@@ -110,11 +113,14 @@ def run_json(r: RunResult) -> dict:
 
 
 def hub_json(hub) -> dict:
-    """Return the hub model's JSON dict (its own ``to_json_dict`` when it has one)."""
-    if hasattr(hub, "to_json_dict"):
-        return hub.to_json_dict()
-    keys = ("c", "r1", "r2", "phi1", "phi2", "rms_before_m", "rms_after_m")
-    return {k: float(getattr(hub, k)) for k in keys if hasattr(hub, k)}
+    """Return the JSON dict of a turning-hub model (eq. 5.25): c, radii, phases, stds, RMS."""
+    r, r_std = hub.radius_m, hub.radius_std_m
+    phi, phi_std = hub.phase_rad, hub.phase_std_rad
+    return {"c_m": hub.c_m, "c_std_m": hub.c_std_m, "r1": float(r[0]), "r2": float(r[1]),
+            "r1_std": float(r_std[0]), "r2_std": float(r_std[1]),
+            "phi1_rad": float(phi[0]), "phi2_rad": float(phi[1]),
+            "phi1_std_rad": float(phi_std[0]), "phi2_std_rad": float(phi_std[1]),
+            "rms_before_m": hub.rms_before_m, "rms_after_m": hub.rms_after_m, "n": int(hub.n)}
 
 
 def point_std_m(tracker: str, p_local: np.ndarray, origin_local: np.ndarray) -> np.ndarray:
@@ -139,8 +145,13 @@ def inputs_from_raw(raw: RawRun) -> InputSeries:
     return InputSeries(t=raw.t_joy_utc.copy(), u1=raw.u_joy[:, 0].copy(), u2=raw.u_joy[:, 1].copy())
 
 
-def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHING) -> RunResult:
+def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHING,
+                   hub_correction: bool = HUB_CORRECTION) -> RunResult:
     """Return one run preprocessed: synchronised, hub model, poses and body-frame states.
+
+    With ``hub_correction`` the prism positions are referred to the hub axes with the fitted
+    eccentricity model (:meth:`identification.hub.HubModel.correct`) before the poses; the
+    thesis (5.2.3) only used the model to explain the baseline variation.
 
     Raises
     ------
@@ -175,11 +186,17 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
         raise InputError(f"run {raw.name}: only {int(both.sum())} trigger times with both prisms seen")
     origin = {"at960": np.zeros(3), "ltd800": np.asarray(tf.t_at960_ltd800)}
     p_front, p_rear = synced.p_front_local[both], synced.p_rear_local[both]
-    std_front = point_std_m(calibration.prism_tracker["front"], p_front, origin[calibration.prism_tracker["front"]])
-    std_rear = point_std_m(calibration.prism_tracker["rear"], p_rear, origin[calibration.prism_tracker["rear"]])
+    if hub is not None and hub_correction:
+        az_b = az[both]
+        ok = np.isfinite(az_b).all(axis=1)
+        pf, pr = hub.correct(p_front[ok], p_rear[ok], az_b[ok, 0], az_b[ok, 1])
+        p_front, p_rear = p_front.copy(), p_rear.copy()
+        p_front[ok], p_rear[ok] = pf, pr
+    std = {k: np.repeat(point_std_m(calibration.prism_tracker[k], p, origin[calibration.prism_tracker[k]])[:, None],
+                        3, axis=1) for k, p in (("front", p_front), ("rear", p_rear))}
     levers = calibration.lever_arms_body
     poses = fit_poses(synced.t_utc[both], p_front, p_rear, levers["front"], levers["rear"],
-                      std_front, std_rear)
+                      std["front"], std["rear"])
     sec["poses"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
@@ -195,12 +212,12 @@ def _read_and_process(job: tuple) -> tuple[str, RunResult | None, str | None]:
     """Read one run's bags and preprocess it (a worker: one run per call, in any process)."""
     from identification.io_tracker import read_tracker_run
 
-    root, name, split, calibration, smoothing, plots_dir = job
+    root, name, split, calibration, smoothing, hub_correction, plots_dir = job
     tic = time.perf_counter()
     try:
         raw = read_tracker_run(Path(root) / "runs" / name, name, split)
         t_read = time.perf_counter() - tic
-        result = preprocess_run(raw, calibration, smoothing)
+        result = preprocess_run(raw, calibration, smoothing, hub_correction)
     except InputError as exc:
         return name, None, str(exc)
     result.seconds["read"] = t_read
@@ -215,7 +232,8 @@ def _read_and_process(job: tuple) -> tuple[str, RunResult | None, str | None]:
 
 def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                         smoothing: float = DEFAULT_SMOOTHING, force: bool = False,
-                        plots_dir: str | Path | None = None, jobs: int = 1) -> PreprocessResult:
+                        plots_dir: str | Path | None = None, jobs: int = 1,
+                        hub_correction: bool = HUB_CORRECTION) -> PreprocessResult:
     """Return the preprocessing of a tracker campaign, written as a trajectory campaign.
 
     Parameters
@@ -234,6 +252,8 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
         one folder per run.
     jobs : int
         Runs processed in parallel (processes); runs are independent after calibration.
+    hub_correction : bool
+        Refer the prisms to the hub axes with each run's eq. 5.25 model before the poses.
 
     Raises
     ------
@@ -256,7 +276,8 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     calibration = calibrate(read_survey(root / "calibration.yaml"))
     seconds["calibrate"] = time.perf_counter() - tic
 
-    jobs_args = [(root, n, split, calibration, smoothing, plots_dir) for n, split in run_list]
+    jobs_args = [(root, n, split, calibration, smoothing, hub_correction, plots_dir)
+                 for n, split in run_list]
     tic = time.perf_counter()
     if jobs > 1 and len(jobs_args) > 1:
         import multiprocessing as mp
@@ -292,7 +313,8 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                               skipped_runs=dict(skipped))
     seconds["write"] = time.perf_counter() - tic
     result = PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
-                              runs=runs, skipped=skipped, smoothing=smoothing, seconds=seconds)
+                              runs=runs, skipped=skipped, smoothing=smoothing,
+                              hub_correction=hub_correction, seconds=seconds)
     # the report beside the data (readers ignore unknown files); the data folder is complete
     # before it, so a crash in between loses only the report, never half the data
     atomic_write_json(Path(out_dir) / REPORT_FILE, result.to_json_dict())

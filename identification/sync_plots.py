@@ -9,6 +9,7 @@ when those modules provide them.
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -144,6 +145,7 @@ def plot_run(raw: RawRun, run, out_dir) -> list[Path]:
     """Save every figure of one preprocessed run (a ``RunResult``) in ``out_dir``; return the
     files written."""
     out_dir, s = Path(out_dir), run.synced
+    out_dir.mkdir(parents=True, exist_ok=True)
     figs = {"fig5_1_gap_signal.png": lambda p: plot_gap_signal(raw, "ltd800", p),
             "fig5_2_xcorr.png": lambda p: plot_xcorr(raw, s, p),
             "fig5_4_clock_residuals.png": lambda p: plot_clock_residuals(s, p),
@@ -153,7 +155,9 @@ def plot_run(raw: RawRun, run, out_dir) -> list[Path]:
     figs.update(_other_figures(run))
     for fname, draw in figs.items():
         draw(out_dir / fname)
-    return [out_dir / f for f in figs]
+    if "matplotlib.pyplot" in sys.modules:  # other modules' figures may live in pyplot's registry
+        sys.modules["matplotlib.pyplot"].close("all")
+    return sorted(out_dir.glob("*.png"))
 
 
 def _other_figures(run) -> dict:
@@ -166,8 +170,6 @@ def _other_figures(run) -> dict:
         return out
     if run.hub is not None and hasattr(hub_mod, "plot_hub_model"):
         out["fig5_7_hub_model.png"] = lambda p: hub_mod.plot_hub_model(run.hub, path=p)
-    if hasattr(poses_mod, "plot_poses"):
-        out["fig7_2_poses.png"] = lambda p: poses_mod.plot_poses(run.poses, path=p)
-    if hasattr(poses_mod, "plot_pose_std"):
-        out["fig7_3_pose_std.png"] = lambda p: poses_mod.plot_pose_std(run.poses, path=p)
+    if hasattr(poses_mod, "plot_poses"):  # writes <prefix>_position.png and _attitude.png
+        out["fig7_2_7_3_poses"] = lambda p: poses_mod.plot_poses(run.poses, path_prefix=str(p))
     return out

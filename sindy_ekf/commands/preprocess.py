@@ -20,6 +20,9 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
                    help="spline smoothing factor s of eq. 5.68 (default 0.0005)")
     p.add_argument("--plots", metavar="DIR", help="save the figures of each step there")
     p.add_argument("--force", action="store_true", help="replace a non-empty output folder")
+    p.add_argument("--no-hub-correction", action="store_true",
+                   help="do not refer the prisms to the hub axes (eq. 5.25 model) before the "
+                        "poses, as the thesis did not")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                    help="runs preprocessed in parallel (default: 2 or the cores there are)")
     return p
@@ -53,7 +56,8 @@ def run(args) -> int:
 
     smoothing = DEFAULT_SMOOTHING if args.smoothing is None else args.smoothing
     result = preprocess_campaign(args.campaign, args.out, smoothing=smoothing, force=args.force,
-                                 plots_dir=args.plots, jobs=args.jobs)
+                                 plots_dir=args.plots, jobs=args.jobs,
+                                 hub_correction=not args.no_hub_correction)
     if not args.quiet:
         print(format_summary(result))
         t = result.seconds
