@@ -1,0 +1,419 @@
+"""The simulated Husky A200: true body dynamics (thesis model B), effects, pitch, and a run.
+
+Body dynamics (body frame, ``x = [vx, vy, omega]``, inputs ``u = [u1, u2]`` as the motors see
+them):
+
+- ``vx_dot`` and ``omega_dot``: the thesis's identified model B, eqs. 7.7 and 7.9, with its
+  coefficients verbatim (including the ``vy omega^2`` and ``vy u1^2`` terms of 7.9). Over the
+  input square its steady states reach 0.81 m/s and 1.13 rad/s (table 3.1: 1.0 m/s max).
+- ``vy_dot = -k_y vy - c_y vx omega`` (eq. 7.8 says 0; a skid-steered body does slip sideways in
+  turns): the rigid-body lateral equation ``vy_dot + vx omega = F_y / m`` with a linear lateral
+  tyre force ``F_y = -m k_y vy`` (``c_y = 1``). With ``k_y = 15 1/s`` the outward drift is
+  ``vx omega / k_y``, about 2 cm/s at 0.5 m/s and 0.6 rad/s.
+- Speed limiter of the drive controller: beyond ``|vx| > 0.9 m/s`` or ``|omega| > 1.3 rad/s``
+  (outside the fig. 6.3 envelope, where model B's cubic terms turn destabilising) a smooth
+  quadratic braking term ``-k_guard relu(|s| - s_lim)^2 sign(s)`` keeps the state bounded. It is
+  zero in normal driving and not part of :meth:`TrueDynamics.true_terms`.
+- Process noise: Ornstein-Uhlenbeck accelerations (vibration, floor texture) added to the three
+  body accelerations, std ``(0.06 m/s^2, 0.03 m/s^2, 0.15 rad/s^2)``, correlation time 50 ms
+  (velocity jitter of about 4 mm/s, 1.3 mm/s and 0.011 rad/s).
+- Pitch: a second-order suspension response to the longitudinal acceleration
+  ``a_x = vx_dot - vy omega``: ``theta'' + 2 zeta w_n theta' + w_n^2 theta = -w_n^2 k_p a_x``,
+  ``k_p = 0.5 deg per m/s^2``, 2 Hz, ``zeta = 0.5`` (positive pitch = nose down, eq. 5.34: the
+  nose dips when braking). The body pitches about its origin, so ``z`` of the origin only follows
+  the floor.
+- Pose: eq. 5.75 kinematics ``x_dot = vx cos psi - vy sin psi``, ``y_dot = vx sin psi + vy cos
+  psi``, ``psi_dot = omega`` in the local (AT960) frame.
+
+Effects (:mod:`simulation.effects`) act either on the motor inputs (:meth:`motor_inputs`) or on
+``f`` (heading, position, lateral slip). Integration: classical RK4 at ``dt`` with the motor
+inputs and the noise held over each step (the motor controller updates at ``1/dt``), written on
+Python floats because the 6-state step is far cheaper that way than through numpy calls; the
+driver (:mod:`simulation.driver`) closes the loop at each joystick message.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+from simulation.driver import DrivingArea, HumanDriver, simulate_joy_stamps
+from simulation.effects import EFFECTS, Effect
+
+VARS = ("vx", "vy", "omega", "u1", "u2")  # order of the exponents of a monomial
+
+# Thesis model B, eq. 7.7 (vx_dot) and eq. 7.9 (omega_dot), pysindy feature names.
+MODEL_B_VX = (
+    ("vx", -7.770), ("u1", 7.190), ("vx omega", -0.369), ("omega u1", 0.312), ("vx^3", 6.780),
+    ("vx^2 u1", -6.357), ("vx omega^2", 7.730), ("vx omega u2", -5.104), ("vx u1^2", 3.459),
+    ("omega^2 u1", -3.752), ("omega u1 u2", 1.125), ("u1^3", -3.129), ("u1 u2^2", -0.435),
+)
+MODEL_B_OMEGA = (
+    ("omega", -6.951), ("u2", 7.900), ("vx^2 omega", 7.690), ("vx^2 u2", -3.251),
+    ("vx omega^2", 1.394), ("vx u1 u2", -0.817), ("vx u2^2", -0.907), ("vy omega^2", 2.315),
+    ("vy u1^2", -4.976), ("omega^3", 2.896), ("omega^2 u1", -1.409), ("omega^2 u2", -4.349),
+    ("omega u1^2", -3.143), ("omega u2^2", 3.226), ("u1^2 u2", -0.795), ("u1 u2^2", 0.838),
+    ("u2^3", -2.322),
+)
+
+
+@dataclass(frozen=True)
+class RobotParams:
+    """Parameters of the simulated Husky A200 (SI units, radians)."""
+
+    terms_vx: tuple = MODEL_B_VX  # eq. 7.7
+    terms_omega: tuple = MODEL_B_OMEGA  # eq. 7.9
+    lateral_damping_1_s: float = 15.0  # k_y
+    lateral_coupling: float = 1.0  # c_y (rigid-body value)
+    max_speed_m_s: float = 1.0  # table 3.1
+    guard_speed_m_s: float = 0.9
+    guard_omega_rad_s: float = 1.3
+    guard_gain: float = 300.0  # 1/(m s) resp. 1/rad
+    accel_noise_std: tuple = (0.06, 0.03, 0.15)  # vx_dot m/s^2, vy_dot m/s^2, omega_dot rad/s^2
+    noise_corr_time_s: float = 0.05
+    pitch_per_accel_rad: float = math.radians(0.5)  # rad per m/s^2
+    pitch_freq_hz: float = 2.0
+    pitch_damping_ratio: float = 0.5
+    g_m_s2: float = 9.81
+
+    def terms(self) -> dict[str, dict[str, float]]:
+        """Return ``{equation: {feature: coefficient}}`` of the effect-free polynomial dynamics."""
+        return {"vx": dict(self.terms_vx),
+                "vy": {"vy": -self.lateral_damping_1_s, "vx omega": -self.lateral_coupling},
+                "omega": dict(self.terms_omega)}
+
+
+def exponents_from_name(name: str) -> tuple[int, ...]:
+    """Return the exponents over ``VARS`` of a pysindy-style monomial name like ``"vx^2 u1"``."""
+    exps = [0] * len(VARS)
+    for factor in name.split():
+        var, _, power = factor.partition("^")
+        exps[VARS.index(var)] += int(power) if power else 1
+    return tuple(exps)
+
+
+def _monomial_source(exps) -> str:
+    return "*".join(f"{v}_{e}" for v, e in zip(("vx", "vy", "om", "u1", "u2"), exps) if e) or "1.0"
+
+
+def _compile_acc(params: RobotParams, effect: Effect | None, lib) -> callable:
+    """Return ``acc(x, y, psi, vx, vy, om, u1, u2) -> (ax, ay, aw)`` compiled for ``lib``.
+
+    The source is generated once from the term table and compiled twice, with ``lib = math``
+    for the float integrator and ``lib = numpy`` for the vectorised :meth:`TrueDynamics.f`, so
+    both evaluate the same expression.
+    """
+    terms = params.terms()
+    eqs = {k: [(c, exponents_from_name(n)) for n, c in terms[k].items()] for k in terms}
+    used = {(v, e) for eq in eqs.values() for _, ex in eq for v, e0 in zip(range(5), ex)
+            for e in range(1, e0 + 1)}
+    names = ("vx", "vy", "om", "u1", "u2")
+    lines = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
+    for v, e in sorted(used):
+        lines.append(f"    {names[v]}_{e} = {names[v]}" + f"*{names[v]}" * (e - 1))
+    for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
+        body = " + ".join(f"({c!r})*{_monomial_source(ex)}" for c, ex in eqs[key]) or "0.0"
+        lines.append(f"    {out} = {body}")
+    g, kg = params.guard_speed_m_s, params.guard_gain
+    gw = params.guard_omega_rad_s
+    # relu(s) = (s + |s|) / 2 works on floats and arrays alike
+    lines += [f"    e1 = vx - {g!r}; e2 = -vx - {g!r}",
+              f"    ax = ax - {kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)",
+              f"    e1 = om - {gw!r}; e2 = -om - {gw!r}",
+              f"    aw = aw - {kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)"]
+    if effect is not None and effect.name == "heading_dependence":
+        a_g = params.g_m_s2 * math.sin(math.radians(effect.value))
+        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
+        lines += [f"    ax = ax + {a_g!r}*lib.cos(psi - {pd!r})",
+                  f"    ay = ay - {a_g!r}*lib.sin(psi - {pd!r})"]
+    elif effect is not None and effect.name == "position_dependence":
+        fx = EFFECTS["position_dependence"].fixed
+        (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
+        half_scale = fx["patch_edge_m"] / (2.0 * math.log(9.0))  # 10-90 % of the logistic
+        d_vx, d_om = -terms["vx"]["vx"], -terms["omega"]["omega"]
+        lines += [f"    d = lib.sqrt((x - {cx!r})**2 + (y - {cy!r})**2 + 1e-12)",
+                  f"    s = 0.5*(1.0 + lib.tanh(({r!r} - d)/{half_scale!r}))",
+                  f"    ax = ax - {effect.value * d_vx!r}*s*vx",
+                  f"    aw = aw - {effect.value * d_om!r}*s*om"]
+    elif effect is not None and effect.name == "lateral_slip":
+        lines.append(f"    ay = ay - {(effect.value - 1.0) * params.lateral_coupling!r}*vx*om")
+    lines.append("    return ax, ay, aw")
+    namespace = {"lib": lib}
+    exec("\n".join(lines), namespace)  # noqa: S102 - source generated from the numeric term table
+    return namespace["acc"]
+
+
+class TrueDynamics:
+    """The simulator's true body dynamics with an optional effect (the estimation oracle).
+
+    Parameters
+    ----------
+    params
+        Robot parameters; default :class:`RobotParams`.
+    effect
+        At most one :class:`simulation.effects.Effect`.
+    """
+
+    def __init__(self, params: RobotParams | None = None, effect: Effect | None = None):
+        self.params = params or RobotParams()
+        self.effect = effect
+        self._acc_float = _compile_acc(self.params, effect, math)
+        self._acc_np = _compile_acc(self.params, effect, np)
+        terms = self.params.terms()
+        self._eqs = [[(c, np.array(exponents_from_name(n))) for n, c in terms[k].items()]
+                     for k in ("vx", "vy", "omega")]
+
+    # -- dynamics --------------------------------------------------------------------------
+    def f(self, x6, u, t=0.0) -> np.ndarray:
+        """Return the body accelerations ``[vx_dot, vy_dot, omega_dot]``, shape ``(..., 3)``.
+
+        Implements eqs. 7.7 and 7.9 (model B), the lateral law and the speed limiter of the
+        module docstring, plus the effect's body-side mechanism. ``u`` is what the motors see
+        (see :meth:`motor_inputs`); ``t`` (s since run start) is accepted for the interface,
+        the time effect acting on the inputs. Deterministic part only.
+        """
+        x6, u = np.asarray(x6, float), np.asarray(u, float)
+        a = self._acc_np(*(x6[..., i] for i in range(6)), u[..., 0], u[..., 1])
+        return np.stack(np.broadcast_arrays(*a), axis=-1)
+
+    def _poly_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """Return d(poly)/d[vx, vy, omega, u1, u2], shape ``(..., 3, 5)``, from the exponents."""
+        powers = np.stack([np.ones_like(z), z, z * z, z * z * z], axis=-1)  # (..., 5, 4)
+        J = np.zeros(z.shape[:-1] + (3, 5))
+        for row, eq in enumerate(self._eqs):
+            for c, ex in eq:
+                for v in np.flatnonzero(ex):
+                    e = ex.copy()
+                    e[v] -= 1
+                    mono = np.prod(np.take_along_axis(powers, e[:, None], axis=-1)[..., 0], axis=-1)
+                    J[..., row, v] += c * ex[v] * mono
+        return J
+
+    def J_f_x(self, x6, u, t=0.0) -> np.ndarray:
+        """Return the analytic Jacobian of :meth:`f` with respect to ``x6``, shape ``(..., 3, 6)``."""
+        return self._jac(x6, u)[0]
+
+    def J_f_u(self, x6, u, t=0.0) -> np.ndarray:
+        """Return the analytic Jacobian of :meth:`f` with respect to ``u``, shape ``(..., 3, 2)``."""
+        return self._jac(x6, u)[1]
+
+    def _jac(self, x6, u):
+        x6, u = np.asarray(x6, float), np.asarray(u, float)
+        shape = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1])
+        x6 = np.broadcast_to(x6, shape + (6,))
+        u = np.broadcast_to(u, shape + (2,))
+        z = np.concatenate([x6[..., 3:6], u], axis=-1)
+        Jp = self._poly_jacobian(z)
+        J_x = np.zeros(shape + (3, 6))
+        J_x[..., :, 3:6] = Jp[..., :, :3]
+        J_u = Jp[..., :, 3:5].copy()
+        p = self.params
+        vx, om = x6[..., 3], x6[..., 5]
+        # speed limiter: d/ds of -k relu(|s| - lim)^2 sign(s) = -2 k relu(|s| - lim)
+        J_x[..., 0, 3] -= 2 * p.guard_gain * np.maximum(np.abs(vx) - p.guard_speed_m_s, 0.0)
+        J_x[..., 2, 5] -= 2 * p.guard_gain * np.maximum(np.abs(om) - p.guard_omega_rad_s, 0.0)
+        eff = self.effect
+        if eff is not None and eff.name == "heading_dependence":
+            a_g = p.g_m_s2 * math.sin(math.radians(eff.value))
+            d = x6[..., 2] - EFFECTS["heading_dependence"].fixed["psi_down_rad"]
+            J_x[..., 0, 2] += -a_g * np.sin(d)
+            J_x[..., 1, 2] += -a_g * np.cos(d)
+        elif eff is not None and eff.name == "position_dependence":
+            fx = EFFECTS["position_dependence"].fixed
+            (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
+            h = fx["patch_edge_m"] / (2.0 * math.log(9.0))
+            dx, dy = x6[..., 0] - cx, x6[..., 1] - cy
+            d = np.sqrt(dx * dx + dy * dy + 1e-12)
+            th = np.tanh((r - d) / h)
+            s = 0.5 * (1.0 + th)
+            ds_dd = -0.5 * (1.0 - th * th) / h
+            k_vx = eff.value * -dict(p.terms_vx)["vx"]
+            k_om = eff.value * -dict(p.terms_omega)["omega"]
+            for row, k, state in ((0, k_vx, vx), (2, k_om, om)):
+                J_x[..., row, 0] -= k * state * ds_dd * dx / d
+                J_x[..., row, 1] -= k * state * ds_dd * dy / d
+            J_x[..., 0, 3] -= k_vx * s
+            J_x[..., 2, 5] -= k_om * s
+        elif eff is not None and eff.name == "lateral_slip":
+            k = (eff.value - 1.0) * p.lateral_coupling
+            J_x[..., 1, 3] -= k * om
+            J_x[..., 1, 5] -= k * vx
+        return J_x, J_u
+
+    # -- inputs ----------------------------------------------------------------------------
+    def motor_inputs(self, t_query, t_joy, u_joy) -> np.ndarray:
+        """Return the ``(n, 2)`` inputs the motors see at ``t_query`` (s since run start).
+
+        Zero-order hold of the joystick messages (zero before the first), then the effect's
+        input-side mechanism (delay, deadband, asymmetry, battery sag; see
+        :mod:`simulation.effects`), then saturation to [-1, 1].
+        """
+        t_query = np.atleast_1d(np.asarray(t_query, float))
+        t_joy, u_joy = np.asarray(t_joy, float), np.asarray(u_joy, float).reshape(-1, 2)
+        eff = self.effect
+        name = eff.name if eff is not None else None
+        t_eff = t_query - eff.value if name == "input_delay" else t_query
+        idx = np.searchsorted(t_joy, t_eff, side="right") - 1
+        u = np.zeros((t_query.size, 2))
+        if len(u_joy):
+            u = np.where((idx >= 0)[:, None], u_joy[np.maximum(idx, 0)], 0.0)
+        if name == "deadband":
+            v = eff.value
+            u = np.sign(u) * np.maximum(np.abs(u) - v, 0.0) / (1.0 - v)
+        elif name == "asymmetry":
+            h = eff.value / 2.0
+            u = np.column_stack([u[:, 0] + h * u[:, 1], u[:, 1] + h * u[:, 0]])
+        elif name == "time_dependence":
+            u = u * np.maximum(1.0 - eff.value * t_query / 600.0, 0.0)[:, None]
+        return np.clip(u, -1.0, 1.0)
+
+    def true_terms(self) -> dict[str, dict[str, float]]:
+        """Return ``{"vx"|"vy"|"omega": {feature: coefficient}}`` of the effect-free dynamics.
+
+        Feature names follow pysindy's PolynomialLibrary with variables ``vx, vy, omega, u1,
+        u2``; the speed limiter (zero in normal driving), noise and effects are excluded.
+        """
+        return self.params.terms()
+
+
+@dataclass(frozen=True)
+class TrueRun:
+    """True states of one simulated run on a uniform time grid, plus the joystick messages."""
+
+    t: np.ndarray  # (n,) s since run start, uniform step dt
+    x: np.ndarray  # local (AT960) frame, m
+    y: np.ndarray
+    psi: np.ndarray  # heading, unwrapped, rad
+    vx: np.ndarray  # body velocities, m/s and rad/s
+    vy: np.ndarray
+    omega: np.ndarray
+    pitch: np.ndarray  # rad, positive nose down (eq. 5.34)
+    z: np.ndarray  # body-origin height change from the level floor at the local origin, m
+    ax: np.ndarray  # longitudinal acceleration vx_dot - vy omega, m/s^2
+    u_motor: np.ndarray  # (n, 2) inputs as the motors saw them
+    t_joy: np.ndarray  # (m,) joystick message times, s since run start
+    u_joy: np.ndarray  # (m, 2) joystick messages [u1, u2] as the robot received them
+
+
+def simulate_ou_noise(n: int, dt: float, std, corr_time_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Return ``(n, len(std))`` stationary Ornstein-Uhlenbeck samples on a grid of step ``dt``."""
+    std = np.asarray(std, float)
+    rho = math.exp(-dt / corr_time_s)
+    eps = rng.standard_normal((n, std.size))
+    eps[0] /= math.sqrt(1.0 - rho * rho)  # start in the stationary distribution
+    return signal.lfilter([math.sqrt(1.0 - rho * rho)], [1.0, -rho], eps, axis=0) * std
+
+
+def pitch_from_accel(ax: np.ndarray, dt: float, params: RobotParams) -> np.ndarray:
+    """Return the suspension pitch (rad, nose down positive) excited by ``ax`` (m/s^2).
+
+    Second-order response ``theta'' + 2 zeta w theta' + w^2 theta = -w^2 k_p a_x``,
+    discretised exactly for a zero-order-held input.
+    """
+    w = 2.0 * math.pi * params.pitch_freq_hz
+    zeta = params.pitch_damping_ratio
+    num, den = [-w * w * params.pitch_per_accel_rad], [1.0, 2.0 * zeta * w, w * w]
+    b, a, _ = signal.cont2discrete((num, den), dt, method="zoh")
+    zi = signal.lfilter_zi(b[0], a) * ax[0] if len(ax) else None
+    return signal.lfilter(b[0], a, ax, zi=zi)[0] if len(ax) else ax.copy()
+
+
+def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParams | None = None,
+                 effect: Effect | None = None, dt: float = 0.002,
+                 start_pose: tuple[float, float, float] | None = None) -> TrueRun:
+    """Return the true states of a run of ``duration_s`` driven by the human-like driver.
+
+    The driver (:class:`simulation.driver.HumanDriver`) decides a command at each joystick
+    message from the state then; the motors see it through :meth:`TrueDynamics.motor_inputs`;
+    the body dynamics (:meth:`TrueDynamics.f` plus OU process noise) and the eq. 5.75 pose
+    kinematics are integrated by RK4 at ``dt``.
+
+    Parameters
+    ----------
+    duration_s
+        Run length, s.
+    rng
+        Seeded generator; same seed, same run.
+    start_pose
+        ``(x, y, psi)`` in the local frame; default: near the area centre, heading along the
+        line between the trackers (either way) with some scatter.
+    """
+    params = params or RobotParams()
+    dyn = TrueDynamics(params, effect)
+    rng_drv, rng_joy, rng_noise, rng_start = rng.spawn(4)
+    area = DrivingArea()
+    if start_pose is None:
+        cx, cy = area.center_local_m
+        psi_start = area.axis_angle_rad + (math.pi if rng_start.random() < 0.5 else 0.0)
+        start_pose = (cx + rng_start.normal(0, 0.3), cy + rng_start.normal(0, 0.2),
+                      psi_start + rng_start.normal(0, 0.3))
+    n = int(round(duration_s / dt)) + 1
+    t = np.arange(n) * dt
+    t_joy = simulate_joy_stamps(duration_s, rng_joy)
+    u_joy = np.zeros((t_joy.size, 2))
+    noise = simulate_ou_noise(n, dt, params.accel_noise_std, params.noise_corr_time_s, rng_noise)
+    n1, n2, n3 = (noise[:, i].tolist() for i in range(3))
+    driver = HumanDriver(rng_drv, start_pose[2], area)
+    out = np.empty((n, 6))
+    u_motor = np.empty((n, 2))
+    acc = dyn._acc_float
+    cos, sin = math.cos, math.sin
+    h, h2, h6 = dt, dt / 2.0, dt / 6.0
+    x, y, psi = (float(v) for v in start_pose)
+    vx = vy = om = 0.0
+    k_msg = np.minimum(np.ceil(t_joy / dt - 1e-9).astype(int), n)  # first step a message acts on
+    bounds = np.concatenate([[0], k_msg, [n]])
+    for m in range(t_joy.size + 1):
+        k0, k1 = int(bounds[m]), int(bounds[m + 1])
+        if m > 0:
+            u_joy[m - 1] = driver.command(t_joy[m - 1], x, y, psi, vx, vy, om)
+        if k1 <= k0:
+            continue
+        um = dyn.motor_inputs(t[k0:k1], t_joy[:m], u_joy[:m])
+        u_motor[k0:k1] = um
+        for k, (u1, u2) in zip(range(k0, k1), um.tolist()):
+            out[k] = (x, y, psi, vx, vy, om)
+            a1, a2, a3 = n1[k], n2[k], n3[k]
+            # RK4 on (x, y, psi, vx, vy, om), inputs and noise held over the step
+            c, s = cos(psi), sin(psi)
+            f1 = acc(x, y, psi, vx, vy, om, u1, u2)
+            kx1, ky1, kp1 = vx * c - vy * s, vx * s + vy * c, om
+            kv1, kw1, ko1 = f1[0] + a1, f1[1] + a2, f1[2] + a3
+            xb, yb, pb = x + h2 * kx1, y + h2 * ky1, psi + h2 * kp1
+            vb, wb, ob = vx + h2 * kv1, vy + h2 * kw1, om + h2 * ko1
+            c, s = cos(pb), sin(pb)
+            f2 = acc(xb, yb, pb, vb, wb, ob, u1, u2)
+            kx2, ky2, kp2 = vb * c - wb * s, vb * s + wb * c, ob
+            kv2, kw2, ko2 = f2[0] + a1, f2[1] + a2, f2[2] + a3
+            xb, yb, pb = x + h2 * kx2, y + h2 * ky2, psi + h2 * kp2
+            vb, wb, ob = vx + h2 * kv2, vy + h2 * kw2, om + h2 * ko2
+            c, s = cos(pb), sin(pb)
+            f3 = acc(xb, yb, pb, vb, wb, ob, u1, u2)
+            kx3, ky3, kp3 = vb * c - wb * s, vb * s + wb * c, ob
+            kv3, kw3, ko3 = f3[0] + a1, f3[1] + a2, f3[2] + a3
+            xb, yb, pb = x + h * kx3, y + h * ky3, psi + h * kp3
+            vb, wb, ob = vx + h * kv3, vy + h * kw3, om + h * ko3
+            c, s = cos(pb), sin(pb)
+            f4 = acc(xb, yb, pb, vb, wb, ob, u1, u2)
+            x += h6 * (kx1 + 2.0 * (kx2 + kx3) + vb * c - wb * s)
+            y += h6 * (ky1 + 2.0 * (ky2 + ky3) + vb * s + wb * c)
+            psi += h6 * (kp1 + 2.0 * (kp2 + kp3) + ob)
+            vx += h6 * (kv1 + 2.0 * (kv2 + kv3) + f4[0] + a1)
+            vy += h6 * (kw1 + 2.0 * (kw2 + kw3) + f4[1] + a2)
+            om += h6 * (ko1 + 2.0 * (ko2 + ko3) + f4[2] + a3)
+    xs, ys, psis, vxs, vys, oms = out.T
+    a_body = dyn.f(out, u_motor, t) + noise
+    ax = a_body[:, 0] - vys * oms
+    pitch = pitch_from_accel(ax, dt, params)
+    z = np.zeros(n)
+    if effect is not None and effect.name == "heading_dependence":
+        tilt = math.radians(effect.value)
+        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
+        pitch = pitch + tilt * np.cos(psis - pd)
+        z = -math.tan(tilt) * (xs * math.cos(pd) + ys * math.sin(pd))
+    return TrueRun(t=t, x=xs.copy(), y=ys.copy(), psi=psis.copy(), vx=vxs.copy(), vy=vys.copy(),
+                   omega=oms.copy(), pitch=pitch, z=z, ax=ax, u_motor=u_motor, t_joy=t_joy,
+                   u_joy=u_joy)
