@@ -126,3 +126,24 @@ def test_calibration_with_missing_or_extra_point_names_the_key(tmp_path, raw, ed
     root = write_campaign(tmp_path / "c", [raw], edit(text))
     with pytest.raises(InputError, match=rf"calibration.yaml.*({key})"):
         read_tracker_campaign(root)
+
+
+def test_fast_ros1_parser_agrees_with_rosbags_and_refuses_non_uniform_messages():
+    from rosbags.typesys import Stores, get_typestore
+
+    from identification.io_tracker import _ros1_columns
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    msgs = [T["geometry_msgs/msg/PointStamped"](
+        header=T["std_msgs/msg/Header"](seq=i, stamp=T["builtin_interfaces/msg/Time"](sec=100 + i, nanosec=7 * i),
+                                        frame_id=frame),
+        point=T["geometry_msgs/msg/Point"](x=0.1 * i, y=-2.0, z=np.pi))
+        for i, frame in enumerate(["at960", "at960", "at960"])]
+    raw = [bytes(store.serialize_ros1(m, "geometry_msgs/msg/PointStamped")) for m in msgs]
+    cols = _ros1_columns(raw, "geometry_msgs/msg/PointStamped")
+    ref = [(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.point.x, m.point.y, m.point.z) for m in msgs]
+    np.testing.assert_array_equal(cols, np.array(ref))
+    odd = raw[:2] + [bytes(store.serialize_ros1(replace(msgs[2], header=replace(msgs[2].header, frame_id="x")),
+                                                "geometry_msgs/msg/PointStamped"))]
+    assert _ros1_columns(odd, "geometry_msgs/msg/PointStamped") is None
