@@ -1,0 +1,96 @@
+"""Time ``simulate_campaign`` on the full default campaign (table 6.4, 45.4 min); bag sizes.
+
+Usage: ``.venv/bin/python bench/bench_simulate.py [--minutes M] [--seed N] [--no-write]``.
+Target (issue 2): at most 60 s on 2 cores, robot dynamics included. Writes
+``bench/results/simulate.md`` (unless ``--no-write``) with the figures and this command.
+The stages are timed by wrapping the library functions (robot dynamics, message
+serialisation, bag writing); the rest is the measurement chain and truth/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from simulation import bags, robot  # noqa: E402
+from simulation import campaign as campaign_mod  # noqa: E402
+
+
+def _timed(module, name: str, acc: dict, key: str) -> None:
+    """Replace ``module.name`` by a wrapper adding its wall time to ``acc[key]``."""
+    fn = getattr(module, name)
+
+    @functools.wraps(fn)
+    def wrapper(*a, **k):
+        t = time.perf_counter()
+        try:
+            return fn(*a, **k)
+        finally:
+            acc[key] = acc.get(key, 0.0) + time.perf_counter() - t
+
+    setattr(module, name, wrapper)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+
+    acc: dict = {}
+    _timed(robot, "simulate_run", acc, "robot dynamics (simulate_run)")
+    for name in ("serialize_time_reference", "serialize_point_stamped", "serialize_joy", "serialize_joint_state"):
+        _timed(bags, name, acc, "message serialisation (typestore.serialize_ros1)")
+    _timed(bags, "write_bag", acc, "bag writing (rosbags Writer)")
+    _timed(campaign_mod.truth_io, "write_truth", acc, "truth/ writing")
+
+    with tempfile.TemporaryDirectory(prefix="bench-sim-") as tmp:
+        out = Path(tmp) / "campaign"
+        t0 = time.perf_counter()
+        truth = campaign_mod.simulate_campaign(out, seed=args.seed, minutes=args.minutes)
+        wall = time.perf_counter() - t0
+        sizes = {kind: sum(p.stat().st_size for p in out.glob(f"runs/*/{kind}_*.bag")) for kind in ("husky", "server")}
+        truth_size = sum(p.stat().st_size for p in (out / "truth").rglob("*") if p.is_file())
+        n_msgs = sum(sum(bags.count_messages(d).values()) for d in (out / "runs").iterdir())
+    minutes = sum(r.duration_s for r in truth.runs) / 60
+    chain = wall - sum(acc.values())
+    cmd = "/work/main/.venv/bin/python bench/bench_simulate.py" + (
+        f" --minutes {args.minutes:g}" if args.minutes is not None else "")
+    lines = [
+        "## simulate: full default campaign",
+        "",
+        f"Command: `{cmd}` (seed {args.seed}; {platform.python_version()}, {os.cpu_count()} cores, "
+        "other helpers' jobs sharing them)",
+        "",
+        "| quantity | value |",
+        "|---|---|",
+        f"| driving time simulated | {minutes:.1f} min in {len(truth.runs)} runs |",
+        f"| wall time, `simulate_campaign` | **{wall:.1f} s** (target <= 60 s) |",
+        *[f"| of which {k} | {v:.1f} s |" for k, v in acc.items()],
+        f"| of which measurement chain (clocks, edges, hubs, noise) and the rest | {chain:.1f} s |",
+        f"| messages written | {n_msgs:,} |",
+        f"| bag size, robot bags (`husky_*.bag`) | {sizes['husky'] / 2**20:.1f} MiB |",
+        f"| bag size, tracker-server bags (`server_*.bag`) | {sizes['server'] / 2**20:.1f} MiB |",
+        f"| truth/ size | {truth_size / 2**20:.1f} MiB |",
+        "",
+    ]
+    text = "\n".join(lines)
+    print(text)
+    if not args.no_write:
+        (ROOT / "bench" / "results").mkdir(exist_ok=True)
+        (ROOT / "bench" / "results" / "simulate.md").write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
