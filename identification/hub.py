@@ -2,10 +2,12 @@
 
 Each prism sits in a motorised hub (thesis 3.1.7, 4.3) that turns it towards its tracker. The
 prism reference point is off the hub axis by a radius ``r_i`` (table 7.5: about 0.21 mm front,
-0.12 mm rear), so it moves on a circle in the body's horizontal plane, at the angle
-``azimuth_i + phase_i``. The commanded azimuth (eqs. 4.1 to 4.6) is measured counter-clockwise
-from the horizontal baseline direction, which is fixed in the body, so up to the per-run phase it
-is the hub's angle in the body frame. Eq. 5.25 models the measured baseline length as
+0.12 mm rear), so it moves on a circle in the body's horizontal plane as the hub turns. The
+commanded azimuth (eqs. 4.1 to 4.6) is the angle from the horizontal baseline direction (fixed
+in the body) to the prism-to-tracker direction, measured *clockwise* seen from above: eq. 4.4
+projects the prism-to-tracker vector ``-x`` on the baseline but eq. 4.5 projects the
+tracker-to-prism vector ``+x`` on the counter-clockwise normal. So up to a per-run phase the
+azimuth is minus the hub's angle in the body frame. Eq. 5.25 models the baseline length as
 
 .. math:: l(t_i) + \\epsilon_i = c + r_1 \\cos(\\varphi_1 + \\Phi_1) + r_2 \\cos(\\varphi_2 + \\Phi_2)
 
@@ -19,9 +21,10 @@ What the model can and cannot correct
 The baseline observes only the component of each eccentricity vector along the baseline:
 ``r_i cos(phi_i + Phi_i)``. That component is estimated directly. The perpendicular component
 ``r_i sin(phi_i + Phi_i)`` (which tilts the baseline and so biases the yaw by up to
-``(r_1 + r_2) / c``, about 0.025 deg) follows only under the assumption that the hub turns
-counter-clockwise as its azimuth grows, the sense of eqs. 4.3 to 4.6 (``sense=+1``); with
-``sense=-1`` the perpendicular part flips. Nothing in the baseline tells where the prism was
+``(r_1 + r_2) / c``, about 0.025 deg) follows only from the sense in which the hub turns: a
+hub that keeps its prism facing the tracker turns clockwise as the azimuth of eq. 4.6 grows
+(``sense=-1``, the default); ``sense=+1`` flips the perpendicular part for a hub mounted the
+other way. Nothing in the baseline tells where the prism was
 when the lever arms were surveyed (thesis 5.2.3): :meth:`HubModel.eccentricity_body` removes the
 whole circular motion, i.e. it refers the prisms to the hub axes, which is right when the lever
 arms are the hub axes (as in the simulator) and leaves a constant body-frame offset of at most
@@ -129,12 +132,13 @@ class HubModel:
         return self.baseline_length_m - self.predict(self.azimuth_front, self.azimuth_rear)
 
     def eccentricity_body(self, azimuth_front, azimuth_rear, lever_front_body, lever_rear_body,
-                          sense: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                          sense: int = -1) -> tuple[np.ndarray, np.ndarray]:
         """Return the (n, 3) body-frame offsets of the front and rear prisms from their hub axes, m.
 
         ``e_i = R_i (cos(phi_i + Phi_i) d_i + sense * sin(phi_i + Phi_i) z x d_i)`` with ``d_i``
         the horizontal unit vector from the other prism to prism ``i`` (so the along-baseline
-        part reproduces eq. 5.25 exactly) and ``R_i`` the horizontal radius. Add them to the
+        part reproduces eq. 5.25 exactly), ``R_i`` the horizontal radius and ``sense = -1``
+        for the clockwise azimuth of eq. 4.6 (see the module docstring). Add them to the
         lever arms to get time-varying lever arms for :func:`identification.poses.fit_poses`,
         or subtract them in the body frame to refer measurements to the hub axes.
         """
@@ -156,7 +160,7 @@ class HubModel:
         return out[0], out[1]
 
     def correct(self, p_front_local, p_rear_local, azimuth_front, azimuth_rear,
-                sense: int = 1) -> tuple[np.ndarray, np.ndarray]:
+                sense: int = -1) -> tuple[np.ndarray, np.ndarray]:
         """Return the (n, 3) prism positions referred to the hub axes, local frame, m.
 
         Works in the local frame without a pose: ``d_i`` is the measured horizontal baseline
@@ -165,6 +169,8 @@ class HubModel:
         eq. 5.25 observes; the perpendicular part rests on ``sense`` (see the module docstring).
         The corrected baseline length varies by the fit residual only.
         """
+        if sense not in (1, -1):
+            raise InputError(f"sense: must be +1 or -1, got {sense!r}")
         pf = np.asarray(p_front_local, float)
         pr = np.asarray(p_rear_local, float)
         d3 = pf - pr
