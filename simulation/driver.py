@@ -82,9 +82,9 @@ def simulate_joy_stamps(duration_s: float, rng: np.random.Generator, rate_hz: fl
 class DriverParams:
     """Tuning of the human-like driver (look-ahead, soft limits, reaction of the supervisor)."""
 
-    lookahead_s: float = 1.0
-    soft_radius: float = 0.72  # supervisor takes over beyond this normalised elliptic radius
-    soft_tracker_distance_m: float = 2.1
+    lookahead_s: float = 0.6
+    soft_radius: float = 0.88  # supervisor takes over beyond this normalised elliptic radius
+    soft_tracker_distance_m: float = 1.85
     home_radius: float = 0.3  # ... and hands back inside this one
     heading_soft_rad: float = math.radians(110.0)  # +-150 deg is the hard limit
     heading_home_rad: float = math.radians(50.0)

@@ -146,6 +146,113 @@ def _compile_acc(params: RobotParams, effect: Effect | None, lib) -> callable:
     return namespace["acc"]
 
 
+def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple, indent: str) -> list[str]:
+    """Return source lines computing ``ax, ay, aw`` from the states named ``sv`` (x, y, psi, vx,
+    vy, om) and the per-input coefficients ``coef`` (state monomial -> variable name)."""
+    x, y, psi, vx, vy, om = sv
+    used = {e for eq in coef.values() for e in eq}
+    names = (vx, vy, om)
+    pw = sorted({(v, p) for ex in used for v in range(3) for p in range(2, ex[v] + 1)})
+    lines = [f"{indent}{names[v]}{p} = {names[v]}" + f"*{names[v]}" * (p - 1) for v, p in pw]
+
+    def mono(ex):
+        return "*".join(names[v] + (str(ex[v]) if ex[v] > 1 else "") for v in range(3) if ex[v])
+
+    for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
+        parts = [cn if not any(ex) else f"{cn}*{mono(ex)}" for ex, cn in coef[key].items()]
+        lines.append(f"{indent}{out} = " + (" + ".join(parts) or "0.0"))
+    g, gw, kg = params.guard_speed_m_s, params.guard_omega_rad_s, params.guard_gain
+    lines += [f"{indent}if {vx} > {g!r}: ax -= {kg!r}*({vx} - {g!r})**2",
+              f"{indent}elif {vx} < {-g!r}: ax += {kg!r}*({vx} + {g!r})**2",
+              f"{indent}if {om} > {gw!r}: aw -= {kg!r}*({om} - {gw!r})**2",
+              f"{indent}elif {om} < {-gw!r}: aw += {kg!r}*({om} + {gw!r})**2"]
+    name = effect.name if effect is not None else None
+    if name == "heading_dependence":
+        a_g = params.g_m_s2 * math.sin(math.radians(effect.value))
+        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
+        lines += [f"{indent}ax += {a_g!r}*cos({psi} - {pd!r})",
+                  f"{indent}ay -= {a_g!r}*sin({psi} - {pd!r})"]
+    elif name == "position_dependence":
+        fx = EFFECTS["position_dependence"].fixed
+        (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
+        half_scale = fx["patch_edge_m"] / (2.0 * math.log(9.0))
+        d_vx, d_om = -dict(params.terms_vx)["vx"], -dict(params.terms_omega)["omega"]
+        lines += [f"{indent}s_ = 0.5*(1.0 + tanh(({r!r} - sqrt(({x} - {cx!r})**2 + ({y} - {cy!r})**2"
+                  f" + 1e-12))/{half_scale!r}))",
+                  f"{indent}ax -= {effect.value * d_vx!r}*s_*{vx}",
+                  f"{indent}aw -= {effect.value * d_om!r}*s_*{om}"]
+    elif name == "lateral_slip":
+        lines.append(f"{indent}ay -= {(effect.value - 1.0) * params.lateral_coupling!r}*{vx}*{om}")
+    return lines
+
+
+def _collect_by_state(params: RobotParams) -> tuple[dict, list[str]]:
+    """Return ``({eq: {state exps: coefficient name}}, lines computing the coefficients from
+    u1, u2)``: the polynomial regrouped by state monomial, its coefficients polynomials in u."""
+    terms = params.terms()
+    coef, lines, powers = {}, [], set()
+    for key in ("vx", "vy", "omega"):
+        groups: dict[tuple, list[str]] = {}
+        for n, c in terms[key].items():
+            ex = exponents_from_name(n)
+            u_part = "*".join(f"u{i + 1}" + (f"_{ex[3 + i]}" if ex[3 + i] > 1 else "")
+                              for i in range(2) if ex[3 + i])
+            powers |= {(i + 1, p) for i in range(2) for p in range(2, ex[3 + i] + 1)}
+            groups.setdefault(ex[:3], []).append(f"({c!r})" + (f"*{u_part}" if u_part else ""))
+        coef[key] = {}
+        for j, (ex, parts) in enumerate(groups.items()):
+            cn = f"C_{key}_{j}"
+            coef[key][ex] = cn
+            lines.append(f"{cn} = " + " + ".join(parts))
+    pre = [f"u{i}_{p} = u{i}" + f"*u{i}" * (p - 1) for i, p in sorted(powers)]
+    return coef, pre + lines
+
+
+def _compile_stepper(params: RobotParams, effect: Effect | None):
+    """Return ``(integrate, acc)`` compiled from the term table for the float RK4 loop.
+
+    ``integrate(k0, k1, state, U, N1, N2, N3, out, h)`` advances ``state`` (6 floats) over the
+    steps ``k0..k1-1`` with RK4, the inputs ``U[k - k0]`` and noise ``N*[k]`` held per step,
+    appending the state at each step start to ``out``; ``acc`` evaluates the same code once
+    (for tests). The polynomial is regrouped by state monomial with coefficients recomputed
+    only when the motor input changes (it is constant over a joystick message), which makes a
+    stage about three times cheaper than the expanded form.
+    """
+    coef, coef_lines = _collect_by_state(params)
+    src = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
+    src += ["    " + ln for ln in coef_lines]
+    src += _acc_lines(params, effect, coef, ("x", "y", "psi", "vx", "vy", "om"), "    ")
+    src += ["    return ax, ay, aw", "",
+            "def integrate(k0, k1, state, U, N1, N2, N3, out, h):",
+            "    x, y, psi, vx, vy, om = state",
+            "    h2 = 0.5*h; h6 = h/6.0; u1p = u2p = None",
+            "    for k in range(k0, k1):",
+            "        u1, u2 = U[k - k0]",
+            "        if u1 != u1p or u2 != u2p:",
+            "            u1p, u2p = u1, u2"]
+    src += ["            " + ln for ln in coef_lines]
+    src += ["        out.append((x, y, psi, vx, vy, om))",
+            "        a1 = N1[k]; a2 = N2[k]; a3 = N3[k]"]
+    stage_in = [("x", "y", "psi", "vx", "vy", "om")] + [("xb", "yb", "pb", "vb", "wb", "ob")] * 3
+    step = ["h2", "h2", "h", None]
+    for i in range(4):
+        sv = stage_in[i]
+        src += _acc_lines(params, effect, coef, sv, "        ")
+        src += [f"        c = cos({sv[2]}); s = sin({sv[2]})",
+                f"        kx{i} = {sv[3]}*c - {sv[4]}*s; ky{i} = {sv[3]}*s + {sv[4]}*c; kp{i} = {sv[5]}",
+                f"        kv{i} = ax + a1; kw{i} = ay + a2; ko{i} = aw + a3"]
+        if step[i]:
+            hh = step[i]
+            src += [f"        xb = x + {hh}*kx{i}; yb = y + {hh}*ky{i}; pb = psi + {hh}*kp{i}",
+                    f"        vb = vx + {hh}*kv{i}; wb = vy + {hh}*kw{i}; ob = om + {hh}*ko{i}"]
+    for var, kn in (("x", "kx"), ("y", "ky"), ("psi", "kp"), ("vx", "kv"), ("vy", "kw"), ("om", "ko")):
+        src.append(f"        {var} += h6*({kn}0 + 2.0*({kn}1 + {kn}2) + {kn}3)")
+    src.append("    return x, y, psi, vx, vy, om")
+    namespace = {"cos": math.cos, "sin": math.sin, "tanh": math.tanh, "sqrt": math.sqrt}
+    exec("\n".join(src), namespace)  # noqa: S102 - source generated from the numeric term table
+    return namespace["integrate"], namespace["acc"]
+
+
 class TrueDynamics:
     """The simulator's true body dynamics with an optional effect (the estimation oracle).
 
@@ -188,7 +295,7 @@ class TrueDynamics:
                 for v in np.flatnonzero(ex):
                     e = ex.copy()
                     e[v] -= 1
-                    mono = np.prod(np.take_along_axis(powers, e[:, None], axis=-1)[..., 0], axis=-1)
+                    mono = np.prod(powers[..., np.arange(5), e], axis=-1)
                     J[..., row, v] += c * ex[v] * mono
         return J
 
@@ -357,53 +464,22 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
     noise = simulate_ou_noise(n, dt, params.accel_noise_std, params.noise_corr_time_s, rng_noise)
     n1, n2, n3 = (noise[:, i].tolist() for i in range(3))
     driver = HumanDriver(rng_drv, start_pose[2], area)
-    out = np.empty((n, 6))
     u_motor = np.empty((n, 2))
-    acc = dyn._acc_float
-    cos, sin = math.cos, math.sin
-    h, h2, h6 = dt, dt / 2.0, dt / 6.0
-    x, y, psi = (float(v) for v in start_pose)
-    vx = vy = om = 0.0
+    integrate, _ = _compile_stepper(params, effect)
+    state = tuple(float(v) for v in start_pose) + (0.0, 0.0, 0.0)
+    rows: list[tuple] = []
     k_msg = np.minimum(np.ceil(t_joy / dt - 1e-9).astype(int), n)  # first step a message acts on
     bounds = np.concatenate([[0], k_msg, [n]])
     for m in range(t_joy.size + 1):
         k0, k1 = int(bounds[m]), int(bounds[m + 1])
         if m > 0:
-            u_joy[m - 1] = driver.command(t_joy[m - 1], x, y, psi, vx, vy, om)
+            u_joy[m - 1] = driver.command(t_joy[m - 1], *state)
         if k1 <= k0:
             continue
         um = dyn.motor_inputs(t[k0:k1], t_joy[:m], u_joy[:m])
         u_motor[k0:k1] = um
-        for k, (u1, u2) in zip(range(k0, k1), um.tolist()):
-            out[k] = (x, y, psi, vx, vy, om)
-            a1, a2, a3 = n1[k], n2[k], n3[k]
-            # RK4 on (x, y, psi, vx, vy, om), inputs and noise held over the step
-            c, s = cos(psi), sin(psi)
-            f1 = acc(x, y, psi, vx, vy, om, u1, u2)
-            kx1, ky1, kp1 = vx * c - vy * s, vx * s + vy * c, om
-            kv1, kw1, ko1 = f1[0] + a1, f1[1] + a2, f1[2] + a3
-            xb, yb, pb = x + h2 * kx1, y + h2 * ky1, psi + h2 * kp1
-            vb, wb, ob = vx + h2 * kv1, vy + h2 * kw1, om + h2 * ko1
-            c, s = cos(pb), sin(pb)
-            f2 = acc(xb, yb, pb, vb, wb, ob, u1, u2)
-            kx2, ky2, kp2 = vb * c - wb * s, vb * s + wb * c, ob
-            kv2, kw2, ko2 = f2[0] + a1, f2[1] + a2, f2[2] + a3
-            xb, yb, pb = x + h2 * kx2, y + h2 * ky2, psi + h2 * kp2
-            vb, wb, ob = vx + h2 * kv2, vy + h2 * kw2, om + h2 * ko2
-            c, s = cos(pb), sin(pb)
-            f3 = acc(xb, yb, pb, vb, wb, ob, u1, u2)
-            kx3, ky3, kp3 = vb * c - wb * s, vb * s + wb * c, ob
-            kv3, kw3, ko3 = f3[0] + a1, f3[1] + a2, f3[2] + a3
-            xb, yb, pb = x + h * kx3, y + h * ky3, psi + h * kp3
-            vb, wb, ob = vx + h * kv3, vy + h * kw3, om + h * ko3
-            c, s = cos(pb), sin(pb)
-            f4 = acc(xb, yb, pb, vb, wb, ob, u1, u2)
-            x += h6 * (kx1 + 2.0 * (kx2 + kx3) + vb * c - wb * s)
-            y += h6 * (ky1 + 2.0 * (ky2 + ky3) + vb * s + wb * c)
-            psi += h6 * (kp1 + 2.0 * (kp2 + kp3) + ob)
-            vx += h6 * (kv1 + 2.0 * (kv2 + kv3) + f4[0] + a1)
-            vy += h6 * (kw1 + 2.0 * (kw2 + kw3) + f4[1] + a2)
-            om += h6 * (ko1 + 2.0 * (ko2 + ko3) + f4[2] + a3)
+        state = integrate(k0, k1, state, um.tolist(), n1, n2, n3, rows, dt)
+    out = np.array(rows)
     xs, ys, psis, vxs, vys, oms = out.T
     a_body = dyn.f(out, u_motor, t) + noise
     ax = a_body[:, 0] - vys * oms
