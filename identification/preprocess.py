@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.sync import SyncedRun, sync_run
+from identification.sync import SyncedRun, azimuth_at, sync_run
 from identification.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun
 from sindy_ekf.errors import InputError
 from sindy_ekf.io_utils import atomic_write_json, check_output_dir
@@ -127,17 +127,6 @@ def point_std_m(tracker: str, p_local: np.ndarray, origin_local: np.ndarray) -> 
     """Return the (n,) per-coordinate std of a tracker's points from its range (table 3.2)."""
     a, b = REPEATABILITY_STD[tracker]
     return a + b * np.linalg.norm(p_local - origin_local, axis=1)
-
-
-def azimuth_at(t_query: np.ndarray, t_cmd: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
-    """Return the commanded azimuths (k, 2) held since the last command before each query time.
-
-    The hub set points are commands, constant until the next one: a zero-order hold.
-    """
-    i = np.searchsorted(t_cmd, t_query, side="right") - 1
-    az = np.unwrap(azimuth, axis=0)[np.clip(i, 0, None)]
-    az[i < 0] = np.nan
-    return az
 
 
 def inputs_from_raw(raw: RawRun) -> InputSeries:

@@ -95,6 +95,8 @@ class OffsetEstimate:
     spread_grid: np.ndarray  # baseline spread s_r at those offsets (eq. 5.16), m
     dt_fit: np.ndarray  # the ten samples of the quadratic fit (eq. 5.19)
     spread_fit: np.ndarray
+    hub_terms: bool  # spread taken after removing the eq. 5.25 hub terms (joint estimate)
+    dt_without_hub: float  # the thesis's estimate: spread of the raw baseline length, s
 
 
 @dataclass(frozen=True)
@@ -134,7 +136,7 @@ class SyncedRun:
     baseline_after_m: np.ndarray  # (n,) after the AT960 offset (eq. 5.24)
     v_forward: np.ndarray  # (n,) forward speed from the prism positions, m/s (with sign)
     r_speed_before: float  # Pearson r of baseline variation with forward speed, before
-    r_speed_after: float  # the same after the offset correction
+    r_speed_after: float  # the same after the offset correction (and the hub terms, if joint)
     counts: dict[str, TrackerCounts]
     residuals: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     # tracker -> (s_trigger of matched samples, mapped tracker time - trigger time), fig. 5.4
@@ -367,17 +369,52 @@ def timing_error_correlation(baseline_m: np.ndarray, v_forward: np.ndarray) -> f
     return pearson_r(baseline_m - np.nanmean(baseline_m), v_forward)
 
 
+def hub_design(t_query: np.ndarray, t_cmd: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
+    """Return the (n, 5) design of eq. 5.25 in linear form at the query times, NaN rows before
+    the first command: ``[1, cos phi_f, sin phi_f, cos phi_r, sin phi_r]``.
+
+    The hub set points are commands, constant until the next one: a zero-order hold.
+    """
+    az = azimuth_at(t_query, t_cmd, azimuth)
+    return np.column_stack([np.ones(len(az)), np.cos(az[:, 0]), np.sin(az[:, 0]),
+                            np.cos(az[:, 1]), np.sin(az[:, 1])])
+
+
+def azimuth_at(t_query: np.ndarray, t_cmd: np.ndarray, azimuth: np.ndarray) -> np.ndarray:
+    """Return the (n, 2) commanded azimuths held since the last command before each query time
+    (NaN before the first one)."""
+    if len(t_cmd) == 0:
+        return np.full((len(t_query), 2), np.nan)
+    i = np.searchsorted(t_cmd, t_query, side="right") - 1
+    az = np.unwrap(np.asarray(azimuth, float), axis=0)[np.clip(i, 0, None)]
+    az[i < 0] = np.nan
+    return az
+
+
 def _spread(dt: np.ndarray, s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray,
-            xyz_late: np.ndarray) -> np.ndarray:
-    """Return the baseline spread s_r(dt) for each offset in ``dt`` (eqs. 5.15 to 5.17)."""
+            xyz_late: np.ndarray, A_hub: np.ndarray | None = None) -> np.ndarray:
+    """Return the baseline spread s_r(dt) for each offset in ``dt`` (eqs. 5.15 to 5.17).
+
+    With ``A_hub`` (the eq. 5.25 design at the trigger times) the spread is that of the
+    baseline length after the least-squares hub terms are removed at each trial offset.
+    """
     p_late = interpolate_at(s[None, :] - np.asarray(dt)[:, None], s_late, xyz_late)
     length = np.linalg.norm(p_ref[None] - p_late, axis=-1)
     ok = np.isfinite(length).all(axis=0)  # the same triggers for every offset
-    return length[:, ok].std(axis=1, ddof=1)
+    if A_hub is None:
+        return length[:, ok].std(axis=1, ddof=1)
+    ok &= np.isfinite(A_hub).all(axis=1)
+    # orthonormal basis of the hub terms (SVD: rank-revealing if an azimuth barely moves)
+    U, sv, _ = np.linalg.svd(A_hub[ok], full_matrices=False)
+    U = U[:, sv > sv[0] * 1e-8]
+    L = length[:, ok]
+    res = L - (L @ U) @ U.T
+    return np.sqrt((res**2).sum(axis=1) / (ok.sum() - U.shape[1]))
 
 
 def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_late: np.ndarray,
-                     search_s: float = 0.01, run: str = "?") -> OffsetEstimate:
+                     search_s: float = 0.01, run: str = "?",
+                     A_hub: np.ndarray | None = None) -> OffsetEstimate:
     """Return the extra offset of one tracker's times that minimises the baseline spread.
 
     Implements eqs. 5.13 to 5.22: ``s_r`` is sampled over ``[-search_s, search_s]`` (coarse,
@@ -386,15 +423,32 @@ def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_l
     propagation of the coefficients' covariance (5.21, 5.22). The sign is that of eq. 5.24:
     the shifted tracker's positions at trigger time ``t`` are its samples at ``t - dt`` on its
     clock model; ``p_ref`` are the other tracker's positions at the trigger times ``s``.
+
+    Beyond the thesis: with ``A_hub`` (:func:`hub_design`) the spread is measured after the
+    turning-hub terms of eq. 5.25 are removed at every trial offset, i.e. offset and hub
+    eccentricity are estimated jointly. The eccentricity seen along the baseline follows the
+    hub azimuths, which follow the robot's motion; left in, it correlates with the speed and
+    pulls the thesis's estimate by tens of microseconds (``dt_without_hub`` keeps that one).
     """
+    est = _fit_offset(s, p_ref, s_late, xyz_late, search_s, run, None)
+    if A_hub is None or not np.isfinite(A_hub).all(axis=1).any():
+        return est
+    joint = _fit_offset(s, p_ref, s_late, xyz_late, search_s, run, A_hub)
+    from dataclasses import replace
+
+    return replace(joint, dt_without_hub=est.dt)
+
+
+def _fit_offset(s, p_ref, s_late, xyz_late, search_s, run, A_hub) -> OffsetEstimate:
+    """Grid, quadratic and vertex of :func:`fit_extra_offset` for one spread definition."""
     if np.sum(np.isfinite(p_ref[:, 0])) < 50:
         raise InputError(f"run {run}: fewer than 50 trigger times with both prisms seen; "
                          "cannot estimate the AT960 offset")
     coarse = np.arange(-search_s, search_s + 1e-12, 2.5e-4)
-    spread_c = _spread(coarse, s, p_ref, s_late, xyz_late)
+    spread_c = _spread(coarse, s, p_ref, s_late, xyz_late, A_hub)
     best = coarse[np.argmin(spread_c)]
     fine = best + np.arange(-5e-4, 5e-4 + 1e-12, 2e-5)
-    spread_f = _spread(fine, s, p_ref, s_late, xyz_late)
+    spread_f = _spread(fine, s, p_ref, s_late, xyz_late, A_hub)
     c = int(np.clip(np.argmin(spread_f), 5, fine.size - 5))
     dt_fit, spread_fit = fine[c - 5:c + 5], spread_f[c - 5:c + 5]
     x0 = dt_fit.mean()  # centre for conditioning; the vertex is shifted back below
@@ -412,7 +466,8 @@ def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_l
     order = np.argsort(all_dt)
     return OffsetEstimate(dt=float(dt), dt_std=float(np.sqrt(F @ cov @ F)), coeffs=coef, cov=cov,
                           dt_grid=all_dt[order], spread_grid=np.concatenate([spread_c, spread_f])[order],
-                          dt_fit=dt_fit, spread_fit=spread_fit)
+                          dt_fit=dt_fit, spread_fit=spread_fit, hub_terms=A_hub is not None,
+                          dt_without_hub=float(dt))
 
 
 # --- the run ------------------------------------------------------------------------------
@@ -420,7 +475,7 @@ def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_l
 
 def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray,
              prism_tracker: dict[str, str] | None = None,
-             max_interp_gap_s: float = MAX_INTERP_GAP_S) -> SyncedRun:
+             max_interp_gap_s: float = MAX_INTERP_GAP_S, joint_hub: bool = True) -> SyncedRun:
     """Return the run with both prisms in the local frame at the trigger times (thesis 5.2.2).
 
     Parameters
@@ -431,6 +486,9 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
         Transform of eq. 5.1, ``x_at960 = t + R x_ltd800`` (the local frame is the AT960's).
     prism_tracker : dict, optional
         Which tracker follows which prism, ``{"front": "ltd800", "rear": "at960"}`` by default.
+    joint_hub : bool
+        Estimate the extra offset jointly with the hub terms of eq. 5.25 (see
+        :func:`fit_extra_offset`) when the run has hub azimuths; False is the thesis's way.
 
     Raises
     ------
@@ -465,7 +523,8 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
     ref = "ltd800" if late == "at960" else "at960"
     p_ref = interpolate_at(s, mapped[ref], xyz_local[ref], max_interp_gap_s)
     p_late_0 = interpolate_at(s, mapped[late], xyz_local[late], max_interp_gap_s)
-    offset = fit_extra_offset(s, p_ref, mapped[late], xyz_local[late], run=raw.name)
+    A_hub = hub_design(raw.t_trigger_utc, raw.t_hub_utc, raw.hub_azimuth) if joint_hub else None
+    offset = fit_extra_offset(s, p_ref, mapped[late], xyz_local[late], run=raw.name, A_hub=A_hub)
     p_late = interpolate_at(s - offset.dt, mapped[late], xyz_local[late], max_interp_gap_s)
     base_0 = np.linalg.norm(p_ref - p_late_0, axis=1)
     base_1 = np.linalg.norm(p_ref - p_late, axis=1)
@@ -475,7 +534,9 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
     p = {ref: p_ref, late: p_late}
     p_front, p_rear = p[prism_tracker["front"]], p[prism_tracker["rear"]]
     v_fwd = forward_speed(s, p_front, p_rear)
-    r0, r1 = timing_error_correlation(base_0, v_fwd), timing_error_correlation(base_1, v_fwd)
+    # after the correction, what is left of the baseline once the hub terms are explained
+    r0, r1 = timing_error_correlation(base_0, v_fwd), timing_error_correlation(
+        _without_hub_terms(base_1, A_hub) if A_hub is not None else base_1, v_fwd)
     log.info("run %s: baseline vs forward speed r = %.2f before, %.2f after the %s offset of "
              "%.4f ms", raw.name, r0, r1, late, offset.dt * 1e3)
     clock[late] = _with_offset(clock[late], offset.dt)
@@ -483,6 +544,16 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
                      p_rear_local=p_rear, clock=clock, offset_tracker=late, offset=offset,
                      baseline_before_m=base_0, baseline_after_m=base_1, v_forward=v_fwd,
                      r_speed_before=r0, r_speed_after=r1, counts=counts, residuals=resid)
+
+
+def _without_hub_terms(length: np.ndarray, A_hub: np.ndarray) -> np.ndarray:
+    """Return the baseline length minus its least-squares eq. 5.25 hub terms (NaN elsewhere)."""
+    ok = np.isfinite(length) & np.isfinite(A_hub).all(axis=1)
+    out = np.full_like(length, np.nan)
+    if ok.sum() > A_hub.shape[1]:
+        coef, *_ = np.linalg.lstsq(A_hub[ok], length[ok], rcond=None)
+        out[ok] = length[ok] - A_hub[ok] @ coef + coef[0]
+    return out
 
 
 def _with_offset(model: ClockModel, dt: float) -> ClockModel:
