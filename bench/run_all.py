@@ -1,0 +1,45 @@
+"""Run every bench script and assemble bench/RESULTS.md from bench/results/*.md.
+
+Usage: ``.venv/bin/python bench/run_all.py [--assemble-only]``. Each ``bench/bench_*.py``
+writes its own ``bench/results/<area>.md`` with the figures and the command that produced
+them; this script runs them one after another (never in parallel: timings are for 2 cores)
+and concatenates the sections in pipeline order.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "estimation", "real",
+         "diagnose", "demo"]
+
+
+def assemble() -> Path:
+    """Concatenate bench/results/*.md in pipeline order into bench/RESULTS.md; return its path."""
+    parts = [(HERE / "RESULTS_HEADER.md").read_text()]
+    found = sorted((HERE / "results").glob("*.md"), key=lambda p: (
+        ORDER.index(p.stem) if p.stem in ORDER else len(ORDER), p.stem))
+    for path in found:
+        parts.append(path.read_text().strip() + "\n")
+    out = HERE / "RESULTS.md"
+    out.write_text("\n".join(parts))
+    return out
+
+
+def main() -> int:
+    if "--assemble-only" not in sys.argv:
+        for script in sorted(HERE.glob("bench_*.py")):
+            t0 = time.perf_counter()
+            print(f"== {script.name}", flush=True)
+            rc = subprocess.call([sys.executable, str(script)])
+            print(f"== {script.name}: exit {rc} after {time.perf_counter() - t0:.1f} s", flush=True)
+    print(assemble())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
