@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.linalg import solveh_banded
-from scipy.optimize import brentq
+from scipy.optimize import toms748
 
 from identification.trajectory import gap_segments
 from identification.types import BodyStates, InputSeries, PoseTrack
@@ -65,35 +65,49 @@ MIN_SEGMENT = 4
 _LOG_LAMBDA_RANGE = (-12.0, 14.0)
 
 
-def _smooth_values(t: np.ndarray, y: np.ndarray, var: np.ndarray, lam: float) -> np.ndarray:
-    """Return the values at ``t`` of the cubic smoothing spline with penalty ``lam``.
+class _Reinsch:
+    """Cubic smoothing spline values for any penalty, by Reinsch's algorithm.
 
-    Minimises ``sum (y - g)^2 / var + lam * int g''^2`` by Reinsch's algorithm: with ``Q`` the
-    second-divided-difference matrix and ``R`` the tridiagonal spline matrix, the interior
-    second derivatives solve ``(R + lam Q^T D Q) gamma = Q^T y`` (``D = diag(var)``, a
-    pentadiagonal SPD system) and ``g = y - lam D Q gamma``.
+    Minimises ``sum (y - g)^2 / var + lam * int g''^2``: with ``Q`` the second-divided-
+    difference matrix and ``R`` the tridiagonal spline matrix, the interior second derivatives
+    solve ``(R + lam Q^T D Q) gamma = Q^T y`` (``D = diag(var)``, a pentadiagonal SPD system,
+    O(n) per penalty) and ``g = y - lam D Q gamma``. The bands of ``R`` and ``Q^T D Q`` are
+    built once and reused across the penalties a root search tries.
     """
-    h = np.diff(t)
-    n = t.size
-    if lam == 0.0 or n < 3:
-        return y.copy()
-    inv_h = 1.0 / h
-    a = inv_h[:-1]  # column j of Q has a_j, b_j, c_j in rows j-1, j, j+1 (j interior)
-    c = inv_h[1:]
-    b = -(a + c)
-    d = var
-    diag = (h[:-1] + h[1:]) / 3.0 + lam * (d[:-2] * a**2 + d[1:-1] * b**2 + d[2:] * c**2)
-    off1 = h[1:-1] / 6.0 + lam * (d[1:-2] * b[:-1] * a[1:] + d[2:-1] * c[:-1] * b[1:])
-    off2 = lam * d[2:-2] * c[:-2] * a[2:]
-    ab = np.zeros((3, n - 2))
-    ab[0, 2:] = off2
-    ab[1, 1:] = off1
-    ab[2] = diag
-    rhs = np.diff(np.diff(y) * inv_h)
-    gamma = solveh_banded(ab, rhs, check_finite=False)
-    slope = np.diff(np.concatenate([[0.0], gamma, [0.0]])) * inv_h
-    Q_gamma = np.diff(np.concatenate([[0.0], slope, [0.0]]))
-    return y - lam * d * Q_gamma
+
+    def __init__(self, t: np.ndarray, y: np.ndarray, var: np.ndarray):
+        h = np.diff(t)
+        self.inv_h = 1.0 / h
+        a = self.inv_h[:-1]  # column j of Q has a_j, b_j, c_j in rows j-1, j, j+1 (j interior)
+        c = self.inv_h[1:]
+        b = -(a + c)
+        d = var
+        m = t.size - 2
+        self.R = np.zeros((3, m))  # upper banded storage for solveh_banded
+        self.R[1, 1:] = h[1:-1] / 6.0
+        self.R[2] = (h[:-1] + h[1:]) / 3.0
+        self.T = np.zeros((3, m))
+        self.T[0, 2:] = d[2:-2] * c[:-2] * a[2:]
+        self.T[1, 1:] = d[1:-2] * b[:-1] * a[1:] + d[2:-1] * c[:-1] * b[1:]
+        self.T[2] = d[:-2] * a**2 + d[1:-1] * b**2 + d[2:] * c**2
+        self.rhs = np.diff(np.diff(y) * self.inv_h)
+        self.y, self.var = y, var
+
+    def values(self, lam: float) -> np.ndarray:
+        """Return the smoothing spline's values at the knots for penalty ``lam``."""
+        if lam == 0.0:
+            return self.y.copy()
+        gamma = solveh_banded(self.R + lam * self.T, self.rhs, check_finite=False)
+        slope = np.diff(np.concatenate([[0.0], gamma, [0.0]])) * self.inv_h
+        Q_gamma = np.diff(np.concatenate([[0.0], slope, [0.0]]))
+        return self.y - lam * self.var * Q_gamma
+
+
+def _smooth_values(t: np.ndarray, y: np.ndarray, var: np.ndarray, lam: float) -> np.ndarray:
+    """Return the values at ``t`` of the cubic smoothing spline with penalty ``lam`` (see _Reinsch)."""
+    if lam == 0.0 or t.size < 3:
+        return np.asarray(y, float).copy()
+    return _Reinsch(t, y, var).values(lam)
 
 
 def smoothing_spline(t, y, y_std, s: float) -> tuple[CubicSpline, float]:
@@ -130,8 +144,10 @@ def smoothing_spline(t, y, y_std, s: float) -> tuple[CubicSpline, float]:
     std_ref = float(np.sqrt(np.median(var)))
     tau_n, y_n, var_n = tau / h_ref, (y - y[0]) / std_ref, var / std_ref**2
 
+    problem = _Reinsch(tau_n, y_n, var_n)
+
     def excess(log_lam: float) -> float:
-        g = _smooth_values(tau_n, y_n, var_n, 10.0**log_lam)
+        g = problem.values(10.0**log_lam)
         return float(np.log(np.mean((y_n - g) ** 2 / var_n) + 1e-300) - np.log(s))
 
     w = 1.0 / var_n
@@ -142,8 +158,8 @@ def smoothing_spline(t, y, y_std, s: float) -> tuple[CubicSpline, float]:
     if chi2_line <= s or excess(hi) <= 0.0:
         g_n, lam = A @ coef, np.inf
     else:
-        log_lam = brentq(excess, lo, hi, xtol=1e-3) if excess(lo) < 0.0 else lo
-        g_n = _smooth_values(tau_n, y_n, var_n, 10.0**log_lam)
+        log_lam = toms748(excess, lo, hi, xtol=1e-3) if excess(lo) < 0.0 else lo
+        g_n = problem.values(10.0**log_lam)
         lam = 10.0**log_lam * h_ref**3 / std_ref**2
     return CubicSpline(t, y[0] + g_n * std_ref, bc_type="natural"), lam
 
