@@ -146,21 +146,28 @@ def _compile_acc(params: RobotParams, effect: Effect | None, lib) -> callable:
     return namespace["acc"]
 
 
+def _horner(poly: dict, names: tuple) -> str:
+    """Return a nested (Horner) expression of ``{exponents: coefficient source}`` in ``names``."""
+    if not poly:
+        return "0.0"
+    counts = [sum(1 for ex in poly if ex[v]) for v in range(len(names))]
+    v = int(np.argmax(counts))
+    if counts[v] == 0:
+        return " + ".join(poly.values())
+    rest = {ex: c for ex, c in poly.items() if not ex[v]}
+    inner = {ex[:v] + (ex[v] - 1,) + ex[v + 1:]: c for ex, c in poly.items() if ex[v]}
+    head = f"{_horner(rest, names)} + " if rest else ""
+    return f"({head}{names[v]}*{_horner(inner, names)})"
+
+
 def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple, indent: str) -> list[str]:
     """Return source lines computing ``ax, ay, aw`` from the states named ``sv`` (x, y, psi, vx,
     vy, om) and the per-input coefficients ``coef`` (state monomial -> variable name)."""
     x, y, psi, vx, vy, om = sv
-    used = {e for eq in coef.values() for e in eq}
     names = (vx, vy, om)
-    pw = sorted({(v, p) for ex in used for v in range(3) for p in range(2, ex[v] + 1)})
-    lines = [f"{indent}{names[v]}{p} = {names[v]}" + f"*{names[v]}" * (p - 1) for v, p in pw]
-
-    def mono(ex):
-        return "*".join(names[v] + (str(ex[v]) if ex[v] > 1 else "") for v in range(3) if ex[v])
-
+    lines = []
     for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
-        parts = [cn if not any(ex) else f"{cn}*{mono(ex)}" for ex, cn in coef[key].items()]
-        lines.append(f"{indent}{out} = " + (" + ".join(parts) or "0.0"))
+        lines.append(f"{indent}{out} = {_horner(coef[key], names)}")
     g, gw, kg = params.guard_speed_m_s, params.guard_omega_rad_s, params.guard_gain
     lines += [f"{indent}if {vx} > {g!r}: ax -= {kg!r}*({vx} - {g!r})**2",
               f"{indent}elif {vx} < {-g!r}: ax += {kg!r}*({vx} + {g!r})**2",
@@ -201,6 +208,9 @@ def _collect_by_state(params: RobotParams) -> tuple[dict, list[str]]:
             groups.setdefault(ex[:3], []).append(f"({c!r})" + (f"*{u_part}" if u_part else ""))
         coef[key] = {}
         for j, (ex, parts) in enumerate(groups.items()):
+            if len(parts) == 1 and "*" not in parts[0]:  # constant: inline the literal
+                coef[key][ex] = parts[0]
+                continue
             cn = f"C_{key}_{j}"
             coef[key][ex] = cn
             lines.append(f"{cn} = " + " + ".join(parts))
