@@ -314,3 +314,23 @@ def plot_error_curves(results: Sequence[EvaluationResult], path=None, stacked: b
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig
+
+
+def evaluate_on_runs(models: dict, runs, smoothing: float, methods=("rk4",)) -> dict[str, dict[str, EvaluationResult]]:
+    """Return ``{model name: {method: EvaluationResult}}`` on the gap-free segments of ``runs``.
+
+    ``runs`` are :class:`~identification.types.TrajectoryRun` (the test runs); their body
+    states are computed with smoothing ``smoothing`` (the model's ``s``), so every model sees
+    the same windows.
+    """
+    from identification.search import states_of_runs
+
+    segs, names, _ = states_of_runs(runs, smoothing)
+    windows = make_windows(segs, names=names)
+    out = {}
+    for name, model in models.items():
+        if hasattr(model, "check_envelope"):
+            model.check_envelope(np.vstack([s.state for s in segs]), np.vstack([s.inputs for s in segs]),
+                                 name=f"test runs ({name})")
+        out[name] = {m: evaluate_model(model, windows, method=m, name=name) for m in methods}
+    return out

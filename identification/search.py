@@ -96,23 +96,40 @@ class StackedSindy:
         return np.einsum("mwk,mek->mwe", self.library.transform(z), self.coef, optimize=False)
 
 
-def body_states(run: TrajectoryRun, smoothing: float) -> BodyStates:
-    """Return the body-frame states of ``run`` with spline smoothing ``smoothing`` (H5's preprocessing)."""
-    from identification.states import body_states_from_poses
+def body_states(run: TrajectoryRun, smoothing: float) -> list[BodyStates]:
+    """Return the gap-free segments of ``run``'s body-frame states with spline smoothing ``smoothing``.
 
-    return body_states_from_poses(run.poses, run.inputs, smoothing=smoothing)
+    Uses the preprocessing's :func:`identification.states.body_states_segments` (eqs. 5.64 to
+    5.68), so nothing is integrated across a tracker dropout.
+    """
+    from identification.states import body_states_segments
+
+    return [seg for seg in body_states_segments(run.poses, run.inputs, smoothing=smoothing) if len(seg.t) >= 4]
 
 
-def fold_assignment(n_runs: int, n_folds: int) -> np.ndarray:
-    """Return the fold of each run: runs dealt round-robin, so folds differ by at most one run."""
-    if n_runs < 2:
-        raise InputError(f"hyperparameter search: {n_runs} training run(s); cross-validation by run needs 2")
-    return np.arange(n_runs) % min(n_folds, n_runs)
+def states_of_runs(runs: Sequence[TrajectoryRun], smoothing: float) -> tuple[list[BodyStates], list[str], np.ndarray]:
+    """Return the segments of all ``runs``, their names (``run`` or ``run[k]``) and run index per segment."""
+    segs, names, groups = [], [], []
+    for i, run in enumerate(runs):
+        parts = body_states(run, smoothing)
+        segs += parts
+        names += [run.name] if len(parts) == 1 else [f"{run.name}[{k}]" for k in range(len(parts))]
+        groups += [i] * len(parts)
+    return segs, names, np.asarray(groups, dtype=int)
+
+
+def fold_assignment(groups: np.ndarray, n_folds: int) -> np.ndarray:
+    """Return the fold of each segment: runs dealt round-robin, all segments of a run in its fold."""
+    groups = np.asarray(groups)
+    uniq, inverse = np.unique(groups, return_inverse=True)
+    if len(uniq) < 2:
+        raise InputError(f"hyperparameter search: {len(uniq)} training run(s); cross-validation by run needs 2")
+    return (np.arange(len(uniq)) % min(n_folds, len(uniq)))[inverse]
 
 
 def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: SearchGrid = SearchGrid(),
            runs: Sequence[TrajectoryRun] | None = None, names: Sequence[str] | None = None,
-           n_top: int = 14, n_jobs: int = 1) -> SearchResult:
+           groups: Sequence[int] | None = None, n_top: int = 14, n_jobs: int = 1) -> SearchResult:
     """Return the cross-validated full grid search and the best model refitted on all runs.
 
     Parameters
@@ -124,7 +141,9 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     runs : sequence of TrajectoryRun, optional
         Training runs (poses and inputs), when ``states_by_s`` is not given.
     names : sequence of str, optional
-        Run names (taken from ``runs`` when given).
+        Names of the states (taken from ``runs`` when given).
+    groups : sequence of int, optional
+        Run of each state (segments of one run share it and its fold); default one run each.
     n_top : int
         How many of the best grid points to refit on all runs (``top_models``, for fig. 7.11).
     n_jobs : int
@@ -133,11 +152,15 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     if states_by_s is None:
         if runs is None:
             raise InputError("hyperparameter search: give training runs or states")
-        names = [r.name for r in runs]
-        states_by_s = {s: [body_states(r, s) for r in progress(runs, f"states s={s:g}")] for s in grid.s}
-    n_runs = len(next(iter(states_by_s.values())))
-    names = tuple(names) if names is not None else tuple(f"#{i}" for i in range(n_runs))
-    fold = fold_assignment(n_runs, grid.n_folds)
+        states_by_s = {}
+        for s in progress(grid.s, "body states per s"):
+            states_by_s[float(s)], names, groups = states_of_runs(runs, s)
+    n_states = len(next(iter(states_by_s.values())))
+    if any(len(v) != n_states for v in states_by_s.values()):
+        raise InputError("hyperparameter search: the smoothing values split the runs into different segments")
+    names = tuple(names) if names is not None else tuple(f"#{i}" for i in range(n_states))
+    groups = np.arange(n_states) if groups is None else np.asarray(groups)
+    fold = fold_assignment(groups, grid.n_folds)
     n_folds = int(fold.max()) + 1
     combos = list(itertools.product(states_by_s, grid.tau, grid.library))
     jobs = [(states_by_s[s_val], names, fold, s_val, tau, lib, grid) for s_val, tau, lib in combos]
