@@ -95,6 +95,9 @@ def run_json(r: RunResult) -> dict:
         "clock": clock,
         "at960_extra_offset_s": s.offset.dt if s.offset_tracker == "at960" else -s.offset.dt,
         "at960_extra_offset_std_s": s.offset.dt_std,
+        "at960_extra_offset_without_hub_s": (s.offset.dt_without_hub if s.offset_tracker == "at960"
+                                             else -s.offset.dt_without_hub),
+        "offset_joint_with_hub": s.offset.hub_terms,
         "extra_offset_tracker": s.offset_tracker,
         "baseline_rms_m": {"before": s.baseline_rms_m("before"), "after": s.baseline_rms_m("after")},
         "timing_error": {"r_baseline_speed_before": s.r_speed_before,

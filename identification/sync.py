@@ -326,20 +326,47 @@ def count_samples(n_trigger: int, n_samples: int, i_trig: np.ndarray, n_nan: int
 # --- interpolation, baseline, AT960 offset (eqs. 5.13 to 5.24) -----------------------------
 
 
+def track_interpolator(s_samples: np.ndarray, xyz: np.ndarray, max_gap_s: float = MAX_INTERP_GAP_S,
+                       method: str = "cubic"):
+    """Return ``f(s_query) -> (..., 3)`` interpolating a tracker's positions, NaN across gaps.
+
+    The thesis (5.2.2) interpolated linearly. Its error is ``a * t1 * t2 / 2`` for an
+    acceleration ``a`` between samples ``t1`` before and ``t2`` after the query: some 20 um at
+    the AT960's 1.3 ms offset and up to ~0.5 mm across a lost pulse (40 ms) when the prism
+    swings round a turn. ``"cubic"`` (default) uses a not-a-knot cubic spline per stretch of
+    samples without a gap over ``max_gap_s`` (exact for cubic motion); ``"linear"`` is the
+    thesis's. Queries outside the samples or in a gap give NaN.
+    """
+    from scipy.interpolate import CubicSpline, PPoly
+
+    s_samples = np.asarray(s_samples, float)
+    xyz = np.asarray(xyz, float)
+    cut = np.flatnonzero(np.diff(s_samples) > max_gap_s) + 1
+    knots, coefs = [], []
+    for seg in np.split(np.arange(s_samples.size), cut):  # one spline per stretch, not per sample
+        if seg.size < 2:
+            continue
+        x, y = s_samples[seg], xyz[seg]
+        if method == "cubic" and seg.size >= 4:
+            c = CubicSpline(x, y, bc_type="not-a-knot").c
+        else:  # linear, or too few samples for a cubic: as the thesis did
+            c = np.zeros((4, seg.size - 1, 3))
+            c[2], c[3] = np.diff(y, axis=0) / np.diff(x)[:, None], y[:-1]
+        if knots:  # the gap since the previous stretch: NaN polynomial
+            coefs.append(np.full((4, 1, 3), np.nan))
+        knots.append(x)
+        coefs.append(c)
+    if not knots:
+        return lambda q: np.full(np.shape(q) + (3,), np.nan)
+    pp = PPoly(np.concatenate(coefs, axis=1), np.concatenate(knots), extrapolate=False)
+    return lambda q: pp(np.asarray(q, float))
+
+
 def interpolate_at(s_query: np.ndarray, s_samples: np.ndarray, xyz: np.ndarray,
-                   max_gap_s: float = MAX_INTERP_GAP_S) -> np.ndarray:
-    """Return positions linearly interpolated at ``s_query`` (any shape, + (3,)), NaN where the
-    bracketing samples are more than ``max_gap_s`` apart or outside the samples (thesis 5.2.2)."""
-    s_query = np.asarray(s_query, float)
-    idx = np.searchsorted(s_samples, s_query)
-    ok = (idx > 0) & (idx < s_samples.size)
-    idx = np.clip(idx, 1, s_samples.size - 1)
-    s_lo, s_hi = s_samples[idx - 1], s_samples[idx]
-    ok &= (s_hi - s_lo) <= max_gap_s
-    w = ((s_query - s_lo) / (s_hi - s_lo))[..., None]
-    p = xyz[idx - 1] * (1 - w) + xyz[idx] * w
-    p[~ok] = np.nan
-    return p
+                   max_gap_s: float = MAX_INTERP_GAP_S, method: str = "cubic") -> np.ndarray:
+    """Return positions interpolated at ``s_query`` (any shape, + (3,)), NaN where the samples
+    around it are more than ``max_gap_s`` apart or outside them (see :func:`track_interpolator`)."""
+    return track_interpolator(s_samples, xyz, max_gap_s, method)(s_query)
 
 
 def forward_speed(s: np.ndarray, p_front: np.ndarray, p_rear: np.ndarray) -> np.ndarray:
@@ -391,14 +418,14 @@ def azimuth_at(t_query: np.ndarray, t_cmd: np.ndarray, azimuth: np.ndarray) -> n
     return az
 
 
-def _spread(dt: np.ndarray, s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray,
-            xyz_late: np.ndarray, A_hub: np.ndarray | None = None) -> np.ndarray:
+def _spread(dt: np.ndarray, s: np.ndarray, p_ref: np.ndarray, late_at,
+            A_hub: np.ndarray | None = None) -> np.ndarray:
     """Return the baseline spread s_r(dt) for each offset in ``dt`` (eqs. 5.15 to 5.17).
 
     With ``A_hub`` (the eq. 5.25 design at the trigger times) the spread is that of the
     baseline length after the least-squares hub terms are removed at each trial offset.
     """
-    p_late = interpolate_at(s[None, :] - np.asarray(dt)[:, None], s_late, xyz_late)
+    p_late = late_at(s[None, :] - np.asarray(dt)[:, None])
     length = np.linalg.norm(p_ref[None] - p_late, axis=-1)
     ok = np.isfinite(length).all(axis=0)  # the same triggers for every offset
     if A_hub is None:
@@ -413,8 +440,8 @@ def _spread(dt: np.ndarray, s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray
 
 
 def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_late: np.ndarray,
-                     search_s: float = 0.01, run: str = "?",
-                     A_hub: np.ndarray | None = None) -> OffsetEstimate:
+                     search_s: float = 0.01, run: str = "?", A_hub: np.ndarray | None = None,
+                     max_gap_s: float = MAX_INTERP_GAP_S) -> OffsetEstimate:
     """Return the extra offset of one tracker's times that minimises the baseline spread.
 
     Implements eqs. 5.13 to 5.22: ``s_r`` is sampled over ``[-search_s, search_s]`` (coarse,
@@ -430,25 +457,26 @@ def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_l
     hub azimuths, which follow the robot's motion; left in, it correlates with the speed and
     pulls the thesis's estimate by tens of microseconds (``dt_without_hub`` keeps that one).
     """
-    est = _fit_offset(s, p_ref, s_late, xyz_late, search_s, run, None)
+    late_at = track_interpolator(s_late, xyz_late, max_gap_s)
+    est = _fit_offset(s, p_ref, late_at, search_s, run, None)
     if A_hub is None or not np.isfinite(A_hub).all(axis=1).any():
         return est
-    joint = _fit_offset(s, p_ref, s_late, xyz_late, search_s, run, A_hub)
+    joint = _fit_offset(s, p_ref, late_at, search_s, run, A_hub)
     from dataclasses import replace
 
     return replace(joint, dt_without_hub=est.dt)
 
 
-def _fit_offset(s, p_ref, s_late, xyz_late, search_s, run, A_hub) -> OffsetEstimate:
+def _fit_offset(s, p_ref, late_at, search_s, run, A_hub) -> OffsetEstimate:
     """Grid, quadratic and vertex of :func:`fit_extra_offset` for one spread definition."""
     if np.sum(np.isfinite(p_ref[:, 0])) < 50:
         raise InputError(f"run {run}: fewer than 50 trigger times with both prisms seen; "
                          "cannot estimate the AT960 offset")
     coarse = np.arange(-search_s, search_s + 1e-12, 2.5e-4)
-    spread_c = _spread(coarse, s, p_ref, s_late, xyz_late, A_hub)
+    spread_c = _spread(coarse, s, p_ref, late_at, A_hub)
     best = coarse[np.argmin(spread_c)]
     fine = best + np.arange(-5e-4, 5e-4 + 1e-12, 2e-5)
-    spread_f = _spread(fine, s, p_ref, s_late, xyz_late, A_hub)
+    spread_f = _spread(fine, s, p_ref, late_at, A_hub)
     c = int(np.clip(np.argmin(spread_f), 5, fine.size - 5))
     dt_fit, spread_fit = fine[c - 5:c + 5], spread_f[c - 5:c + 5]
     x0 = dt_fit.mean()  # centre for conditioning; the vertex is shifted back below
@@ -521,11 +549,13 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
     # (a varying duty cycle shows there, thesis fig. 5.4): found from the data, not assumed.
     late = max(clock, key=lambda k: clock[k].residual_std)
     ref = "ltd800" if late == "at960" else "at960"
+    late_at = track_interpolator(mapped[late], xyz_local[late], max_interp_gap_s)
     p_ref = interpolate_at(s, mapped[ref], xyz_local[ref], max_interp_gap_s)
-    p_late_0 = interpolate_at(s, mapped[late], xyz_local[late], max_interp_gap_s)
+    p_late_0 = late_at(s)
     A_hub = hub_design(raw.t_trigger_utc, raw.t_hub_utc, raw.hub_azimuth) if joint_hub else None
-    offset = fit_extra_offset(s, p_ref, mapped[late], xyz_local[late], run=raw.name, A_hub=A_hub)
-    p_late = interpolate_at(s - offset.dt, mapped[late], xyz_local[late], max_interp_gap_s)
+    offset = fit_extra_offset(s, p_ref, mapped[late], xyz_local[late], run=raw.name, A_hub=A_hub,
+                              max_gap_s=max_interp_gap_s)
+    p_late = late_at(s - offset.dt)
     base_0 = np.linalg.norm(p_ref - p_late_0, axis=1)
     base_1 = np.linalg.norm(p_ref - p_late, axis=1)
     if np.nanstd(base_1) > MAX_BASELINE_SPREAD_M:

@@ -112,13 +112,21 @@ def test_counts_match_the_generated_lost_and_spurious_pulses(run_and_truth):
     assert r.counts["ltd800"].lost == 0 and r.counts["ltd800"].spurious == 0
 
 
-def test_interpolation_is_exact_for_linear_motion_and_refuses_long_gaps():
-    s = np.array([0.0, 0.02, 0.04, 0.2, 0.22])
-    xyz = np.column_stack([s * 2, s * -1, s * 0 + 3])
-    q = np.array([0.01, 0.03, 0.1, 0.21, 0.3])
-    p = sync.interpolate_at(q, s, xyz)
-    np.testing.assert_allclose(p[[0, 1, 3]], np.column_stack([q * 2, -q, q * 0 + 3])[[0, 1, 3]])
-    assert np.isnan(p[2]).all() and np.isnan(p[4]).all()
+@pytest.mark.parametrize("method, degree", [("linear", 1), ("cubic", 3)])
+def test_interpolation_is_exact_to_its_degree_and_refuses_long_gaps(method, degree):
+    rng = np.random.default_rng(3)
+    s = np.concatenate([np.arange(0, 0.2, 0.02), np.arange(0.5, 0.7, 0.02)])  # a 0.3 s dropout
+    coef = rng.normal(size=(degree + 1, 3))
+    xyz = np.polynomial.polynomial.polyval(s, coef).T
+    q = np.array([0.011, 0.0713, 0.17, 0.3, 0.55, 0.75, -0.1])
+    p = sync.interpolate_at(q, s, xyz, max_gap_s=0.05, method=method)
+    inside = np.array([1, 1, 1, 0, 1, 0, 0], bool)
+    np.testing.assert_allclose(p[inside], np.polynomial.polynomial.polyval(q[inside], coef).T, atol=1e-12)
+    assert np.isnan(p[~inside]).all()
+    if method == "linear":  # and linear is not exact for a cubic: the test can tell them apart
+        xyz3 = np.polynomial.polynomial.polyval(s, rng.normal(size=(4, 3))).T
+        assert not np.allclose(sync.interpolate_at(q[inside], s, xyz3, 0.05, "linear"),
+                               sync.interpolate_at(q[inside], s, xyz3, 0.05, "cubic"), atol=1e-9)
 
 
 def test_nan_coordinates_are_dropped_and_counted():
