@@ -53,6 +53,7 @@ Counting: pulses inside a dropout count in ``n_dropout_pulses`` whatever else ha
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -181,12 +182,11 @@ def _plain(obj):
 def format_states_csv(states: TrueStates) -> str:
     """Return ``states.csv`` text; ``t_utc`` is printed from the int ns, exact to the ns."""
     sec, nsec = np.divmod(states.t_utc_ns.astype(np.int64), NS)
-    cols = [sec, nsec] + [np.asarray(getattr(states, c), float) for c in STATE_COLUMNS[1:]]
-    table = np.column_stack(cols)
+    table = np.column_stack([sec, nsec] + [np.asarray(getattr(states, c), float) for c in STATE_COLUMNS[1:]])
     fmt = "%d.%09d," + ",".join(["%.9f"] + ["%.9g"] * (len(STATE_COLUMNS) - 2))
-    lines = [",".join(STATE_COLUMNS)]
-    lines += [fmt % tuple(row) for row in table.tolist()]
-    return "\n".join(lines) + "\n"
+    buf = io.StringIO()
+    np.savetxt(buf, table, fmt=fmt, header=",".join(STATE_COLUMNS), comments="")
+    return buf.getvalue()
 
 
 def write_truth(campaign_dir: str | Path, truth: CampaignTruth) -> Path:

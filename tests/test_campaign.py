@@ -373,3 +373,20 @@ def test_pipeline_calibration_of_the_survey_reproduces_the_truth(small_campaign,
     assert np.allclose(np.degrees(cal.transform.rotation_rad), truth.transform["rotation_deg"], atol=0.5 / 3600)
     for prism in ("front", "rear"):
         assert np.allclose(cal.body.lever_arms_body[prism], truth.lever_arms_m[prism], atol=2e-6)
+
+
+def test_states_csv_round_trip_is_exact_to_the_nanosecond(tmp_path):
+    from simulation.truth import TrueStates, _read_states, format_states_csv
+
+    rng = np.random.default_rng(0)
+    n = 50
+    t_ns = np.sort(rng.integers(1_671_615_000 * 10**9, 1_671_616_000 * 10**9, n))
+    cols = rng.normal(size=(12, n))
+    states = TrueStates(t_ns, *cols)
+    (tmp_path / "states.csv").write_text(format_states_csv(states))
+    back = _read_states(tmp_path / "states.csv")
+    assert np.array_equal(back.t_utc_ns, t_ns)
+    assert np.allclose(back.vx, states.vx, rtol=1e-8, atol=1e-12) and np.allclose(back.t_rel, states.t_rel, atol=1e-9)
+    (tmp_path / "bad.csv").write_text("t,x\n1,2\n")
+    with pytest.raises(InputError, match="bad.csv"):
+        _read_states(tmp_path / "bad.csv")
