@@ -37,13 +37,15 @@ class TrackerSpec:
     resolution_s: float  # internal clock resolution
 
 
+DUTY_JITTER_STD_S = 30e-6  # per-pulse scatter of the script's run time (thesis 4.2.1)
 AT960 = TrackerSpec("at960", 3.75e-6, 1.5e-6, 2e-6, 0.1e-6)
 LTD800 = TrackerSpec("ltd800", 3.0e-6, 2.5e-6, 0.2e-6, 1e-6)
 TRACKERS = {"at960": AT960, "ltd800": LTD800}
 
 
 def simulate_duty_cycle(
-    n: int, mean_s: float, rng: np.random.Generator, *, jitter_std_s: float = 30e-6, min_s: float = 1.05e-3
+    n: int, mean_s: float, rng: np.random.Generator, *, jitter_std_s: float = DUTY_JITTER_STD_S,
+    min_s: float = 1.05e-3
 ) -> np.ndarray:
     """Return ``n`` per-pulse duty cycles (s): AT960 falling-edge delays after the rising edge.
 

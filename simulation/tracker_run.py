@@ -20,10 +20,10 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
 from simulation import bags
-from simulation.clocks import NS, TrackerClock, simulate_trigger, stamp_tracker
+from simulation.clocks import NS, TRIGGER_PERIOD_S, simulate_trigger, stamp_tracker
 from simulation.hubs import baseline_geometry, eccentric_offset_body, hub_angle, hub_commands
 from simulation.measurement import (
-    AT960, LTD800, in_intervals, simulate_dropouts, simulate_duty_cycle, simulate_lost, simulate_spurious,
+    AT960, DUTY_JITTER_STD_S, LTD800, in_intervals, simulate_dropouts, simulate_duty_cycle, simulate_lost, simulate_spurious,
 )
 from simulation.truth import RunTruth, TrueStates
 
@@ -106,6 +106,11 @@ def _monotonic(t: np.ndarray) -> np.ndarray:
 
 def _ns(t0_ns: int, t_rel: np.ndarray) -> np.ndarray:
     return np.int64(t0_ns) + np.rint(np.asarray(t_rel) * NS).astype(np.int64)
+
+
+def _utc_intervals(t0_ns: int, intervals: np.ndarray) -> list:
+    """Run-relative intervals (s) as UTC seconds (float, for truth.yaml)."""
+    return (np.asarray(intervals) + t0_ns * 1e-9).tolist()
 
 
 def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
@@ -213,19 +218,18 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
     st = traj.states_at(trig.t_rise_rel)
     states = TrueStates(t_utc_ns=_ns(t0, trig.t_rise_rel), t_rel=trig.t_rise_rel, at960_duty_s=duty, **st)
     registered = ~lost & ~in_drop_at
-    utc = lambda iv: (np.asarray(iv) + t0 * 1e-9).tolist()  # noqa: E731 - UTC s of intervals
     clocks = {k: {"k": c.k, "d_ns": int(c.d_ns), "d_s": c.d_ns * 1e-9, "drift_ppm": c.drift_ppm}
               for k, c in setup.clocks.items()}
     run_truth = RunTruth(
         name=setup.name, split=setup.split, t0_utc_ns=int(t0), duration_s=float(setup.duration_s),
-        n_slots=int(round(setup.duration_s / 0.02)), n_trigger=int(n), skip_phase=trig.skip_phase, clocks=clocks,
+        n_slots=int(round(setup.duration_s / TRIGGER_PERIOD_S)), n_trigger=int(n), skip_phase=trig.skip_phase, clocks=clocks,
         at960={"offset_s": float(duty[registered].mean()), "duty_mean_s": float(setup.at960_duty_mean_s),
-               "duty_jitter_std_s": 30e-6, "lost_fraction": float(setup.lost_fraction),
+               "duty_jitter_std_s": DUTY_JITTER_STD_S, "lost_fraction": float(setup.lost_fraction),
                "spurious_fraction": float(setup.spurious_fraction), "n_lost": int((lost & ~in_drop_at).sum()),
                "n_spurious": int(spur_ok.sum()), "n_dropout_pulses": int(in_drop_at.sum()),
-               "n_messages": int(t_at.size), "dropouts_utc": utc(drop["at960"])},
+               "n_messages": int(t_at.size), "dropouts_utc": _utc_intervals(t0, drop["at960"])},
         ltd800={"n_dropout_pulses": int(in_drop_ltd.sum()), "n_messages": int(t_ltd.size),
-                "dropouts_utc": utc(drop["ltd800"])},
+                "dropouts_utc": _utc_intervals(t0, drop["ltd800"])},
         hubs={"front": {"phase_rad": float(setup.hub_phase_rad["front"])},
               "rear": {"phase_rad": float(setup.hub_phase_rad["rear"])}, "n_messages": int(cmd["t"].size)},
         joy={"ntp_offset_s": float(setup.ntp_offset_s), "n_messages": int(t_joy.size)},
