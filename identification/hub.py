@@ -254,6 +254,88 @@ def fit_hub_model(t, baseline_length_m, azimuth_front, azimuth_rear) -> HubModel
     return model
 
 
+def fit_hub_model_joint(runs) -> tuple[HubModel, ...]:
+    """Return one HubModel per run with the two radii shared by all runs.
+
+    Implements the improvement thesis 5.2.3 proposes: the radii are properties of the hubs and
+    the same in every run, while the constant ``c_j`` and the phases ``Phi_1j``, ``Phi_2j``
+    (how the prisms were seated) are per run. Within one run the two azimuths follow the
+    robot's heading almost together (correlation ~0.98), so a short run separates the two
+    circles poorly; pooling the runs, whose phase differences differ, fixes that. Solved as a
+    nonlinear least-squares problem (``scipy.optimize.least_squares``, analytic Jacobian)
+    started from the per-run linear fits; the covariance is ``s0^2 (J^T J)^-1`` with one
+    pooled variance factor, propagated to each run's ``[c, a_1, b_1, a_2, b_2]``.
+
+    Parameters
+    ----------
+    runs : sequence of ``(t, baseline_length_m, azimuth_front, azimuth_rear)`` tuples, as the
+        arguments of :func:`fit_hub_model`.
+    """
+    from scipy.optimize import least_squares
+
+    singles = [fit_hub_model(*run) for run in runs]
+    if not singles:
+        raise InputError("runs: no runs to fit")
+    k = len(singles)
+    l_all = np.concatenate([m.baseline_length_m for m in singles])
+    az1 = np.concatenate([m.azimuth_front for m in singles])
+    az2 = np.concatenate([m.azimuth_rear for m in singles])
+    run_of = np.repeat(np.arange(k), [m.n for m in singles])
+    n_par = 2 + 3 * k
+
+    def unpack(p):
+        c, ph1, ph2 = p[2::3], p[3::3], p[4::3]
+        return p[0], p[1], c[run_of], az1 + ph1[run_of], az2 + ph2[run_of]
+
+    def residual(p):
+        r1, r2, c, th1, th2 = unpack(p)
+        return c + r1 * np.cos(th1) + r2 * np.cos(th2) - l_all
+
+    def jacobian(p):
+        r1, r2, _, th1, th2 = unpack(p)
+        J = np.zeros((l_all.size, n_par))
+        J[:, 0], J[:, 1] = np.cos(th1), np.cos(th2)
+        rows = np.arange(l_all.size)
+        J[rows, 2 + 3 * run_of] = 1.0
+        J[rows, 3 + 3 * run_of] = -r1 * np.sin(th1)
+        J[rows, 4 + 3 * run_of] = -r2 * np.sin(th2)
+        return J
+
+    x0 = np.zeros(n_par)
+    x0[0], x0[1] = (np.median([m.radius_m[i] for m in singles]) for i in (0, 1))
+    for j, m in enumerate(singles):
+        x0[2 + 3 * j], x0[3 + 3 * j], x0[4 + 3 * j] = m.c_m, *m.phase_rad
+    sol = least_squares(residual, x0, jac=jacobian, method="lm", x_scale="jac")
+    p = sol.x.copy()
+    if p[0] < 0:  # a negative radius is the same circle half a turn on
+        p[0], p[3::3] = -p[0], p[3::3] + np.pi
+    if p[1] < 0:
+        p[1], p[4::3] = -p[1], p[4::3] + np.pi
+    v = residual(p)
+    J = jacobian(p)
+    s0_sq = float(v @ v) / max(l_all.size - n_par, 1)
+    cov_p = s0_sq * np.linalg.inv(J.T @ J)
+    out = []
+    for j, m in enumerate(singles):
+        idx = [0, 1, 2 + 3 * j, 3 + 3 * j, 4 + 3 * j]  # r1, r2, c, Phi1, Phi2
+        r1, r2, c, ph1, ph2 = p[idx]
+        params = np.array([c, r1 * np.cos(ph1), -r1 * np.sin(ph1), r2 * np.cos(ph2), -r2 * np.sin(ph2)])
+        G = np.zeros((5, 5))  # d[c, a1, b1, a2, b2] / d[r1, r2, c, Phi1, Phi2]
+        G[0, 2] = 1.0
+        G[1, 0], G[1, 3] = np.cos(ph1), -r1 * np.sin(ph1)
+        G[2, 0], G[2, 3] = -np.sin(ph1), -r1 * np.cos(ph1)
+        G[3, 1], G[3, 4] = np.cos(ph2), -r2 * np.sin(ph2)
+        G[4, 1], G[4, 4] = -np.sin(ph2), -r2 * np.cos(ph2)
+        cov = G @ cov_p[np.ix_(idx, idx)] @ G.T
+        vj = v[run_of == j]
+        out.append(HubModel(params=params, cov=0.5 * (cov + cov.T), s0_m=float(np.sqrt(s0_sq)),
+                            rms_before_m=m.rms_before_m, rms_after_m=float(np.sqrt(np.mean(vj**2))), n=m.n,
+                            t=m.t, baseline_length_m=m.baseline_length_m, azimuth_front=m.azimuth_front,
+                            azimuth_rear=m.azimuth_rear))
+    log.info("joint hub model over %d runs: r = %.4f, %.4f mm", k, p[0] * 1e3, p[1] * 1e3)
+    return tuple(out)
+
+
 def plot_hub_model(model: HubModel, path=None):
     """Return a figure of the baseline variation, the model and the azimuths (like fig. 5.7).
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identification.hub import HubModel, fit_hub_model, plot_hub_model
+from identification.hub import HubModel, fit_hub_model, fit_hub_model_joint, plot_hub_model
 from sindy_ekf.errors import InputError
 from pose_synth import LEVER_FRONT, LEVER_REAR, measurements
 
@@ -43,6 +43,23 @@ def test_thesis_magnitudes_table_7_5():
     assert hub.c_m * 100 == pytest.approx(77.46, abs=0.01)  # cm, table 7.5 mean 77.4629
     assert 0.05e-3 < hub.rms_before_m < 0.25e-3  # table 7.5: 0.09 .. 0.19 mm before
     assert hub.c_std_m < 5e-6 and np.all(hub.radius_std_m < 10e-6)  # table 7.5: 1 to 4 um
+
+
+def test_joint_fit_shares_radii_across_short_runs():
+    """Thesis 5.2.3's proposed improvement: one pair of radii, per-run c and phases."""
+    runs = [measurements(duration_s=20.0, seed=20 + j) for j in range(5)]
+    args = [(m.t, np.linalg.norm(m.p_front - m.p_rear, axis=1), m.az_front, m.az_rear) for m in runs]
+    single = [fit_hub_model(*a) for a in args]
+    joint = fit_hub_model_joint(args)
+    r_true = runs[0].radius_m * runs[0].cos_elev
+    assert np.allclose([j.radius_m for j in joint], joint[0].radius_m)  # shared
+    assert np.all(np.abs(joint[0].radius_m - r_true) < 3 * joint[0].radius_std_m + 1e-6)
+    assert np.all(np.abs(joint[0].radius_m - r_true) < 10e-6)
+    assert np.all(joint[0].radius_std_m < np.min([s.radius_std_m for s in single], axis=0))
+    for m, j, s in zip(runs, joint, single):
+        assert abs(j.c_m - m.c_m) < 5 * j.c_std_m  # 20 s runs: c is only as good as its std
+        assert np.all(np.abs(_wrap(j.phase_rad - m.phase_rad)) < 5 * j.phase_std_rad + 1e-3)
+        assert j.rms_after_m == pytest.approx(s.rms_after_m, rel=0.1)
 
 
 def test_eccentricity_body_reproduces_model_and_truth():
