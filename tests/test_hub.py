@@ -133,3 +133,33 @@ def test_bad_sense():
     m = measurements(duration_s=10.0)
     with pytest.raises(InputError, match="sense"):
         _fit(m).eccentricity_body(m.az_front, m.az_rear, LEVER_FRONT, LEVER_REAR, sense=0)
+
+
+# ------------------------------------------------------------------------ simulated campaign
+
+def test_simulated_campaign_radii_and_phases(small_campaign):
+    """On the simulator's bags (4 minutes, nine ~27 s runs): radii within 0.03 mm of truth/."""
+    from identification.calibration import calibrate
+    from identification.io_survey import read_survey
+    from identification.io_tracker import read_tracker_run
+    from identification.sync import azimuth_at, sync_run
+    from simulation.truth import read_truth
+
+    truth = read_truth(small_campaign)
+    cal = calibrate(read_survey(small_campaign / "calibration.yaml"))
+    args, phases = [], []
+    for rt in truth.runs:
+        raw = read_tracker_run(small_campaign / "runs" / rt.name, rt.name, rt.split)
+        sy = sync_run(raw, cal.transform.R_at960_ltd800, cal.transform.t_at960_ltd800, cal.prism_tracker)
+        az = azimuth_at(sy.t_utc, raw.t_hub_utc, raw.hub_azimuth)
+        ok = sy.both_seen & np.isfinite(az).all(axis=1)
+        args.append((sy.s_trigger[ok], sy.baseline_after_m[ok], az[ok, 0], az[ok, 1]))
+        phases.append([rt.hubs["front"]["phase_rad"], rt.hubs["rear"]["phase_rad"]])
+    joint = fit_hub_model_joint(args)
+    r_true = np.array([truth.hubs["front"]["radius_m"], truth.hubs["rear"]["radius_m"]])
+    r_h = joint[0].radius_horizontal(cal.lever_arms_body["front"], cal.lever_arms_body["rear"])
+    assert np.all(np.abs(r_h - r_true) < 0.03e-3)
+    assert abs(joint[0].c_m - truth.baseline_length_m) < 0.01e-3
+    for model, phase in zip(joint, phases):
+        assert np.all(np.abs(_wrap(model.phase_rad - phase)) < 0.3)
+        assert model.rms_after_m < 0.5 * model.rms_before_m

@@ -208,3 +208,40 @@ def test_bad_too_few_poses(small):
     bad = PoseTrack(**{**{k: getattr(track, k) for k in track.__dataclass_fields__}, "x": x})
     with pytest.raises(InputError, match="poses: only 2 finite"):
         body_states_from_poses(bad, inputs, 0.0)
+
+
+# ------------------------------------------------------------------------ simulated campaign
+
+def _nearest(t_ref, t):
+    i = np.clip(np.searchsorted(t_ref, t), 1, t_ref.size - 1)
+    return i - (np.abs(t_ref[i - 1] - t) < np.abs(t_ref[i] - t))
+
+
+def test_simulated_campaign_poses_and_states_vs_truth(small_campaign, small_trajectory):
+    """Preprocessed small campaign (poses from this module's stages) against truth/runs/*/states.csv."""
+    from identification.trajectory import read_trajectory_campaign
+    from simulation.truth import read_truth
+
+    truth = read_truth(small_campaign)
+    camp = read_trajectory_campaign(small_trajectory)
+    assert len(camp.runs) == len(truth.runs)
+    err_pose, err_vel = [], {s: [] for s in (0.0, 0.0005, 0.01, 1.0)}
+    for run in camp.runs:
+        st = truth.run(run.name).states
+        i = _nearest(st.t_utc_ns * 1e-9, run.poses.t)
+        assert np.max(np.abs(st.t_utc_ns[i] * 1e-9 - run.poses.t)) < 1e-6  # poses at trigger times
+        d_yaw = (run.poses.yaw - st.psi[i] + np.pi) % (2 * np.pi) - np.pi
+        err_pose.append(np.column_stack([run.poses.x - st.x[i], run.poses.y - st.y[i], d_yaw]))
+        for s in err_vel:
+            b = body_states_from_poses(run.poses, run.inputs, s)
+            err_vel[s].append(np.column_stack([b.vx - st.vx[i], b.vy - st.vy[i], b.omega - st.omega[i]]))
+    e = np.concatenate(err_pose)
+    pos_rms = np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2))
+    yaw_rms_deg = np.degrees(np.sqrt(np.mean(e[:, 2] ** 2)))
+    log.info("simulated: position RMS %.4f mm, yaw RMS %.5f deg", pos_rms * 1e3, yaw_rms_deg)
+    assert pos_rms < 0.5e-3 and yaw_rms_deg < 0.01
+    rms = {s: np.sqrt(np.nanmean(np.concatenate(v) ** 2, axis=0)) for s, v in err_vel.items()}
+    for s, r in rms.items():
+        log.info("simulated: s=%g velocity RMS vx %.2e m/s, vy %.2e m/s, omega %.2e rad/s", s, *r)
+        assert r[0] < 5e-3 and r[1] < 5e-3 and r[2] < np.radians(0.5)
+    assert rms[1.0][1] < rms[0.0][1]  # noise-level smoothing helps the noisy lateral velocity
