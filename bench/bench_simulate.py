@@ -70,8 +70,8 @@ def main() -> int:
     lines = [
         "## simulate: full default campaign",
         "",
-        f"Command: `{cmd}` (seed {args.seed}; {platform.python_version()}, {os.cpu_count()} cores, "
-        "other helpers' jobs sharing them)",
+        f"Command: `{cmd}` (seed {args.seed}; Python {platform.python_version()}, {os.cpu_count()} cores, "
+        f"load average {os.getloadavg()[0]:.1f} at the end: other jobs shared the cores)",
         "",
         "| quantity | wall | CPU (this process) |",
         "|---|---|---|",

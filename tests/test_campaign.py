@@ -89,6 +89,8 @@ def test_layout_topics_types_fields(small_campaign, bags, truth):
         assert run["/at960/measurement"]["frame_id"] == {"at960"}
         assert run["/ltd800/measurement"]["frame_id"] == {"ltd800"}
         assert run["/turning_hub/azimuth"]["name"] == {("front", "rear")}
+        assert 10.0 < 1.0 / np.median(np.diff(run["/turning_hub/azimuth"]["stamp_ns"] * 1e-9)) < 20.0
+        assert np.all(np.abs(run["/turning_hub/azimuth"]["position"]) <= np.pi)  # atan2 of eq. 4.6
         axes = run["/joy_teleop/joy"]["axes"]
         assert np.all(np.abs(axes) <= 1.0) and np.all(axes[:, 2:] == 0) and np.any(axes[:, 1] != 0)
         for topic in TOPIC_TYPES:
