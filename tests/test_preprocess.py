@@ -249,3 +249,26 @@ def test_open_campaign_not_a_campaign(tmp_path):
 
     with pytest.raises(InputError, match=rf"^{tmp_path}: not a campaign \(no campaign.yaml\)$"):
         open_campaign(tmp_path)
+
+
+def test_figures_only_on_request(synthetic_campaign, tmp_path):
+    """No figure without ``plots_dir``; with it, one folder per run with figs. 5.1-5.7, 7.2/7.3."""
+    import shutil
+
+    import matplotlib
+
+    from identification.preprocess import preprocess_campaign
+
+    camp = tmp_path / "c"  # one run: figures are slow to draw
+    shutil.copytree(synthetic_campaign, camp)
+    meta = yaml.safe_load((camp / "campaign.yaml").read_text())
+    (camp / "campaign.yaml").write_text(yaml.safe_dump({**meta, "runs": meta["runs"][:1]}))
+    preprocess_campaign(camp, tmp_path / "a")
+    assert not list(tmp_path.rglob("*.png"))
+    preprocess_campaign(camp, tmp_path / "b", plots_dir=tmp_path / "plots")
+    names = {p.name for p in (tmp_path / "plots" / "run_1").glob("*.png")}
+    assert {"fig5_1_gap_signal.png", "fig5_2_xcorr.png", "fig5_4_clock_residuals.png",
+            "fig5_5_baseline.png", "fig5_6_offset_fit.png", "baseline_vs_speed.png",
+            "fig5_7_hub_model.png"} <= names
+    assert any(n.startswith("fig7_2_7_3_poses") for n in names)
+    assert matplotlib.get_backend().lower() == "agg"
