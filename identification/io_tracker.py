@@ -81,7 +81,8 @@ def read_campaign_yaml(path: Path) -> tuple[str, list[tuple[str, str]]]:
             raise InputError(f"{file}: runs[{i}] has no 'name'")
         split = entry.get("split")
         if split not in SPLITS:
-            raise InputError(f"{file}: runs[{i}] ({entry['name']}): key 'split' must be train or test, got {split!r}")
+            raise InputError(f"{file}: runs[{i}] ({entry['name']}): key 'split' must be train or "
+                             f"test, got {split!r}")
         runs.append((entry["name"], split))
     names = [r[0] for r in runs]
     if len(set(names)) != len(names):
@@ -125,7 +126,8 @@ def _read_topics(bags: list[Path], topics: tuple[str, ...]) -> dict[str, _Topic]
         try:
             with AnyReader(group, default_typestore=typestore) as reader:
                 conns = [c for c in reader.connections if c.topic in out]
-                fast = {c.id for c in conns if not reader.is2 and _FAST_ROS1.get(c.msgtype) == c.digest}
+                fast = {c.id for c in conns
+                        if not reader.is2 and _FAST_ROS1.get(c.msgtype) == c.digest}
                 for conn, t_bag_ns, raw in reader.messages(connections=conns):
                     topic = out[conn.topic]
                     topic.msgtype = conn.msgtype
@@ -177,7 +179,8 @@ def _messages(topic: _Topic) -> list:
 def _check_stamps(t: np.ndarray, run: str, topic: str, strict: bool) -> None:
     """Raise InputError unless the stamps are finite and increasing (strictly if ``strict``)."""
     if not np.all(np.isfinite(t)):
-        raise InputError(f"run {run}: topic {topic}: non-finite stamp at message {int(np.argmin(np.isfinite(t)))}")
+        i = int(np.argmin(np.isfinite(t)))
+        raise InputError(f"run {run}: topic {topic}: non-finite stamp at message {i}")
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0 if strict else dt < 0)
     if bad.size:

@@ -168,14 +168,16 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
         az = azimuth_at(synced.t_utc, raw.t_hub_utc, raw.hub_azimuth)
         ok = both & np.isfinite(az).all(axis=1)
         try:
-            hub = fit_hub_model(synced.s_trigger[ok], synced.baseline_after_m[ok], az[ok, 0], az[ok, 1])
+            hub = fit_hub_model(synced.s_trigger[ok], synced.baseline_after_m[ok],
+                                az[ok, 0], az[ok, 1])
         except InputError as exc:
             log.warning("run %s: no hub model: %s", raw.name, exc)
     sec["hub"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
     if both.sum() < 100:
-        raise InputError(f"run {raw.name}: only {int(both.sum())} trigger times with both prisms seen")
+        raise InputError(f"run {raw.name}: only {int(both.sum())} trigger times with both "
+                         "prisms seen")
     origin = {"at960": np.zeros(3), "ltd800": np.asarray(tf.t_at960_ltd800)}
     p_front, p_rear = synced.p_front_local[both], synced.p_rear_local[both]
     if hub is not None and hub_correction:
@@ -184,8 +186,10 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
         pf, pr = hub.correct(p_front[ok], p_rear[ok], az_b[ok, 0], az_b[ok, 1])
         p_front, p_rear = p_front.copy(), p_rear.copy()
         p_front[ok], p_rear[ok] = pf, pr
-    std = {k: np.repeat(point_std_m(calibration.prism_tracker[k], p, origin[calibration.prism_tracker[k]])[:, None],
-                        3, axis=1) for k, p in (("front", p_front), ("rear", p_rear))}
+    std = {}
+    for prism, p in (("front", p_front), ("rear", p_rear)):
+        tracker = calibration.prism_tracker[prism]
+        std[prism] = np.repeat(point_std_m(tracker, p, origin[tracker])[:, None], 3, axis=1)
     levers = calibration.lever_arms_body
     poses = fit_poses(synced.t_utc[both], p_front, p_rear, levers["front"], levers["rear"],
                       std["front"], std["rear"])
@@ -280,7 +284,8 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
             done = list(progress(pool.map(_read_and_process, jobs_args), desc="preprocess",
                                  total=len(jobs_args)))
     else:
-        done = [_read_and_process(a) for a in progress(jobs_args, desc="preprocess", total=len(jobs_args))]
+        done = [_read_and_process(a)
+                for a in progress(jobs_args, desc="preprocess", total=len(jobs_args))]
     seconds["runs_wall"] = time.perf_counter() - tic
     runs: dict[str, RunResult] = {}
     skipped: dict[str, str] = {}

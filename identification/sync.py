@@ -91,7 +91,7 @@ class OffsetEstimate:
     dt_std: float  # s, by error propagation (eqs. 5.21, 5.22)
     coeffs: np.ndarray  # (3,) [a, b, c] of eq. 5.19
     cov: np.ndarray  # (3, 3) covariance of the coefficients
-    dt_grid: np.ndarray  # offsets at which the spread was sampled, s
+    dt_grid: np.ndarray  # offsets of the fine grid around the minimum, s
     spread_grid: np.ndarray  # baseline spread s_r at those offsets (eq. 5.16), m
     dt_fit: np.ndarray  # the ten samples of the quadratic fit (eq. 5.19)
     spread_fit: np.ndarray
@@ -492,10 +492,8 @@ def _fit_offset(s, p_ref, late_at, search_s, run, A_hub) -> OffsetEstimate:
         raise InputError(f"run {run}: baseline spread has no minimum near {best * 1e3:.3f} ms; "
                          "cannot estimate the AT960 offset")
     F = np.array([b / (2 * a**2), -1 / (2 * a), 0.0])  # eq. 5.22
-    all_dt = np.concatenate([coarse, fine])
-    order = np.argsort(all_dt)
     return OffsetEstimate(dt=float(dt), dt_std=float(np.sqrt(F @ cov @ F)), coeffs=coef, cov=cov,
-                          dt_grid=all_dt[order], spread_grid=np.concatenate([spread_c, spread_f])[order],
+                          dt_grid=fine, spread_grid=spread_f,
                           dt_fit=dt_fit, spread_fit=spread_fit, hub_terms=A_hub is not None,
                           dt_without_hub=float(dt))
 

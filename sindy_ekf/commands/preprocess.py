@@ -62,8 +62,8 @@ def run(args) -> int:
         print(format_summary(result))
         t = result.seconds
         wall = t.get("calibrate", 0) + t.get("runs_wall", 0) + t.get("write", 0)
-        stages = ", ".join(f"{k} {t[k]:.1f}" for k in ("read", "sync", "hub", "poses", "states", "plots")
-                           if t.get(k))
+        stages = ", ".join(f"{k} {t[k]:.1f}" for k in ("read", "sync", "hub", "poses", "states",
+                                                       "plots") if t.get(k))
         print(f"wrote {len(result.runs)} runs to {result.out_dir} in {wall:.1f} s "
               f"(summed over runs: {stages})")
     if args.json:
