@@ -4,7 +4,8 @@
 
 - reading and validating the bags: :mod:`identification.io_tracker`;
 - calibration from the raw survey (5.1, 5.2.1): :mod:`identification.calibration`;
-- clock synchronisation and the AT960 offset (5.2.2): :mod:`identification.sync`;
+- clock synchronisation and the AT960 offset (5.2.2): :mod:`identification.sync`
+  (with :mod:`identification.clock_sync` and :mod:`identification.extra_offset`);
 - turning-hub eccentricity model (5.2.3, eq. 5.25): :mod:`identification.hub`;
 - poses (5.2.4, eqs. 5.26 to 5.37): :mod:`identification.poses`;
 - body-frame states (5.3.5, eqs. 5.64 to 5.68): :mod:`identification.states`;
@@ -24,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.sync import SyncedRun, azimuth_at, sync_run
+from identification.extra_offset import azimuth_at
+from identification.sync import SyncedRun, sync_run
 from identification.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun
 from sindy_ekf.errors import InputError
 from sindy_ekf.io_utils import atomic_write_json, check_output_dir
@@ -95,6 +97,7 @@ def run_json(r: RunResult) -> dict:
         "clock": clock,
         "at960_extra_offset_s": s.offset.dt if s.offset_tracker == "at960" else -s.offset.dt,
         "at960_extra_offset_std_s": s.offset.dt_std,
+        "at960_extra_offset_std_jackknife_s": s.offset.dt_std_jackknife,
         "at960_extra_offset_without_hub_s": (s.offset.dt_without_hub if s.offset_tracker == "at960"
                                              else -s.offset.dt_without_hub),
         "offset_joint_with_hub": s.offset.hub_terms,

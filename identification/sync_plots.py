@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.sync import (GAP_THRESHOLD_S, SyncedRun, detect_gaps, gap_signal,
-                                 xcorr_gap_signals)
+from identification.clock_sync import (GAP_THRESHOLD_S, detect_gaps, gap_signal,
+                                       xcorr_gap_signals)
+from identification.sync import SyncedRun
 from identification.types import RawRun
 
 log = logging.getLogger(__name__)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from tracker_synth import R_LT, T_LT, synth_run
 
-from identification import sync
+from identification import clock_sync, extra_offset, sync
 from identification.types import PointSeries
 from sindy_ekf.errors import InputError
 
@@ -27,7 +27,7 @@ def test_gap_detection_finds_exactly_the_skipped_pulses():
     slot = np.arange(2000)
     slot = slot[slot % 150 != 7]
     t = slot * 0.02
-    gaps = sync.detect_gaps(t)
+    gaps = clock_sync.detect_gaps(t)
     expected = (np.arange(7, 2000, 150) - 1) * 0.02  # stamp before each skipped slot
     np.testing.assert_allclose(gaps, expected[expected < t[-1]])
 
@@ -39,7 +39,7 @@ def test_xcorr_recovers_a_known_shift():
     tau_true = 12.3456
     s_tracker = s[200:] + tau_true + rng.normal(0, 1e-6, s.size - 200)  # starts later too
     s_tracker -= s_tracker[0]
-    tau, _ = sync.coarse_shift(s, s_tracker, s_receive=s[200:])
+    tau, _ = clock_sync.coarse_shift(s, s_tracker, s_receive=s[200:])
     # tau maps tracker time to trigger time: s_tracker - tau = s (to the 1 ms grid)
     assert abs((s_tracker[0] - tau) - s[200]) <= 1.5e-3
 
@@ -48,7 +48,7 @@ def test_match_nearest_is_one_to_one_and_agrees_with_brute_force():
     rng = np.random.default_rng(1)
     a = np.sort(rng.uniform(0, 10, 300))
     b = np.sort(rng.uniform(0, 10, 250))
-    ia, ib = sync.match_nearest(a, b, tol=0.01)
+    ia, ib = clock_sync.match_nearest(a, b, tol=0.01)
     assert np.unique(ib).size == ib.size
     d = np.abs(a[:, None] - b[None, :])
     for i, j in zip(ia, ib):
@@ -64,7 +64,7 @@ def test_linear_clock_fit_agrees_with_polyfit_and_its_covariance():
     rng = np.random.default_rng(2)
     x = np.sort(rng.uniform(0, 300, 200))
     y = (1 + 28.5e-6) * x + 0.7 + rng.normal(0, 2e-6, x.size)
-    k, d, k_std, d_std, s0 = sync.fit_linear_clock(x, y)
+    k, d, k_std, d_std, s0 = clock_sync.fit_linear_clock(x, y)
     (k2, d2), cov = np.polyfit(x, y, 1, cov="unscaled")
     assert abs(k - k2) < 1e-12 and abs(d - d2) < 1e-9
     s0_ref = np.sqrt(np.sum((y - k2 * x - d2) ** 2) / (x.size - 2))
@@ -119,14 +119,14 @@ def test_interpolation_is_exact_to_its_degree_and_refuses_long_gaps(method, degr
     coef = rng.normal(size=(degree + 1, 3))
     xyz = np.polynomial.polynomial.polyval(s, coef).T
     q = np.array([0.011, 0.0713, 0.17, 0.3, 0.55, 0.75, -0.1])
-    p = sync.interpolate_at(q, s, xyz, max_gap_s=0.05, method=method)
+    p = extra_offset.interpolate_at(q, s, xyz, max_gap_s=0.05, method=method)
     inside = np.array([1, 1, 1, 0, 1, 0, 0], bool)
     np.testing.assert_allclose(p[inside], np.polynomial.polynomial.polyval(q[inside], coef).T, atol=1e-12)
     assert np.isnan(p[~inside]).all()
     if method == "linear":  # and linear is not exact for a cubic: the test can tell them apart
         xyz3 = np.polynomial.polynomial.polyval(s, rng.normal(size=(4, 3))).T
-        assert not np.allclose(sync.interpolate_at(q[inside], s, xyz3, 0.05, "linear"),
-                               sync.interpolate_at(q[inside], s, xyz3, 0.05, "cubic"), atol=1e-9)
+        assert not np.allclose(extra_offset.interpolate_at(q[inside], s, xyz3, 0.05, "linear"),
+                               extra_offset.interpolate_at(q[inside], s, xyz3, 0.05, "cubic"), atol=1e-9)
 
 
 def test_nan_coordinates_are_dropped_and_counted():
@@ -145,7 +145,7 @@ def test_ambiguous_alignment_is_decided_by_receive_times():
     late = replace(raw, at960=PointSeries(ps.t_tracker[keep], ps.xyz[keep]),
                    t_receive_utc={**raw.t_receive_utc, "at960": raw.t_receive_utc["at960"][keep]})
     r = sync.sync_run(late, R_LT, T_LT)
-    assert r.clock["at960"].xcorr_peak_ratio > sync.AMBIGUOUS_RATIO
+    assert r.clock["at960"].xcorr_peak_ratio > clock_sync.AMBIGUOUS_RATIO
     assert abs(r.offset.dt - truth["mean_duty_s"]) < 20e-6
 
 
