@@ -50,6 +50,8 @@ def score(result, truth) -> dict:
             "at_drift_std_ppm": s.clock["at960"].drift_std_ppm,
             "offset_err_us": (s.offset.dt - t.at960["offset_s"]) * 1e6,
             "offset_std_ns": s.offset.dt_std * 1e9,
+            "offset_jack_us": s.offset.dt_std_jackknife * 1e6,
+            "offset_nohub_err_us": (s.offset.dt_without_hub - t.at960["offset_s"]) * 1e6,
             "r_before": s.r_speed_before, "r_after": s.r_speed_after,
             "base_before_mm": s.baseline_rms_m("before") * 1e3,
             "base_after_mm": s.baseline_rms_m("after") * 1e3,
@@ -130,11 +132,16 @@ def main() -> int:
         *[f"| {sm:g} | {v[0] * 1e3:.2f} | {v[1] * 1e3:.2f} | {v[2] * 1e3:.2f} |" for sm, v in sc["vel_rms"].items()],
         "", "Per run (errors = estimate - truth; r = Pearson correlation of the baseline-length "
         "variation with forward speed before/after the offset correction):", "",
-        "| run | LTD800 drift err [ppm] | AT960 drift err [ppm] (std) | offset err [us] (std ns) | "
+        "Offset: the joint estimate with the eq. 5.25 hub terms (default), its eq. 5.21 std and its "
+        "jackknife std over ten time blocks; and the error of the thesis's estimate without the "
+        "hub terms.", "",
+        "| run | LTD800 drift err [ppm] | AT960 drift err [ppm] (std) | offset err [us] "
+        "(eq. 5.21 std ns, jackknife std us) | thesis offset err [us] | "
         "r before | r after | baseline RMS before/after [mm] |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
         *[f"| {r['run']} | {r['ltd_drift_err_ppm']:+.4f} | {r['at_drift_err_ppm']:+.3f} "
-          f"({r['at_drift_std_ppm']:.3f}) | {r['offset_err_us']:+.2f} ({r['offset_std_ns']:.1f}) | "
+          f"({r['at_drift_std_ppm']:.3f}) | {r['offset_err_us']:+.2f} ({r['offset_std_ns']:.0f} ns, "
+          f"{r['offset_jack_us']:.2f} us) | {r['offset_nohub_err_us']:+.2f} | "
           f"{r['r_before']:+.2f} | {r['r_after']:+.2f} | {r['base_before_mm']:.3f} / "
           f"{r['base_after_mm']:.3f} |" for r in sc["rows"]],
         "",

@@ -20,6 +20,7 @@ from sindy_ekf.errors import InputError
 log = logging.getLogger(__name__)
 
 MAX_INTERP_GAP_S = 0.05  # interpolate across one missing sample at most, never across a dropout
+FIT_STEP_S = 2e-5  # spacing of the ten spread samples of the quadratic (eq. 5.19)
 JACKKNIFE_BLOCKS = 10  # time blocks for the jackknife standard deviation of the extra offset
 
 
@@ -173,30 +174,35 @@ def _fit_offset(s, p_ref, late_at, search_s, run, A_hub) -> OffsetEstimate:
     spread_c = _spread(coarse, s[sub], p_ref[sub], late_at, None if A_hub is None else A_hub[sub])
     best = coarse[np.argmin(spread_c)]
     fine = best + np.arange(-3e-4, 3e-4 + 1e-12, 2e-5)
-    res_f, n_par = _baseline_residuals(fine, s, p_ref, late_at, A_hub)
-    spread_f = np.sqrt((res_f**2).sum(axis=1) / (res_f.shape[1] - n_par))
-    c = int(np.clip(np.argmin(spread_f), 5, fine.size - 5))
-    dt_fit, spread_fit = fine[c - 5:c + 5], spread_f[c - 5:c + 5]
-    x0 = dt_fit.mean()  # centre for conditioning; the vertex is shifted back below
-    A = np.column_stack([(dt_fit - x0) ** 2, dt_fit - x0, np.ones(10)])
-    coef, *_ = np.linalg.lstsq(A, spread_fit, rcond=None)
+    spread_f = _spread(fine, s, p_ref, late_at, A_hub)
+    dt = fine[np.argmin(spread_f)]
+    # The spread is a hyperbola, sqrt(noise^2 + (g dt)^2), not a parabola: ten samples placed
+    # off-centre pull the vertex of eq. 5.19 by a fraction of their step, so they are centred
+    # on the vertex and fitted again.
+    for _ in range(2):
+        dt_fit = dt + FIT_STEP_S * (np.arange(10) - 4.5)
+        res_fit, n_par = _baseline_residuals(dt_fit, s, p_ref, late_at, A_hub)
+        spread_fit = np.sqrt((res_fit**2).sum(axis=1) / (res_fit.shape[1] - n_par))
+        x0 = dt_fit.mean()  # centre for conditioning; the vertex is shifted back below
+        A = np.column_stack([(dt_fit - x0) ** 2, dt_fit - x0, np.ones(10)])
+        coef, *_ = np.linalg.lstsq(A, spread_fit, rcond=None)
+        a, b, _ = coef
+        dt = x0 - b / (2 * a) if a > 0 else np.inf  # eq. 5.20
+        if not dt_fit[0] - 1e-4 <= dt <= dt_fit[-1] + 1e-4:
+            raise InputError(f"run {run}: baseline spread has no minimum near "
+                             f"{best * 1e3:.3f} ms; cannot estimate the AT960 offset")
     res = spread_fit - A @ coef
     cov = (res @ res / (10 - 3)) * np.linalg.inv(A.T @ A)
-    a, b, _ = coef
-    dt = x0 - b / (2 * a) if a > 0 else np.inf  # eq. 5.20
-    if not dt_fit[0] - 1e-4 <= dt <= dt_fit[-1] + 1e-4:
-        raise InputError(f"run {run}: baseline spread has no minimum near {best * 1e3:.3f} ms; "
-                         "cannot estimate the AT960 offset")
     F = np.array([b / (2 * a**2), -1 / (2 * a), 0.0])  # eq. 5.22
     # Jackknife over time blocks: the same estimate leaving out one tenth of the run at a time.
     # Eq. 5.21 only sees how well ten spread samples lie on a parabola (the thesis, 7.3.2:
     # "not reflective of the overall time synchronisation quality"); this sees the data.
     k = JACKKNIFE_BLOCKS
-    starts = np.linspace(0, res_f.shape[1], k + 1).astype(int)[:-1]
-    ssr_block = np.add.reduceat(res_f[c - 5:c + 5] ** 2, starts, axis=1)  # (10, k)
-    n_block = np.diff(np.append(starts, res_f.shape[1]))
+    starts = np.linspace(0, res_fit.shape[1], k + 1).astype(int)[:-1]
+    ssr_block = np.add.reduceat(res_fit**2, starts, axis=1)  # (10, k)
+    n_block = np.diff(np.append(starts, res_fit.shape[1]))
     ssr_loo = ssr_block.sum(axis=1, keepdims=True) - ssr_block
-    spread_loo = np.sqrt(ssr_loo / (res_f.shape[1] - n_block - n_par))
+    spread_loo = np.sqrt(ssr_loo / (res_fit.shape[1] - n_block - n_par))
     coef_loo, *_ = np.linalg.lstsq(A, spread_loo, rcond=None)
     dt_loo = x0 - coef_loo[1] / (2 * coef_loo[0])
     dt_jack = float(np.sqrt((k - 1) / k * np.sum((dt_loo - dt_loo.mean()) ** 2)))

@@ -162,3 +162,16 @@ def test_trackers_that_disagree_are_refused():
     wrong = replace(raw, ltd800=PointSeries(raw.ltd800.t_tracker, raw.ltd800.xyz[::-1].copy()))
     with pytest.raises(InputError, match=r"run run_01: .*(disagree|no minimum)"):
         sync.sync_run(wrong, R_LT, T_LT)
+
+
+def test_offset_unbiased_and_jackknife_std_honest_over_seeds():
+    """Over eight synthetic runs the offset error has no bias and scales with the jackknife std
+    (the eq. 5.21 std only measures how well ten spread samples lie on a parabola)."""
+    err, z = [], []
+    for seed in range(40, 48):
+        raw, truth = synth_run(seed=seed, minutes=0.5)
+        o = sync.sync_run(raw, R_LT, T_LT).offset
+        err.append(o.dt - truth["mean_duty_s"])
+        z.append(err[-1] / o.dt_std_jackknife)
+    assert abs(np.mean(err)) < 3 * np.std(err) / np.sqrt(len(err))
+    assert 0.4 < np.sqrt(np.mean(np.square(z))) < 2.5
