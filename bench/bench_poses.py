@@ -15,6 +15,7 @@ Usage: ``.venv/bin/python bench/bench_poses.py [--seeds 0 2 3] [--minutes M]``; 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -183,7 +184,8 @@ def main() -> int:
     args = parser.parse_args()
     cmd = "`.venv/bin/python bench/bench_poses.py " + " ".join(sys.argv[1:]) + "`"
     lines = ["## Hub model, poses, body-frame states (identification/hub.py, poses.py, states.py)", "",
-             f"Command: {cmd}", ""]
+             f"Command: {cmd}", "",
+             f"Load average at start (2 cores shared with other work): {os.getloadavg()[0]:.1f}.", ""]
     lines += bench_speed()
     for seed in args.seeds:
         root = campaign_dir(seed, None if seed == 0 else args.minutes)

@@ -339,9 +339,10 @@ def fit_hub_model_joint(runs) -> tuple[HubModel, ...]:
 def plot_hub_model(model: HubModel, path=None):
     """Return a figure of the baseline variation, the model and the azimuths (like fig. 5.7).
 
-    Top: measured baseline length minus c and the modelled eccentricity terms, with the
-    residual; bottom: the two hub azimuths used as independent variables. Saved to ``path``
-    when given.
+    Top: measured baseline length minus c, the eq. 5.25 model and the residual over time;
+    middle: the two hub azimuths used as independent variables; bottom: the baseline variation
+    against the front azimuth before and after removing the model (the circle the model
+    explains). Saved to ``path`` when given.
     """
     import matplotlib
 
@@ -349,9 +350,9 @@ def plot_hub_model(model: HubModel, path=None):
     import matplotlib.pyplot as plt
 
     t = model.t - model.t[0]
-    fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(9, 5.5))
-    ax1.plot(t, (model.baseline_length_m - model.c_m) * 1e3, ".", ms=1.5, color="0.6",
-             label=f"observed (RMS {model.rms_before_m * 1e3:.3f} mm)")
+    fig, (ax1, ax2, ax3) = plt.subplots(3, 1, figsize=(9, 8), gridspec_kw={"height_ratios": [2, 1, 2]})
+    dl_mm = (model.baseline_length_m - model.c_m) * 1e3
+    ax1.plot(t, dl_mm, ".", ms=1.5, color="0.6", label=f"observed (RMS {model.rms_before_m * 1e3:.3f} mm)")
     ax1.plot(t, (model.predict(model.azimuth_front, model.azimuth_rear) - model.c_m) * 1e3, "-",
              lw=1, color="C0", label="eq. 5.25 model")
     ax1.plot(t, model.residual() * 1e3, "-", lw=0.6, color="C3",
@@ -359,12 +360,19 @@ def plot_hub_model(model: HubModel, path=None):
     r = model.radius_m * 1e3
     ax1.set_title(f"c = {model.c_m * 100:.5f} cm, r1 = {r[0]:.3f} mm, r2 = {r[1]:.3f} mm")
     ax1.set_ylabel("baseline - c [mm]")
+    ax1.set_xlabel("time since start [s]")
     ax1.legend(loc="upper right", fontsize=8)
-    ax2.plot(t, np.degrees(model.azimuth_front), label="front")
-    ax2.plot(t, np.degrees(model.azimuth_rear), label="rear")
-    ax2.set_ylabel("azimuth [deg]")
+    ax2.plot(t, np.degrees(np.unwrap(model.azimuth_front)), label="front")
+    ax2.plot(t, np.degrees(np.unwrap(model.azimuth_rear)), label="rear")
+    ax2.set_ylabel("azimuth (unwrapped) [deg]")
     ax2.set_xlabel("time since start [s]")
     ax2.legend(loc="upper right", fontsize=8)
+    az_deg = np.degrees(np.mod(model.azimuth_front, 2 * np.pi))
+    ax3.plot(az_deg, dl_mm, ".", ms=1.5, color="0.6", label="before")
+    ax3.plot(az_deg, model.residual() * 1e3, ".", ms=1.5, color="C3", label="after the model")
+    ax3.set_xlabel("front hub azimuth [deg]")
+    ax3.set_ylabel("baseline - c [mm]")
+    ax3.legend(loc="upper right", fontsize=8, markerscale=5)
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=120)

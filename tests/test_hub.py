@@ -105,7 +105,7 @@ def test_nonfinite_samples_are_left_out():
 def test_plot_hub_model(tmp_path):
     m = measurements(duration_s=10.0, seed=1)
     fig = plot_hub_model(_fit(m), tmp_path / "hub.png")
-    assert len(fig.axes) == 2 and (tmp_path / "hub.png").stat().st_size > 10_000
+    assert len(fig.axes) == 3 and (tmp_path / "hub.png").stat().st_size > 10_000
 
 
 # ------------------------------------------------------------------------------- bad inputs
