@@ -97,7 +97,9 @@ def _stamp(stamp) -> float:
 
 # ROS1 md5sums of the standard definitions: only these take the vectorised byte-level path
 _FAST_ROS1 = {"geometry_msgs/msg/PointStamped": "c63aecb41bfdfd6b7e1fac37c7cbe7bf",
-              "sensor_msgs/msg/TimeReference": "fded64a0265108ba86c3d38fb11c0c16"}
+              "sensor_msgs/msg/TimeReference": "fded64a0265108ba86c3d38fb11c0c16",
+              "sensor_msgs/msg/Joy": "5a9ea5f83505693b71e785041e67a8bb",
+              "sensor_msgs/msg/JointState": "3066dcd76a6cfaef579bd0f34173e9fd"}
 
 
 @dataclass
@@ -146,23 +148,50 @@ def _read_topics(bags: list[Path], topics: tuple[str, ...]) -> dict[str, _Topic]
 def _ros1_columns(raw: list[bytes], msgtype: str) -> np.ndarray | None:
     """Return (n, k) float64 columns parsed from uniform ROS1 messages, or None if not uniform.
 
-    PointStamped -> [stamp, x, y, z]; TimeReference -> [time_ref]. One ``np.frombuffer`` over
-    all messages instead of one Python deserialisation per message (the bags hold ~10^5).
+    PointStamped -> [stamp, x, y, z]; TimeReference -> [time_ref]; Joy -> [stamp, axes[1],
+    axes[0]]; JointState -> [stamp, position of "front", position of "rear"]. One
+    ``np.frombuffer`` over all messages instead of one Python deserialisation per message (the
+    bags hold ~10^5). Messages of differing layout (lengths, names) return None: the caller then
+    takes the generic rosbags path, which also reports what is wrong with them.
     """
     size = len(raw[0])
     if any(len(r) != size for r in raw):
         return None
     buf = np.frombuffer(b"".join(raw), dtype=np.uint8).reshape(len(raw), size)
-    flen = buf[:, 12:16].copy().view("<u4")[:, 0]  # header: seq, sec, nsec, frame_id length
+
+    def u4(col: int) -> np.ndarray:
+        return buf[:, col:col + 4].copy().view("<u4")[:, 0]
+
+    flen = u4(12)  # header: seq, sec, nsec, frame_id length
     if np.any(flen != flen[0]):
         return None
     off = 16 + int(flen[0])
-    stamp = buf[:, 4:12].copy().view("<u4")
+    stamp = u4(4) + u4(8) * 1e-9
     if msgtype == "geometry_msgs/msg/PointStamped":
-        xyz = buf[:, off:off + 24].copy().view("<f8")
-        return np.column_stack([stamp[:, 0] + stamp[:, 1] * 1e-9, xyz])
-    ref = buf[:, off:off + 8].copy().view("<u4")
-    return (ref[:, 0] + ref[:, 1] * 1e-9)[:, None]
+        return np.column_stack([stamp, buf[:, off:off + 24].copy().view("<f8")])
+    if msgtype == "sensor_msgs/msg/TimeReference":
+        return (u4(off) + u4(off + 4) * 1e-9)[:, None]
+    if msgtype == "sensor_msgs/msg/Joy":
+        n_axes = u4(off)
+        if np.any(n_axes != n_axes[0]) or n_axes[0] < 2:
+            return None
+        axes = buf[:, off + 4:off + 12].copy().view("<f4").astype(float)
+        return np.column_stack([stamp, axes[:, 1], axes[:, 0]])
+    if msgtype == "sensor_msgs/msg/JointState":
+        head = bytes(buf[0])
+        n_names, pos = int.from_bytes(head[off:off + 4], "little"), off + 4
+        names = []
+        for _ in range(n_names):
+            length = int.from_bytes(head[pos:pos + 4], "little")
+            names.append(head[pos + 4:pos + 4 + length].decode(errors="replace"))
+            pos += 4 + length
+        if (np.any(buf[:, off:pos] != buf[0, off:pos]) or "front" not in names
+                or "rear" not in names or int.from_bytes(head[pos:pos + 4], "little") != n_names):
+            return None
+        position = buf[:, pos + 4:pos + 4 + 8 * n_names].copy().view("<f8")
+        return np.column_stack([stamp, position[:, names.index("front")],
+                                position[:, names.index("rear")]])
+    return None
 
 
 def _messages(topic: _Topic) -> list:
@@ -190,14 +219,14 @@ def _check_stamps(t: np.ndarray, run: str, topic: str, strict: bool) -> None:
 
 
 def _trigger_times(topic: _Topic) -> np.ndarray:
-    cols = _ros1_columns(topic.raw, topic.msgtype) if topic.raw and not topic.msgs else None
+    cols = _fast(topic)
     if cols is not None:
         return cols[:, 0]
     return np.array([_stamp(m.time_ref) for m in _messages(topic)], dtype=float)
 
 
 def _points(topic: _Topic, run: str, name: str) -> tuple[PointSeries, np.ndarray]:
-    cols = _ros1_columns(topic.raw, topic.msgtype) if topic.raw and not topic.msgs else None
+    cols = _fast(topic)
     if cols is None:
         msgs = _messages(topic)
         cols = np.array([(_stamp(m.header.stamp), m.point.x, m.point.y, m.point.z) for m in msgs],
@@ -206,6 +235,39 @@ def _points(topic: _Topic, run: str, name: str) -> tuple[PointSeries, np.ndarray
     # not sorted: stamps going backwards mean a clock reset, which no linear clock model fits
     _check_stamps(t, run, name, strict=True)
     return PointSeries(t_tracker=t, xyz=xyz), np.asarray(topic.t_bag_ns, dtype=np.int64) * 1e-9
+
+
+def _fast(topic: _Topic) -> np.ndarray | None:
+    return _ros1_columns(topic.raw, topic.msgtype) if topic.raw and not topic.msgs else None
+
+
+def _joy(topic: _Topic, run: str) -> tuple[np.ndarray, np.ndarray]:
+    """Return Joy stamps and ``[u1, u2] = [axes[1], axes[0]]`` (data contract)."""
+    cols = _fast(topic)
+    if cols is None:
+        joy = _messages(topic)
+        if any(len(m.axes) < 2 for m in joy):
+            raise InputError(f"run {run}: topic {TOPIC_JOY}: a message has fewer than 2 axes")
+        cols = np.array([(_stamp(m.header.stamp), m.axes[1], m.axes[0]) for m in joy],
+                        dtype=float).reshape(-1, 3)
+    return cols[:, 0].copy(), cols[:, 1:].copy()
+
+
+def _hub(topic: _Topic, run: str) -> tuple[np.ndarray, np.ndarray]:
+    """Return JointState stamps and the commanded azimuths ``[front, rear]``, looked up by name."""
+    cols = _fast(topic)
+    if cols is None:
+        rows = []
+        for i, m in enumerate(_messages(topic)):
+            names = list(m.name)
+            try:
+                rows.append((_stamp(m.header.stamp), m.position[names.index("front")],
+                             m.position[names.index("rear")]))
+            except (ValueError, IndexError):
+                raise InputError(f"run {run}: topic {TOPIC_HUB}: message {i} lacks 'front'/'rear' "
+                                 f"(name={names})") from None
+        cols = np.array(rows, dtype=float).reshape(-1, 3)
+    return cols[:, 0].copy(), cols[:, 1:].copy()
 
 
 def read_tracker_run(run_dir: str | Path, name: str | None = None, split: str = "train") -> BagRun:
@@ -235,27 +297,14 @@ def read_tracker_run(run_dir: str | Path, name: str | None = None, split: str = 
     at960, rx_at960 = _points(topics[TOPIC_AT960], name, TOPIC_AT960)
     ltd800, rx_ltd800 = _points(topics[TOPIC_LTD800], name, TOPIC_LTD800)
 
-    joy = _messages(topics[TOPIC_JOY])
-    if any(len(m.axes) < 2 for m in joy):
-        raise InputError(f"run {name}: topic {TOPIC_JOY}: a message has fewer than 2 axes")
-    t_joy = np.array([_stamp(m.header.stamp) for m in joy], dtype=float)
-    u_joy = np.array([(m.axes[1], m.axes[0]) for m in joy], dtype=float).reshape(-1, 2)
+    t_joy, u_joy = _joy(topics[TOPIC_JOY], name)
     _check_stamps(t_joy, name, TOPIC_JOY, strict=False)
     if not np.all(np.isfinite(u_joy)):
         raise InputError(f"run {name}: topic {TOPIC_JOY}: non-finite axes")
 
-    hub = _messages(topics[TOPIC_HUB])
-    t_hub = np.array([_stamp(m.header.stamp) for m in hub], dtype=float)
-    az = np.empty((len(hub), 2))
-    for i, m in enumerate(hub):  # name order is [front, rear] by contract, but look it up
-        names = list(m.name)
-        try:
-            az[i] = m.position[names.index("front")], m.position[names.index("rear")]
-        except (ValueError, IndexError):
-            raise InputError(f"run {name}: topic {TOPIC_HUB}: message {i} lacks 'front'/'rear' "
-                             f"(name={names})") from None
+    t_hub, az = _hub(topics[TOPIC_HUB], name)
     _check_stamps(t_hub, name, TOPIC_HUB, strict=False)
-    if not hub:
+    if not t_hub.size:
         log.warning("run %s: topic %s missing: no turning-hub model for this run", name, TOPIC_HUB)
 
     return BagRun(name=name, split=split, t_trigger_utc=t_trigger, at960=at960, ltd800=ltd800,
