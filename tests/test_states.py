@@ -81,6 +81,18 @@ def test_body_velocities_vs_analytic_derivatives(seed):
     assert np.all(rms[1.0][:2] < 2e-4) and rms[1.0][2] < 3e-4
 
 
+@pytest.mark.parametrize("seed", [0, 3])
+def test_padded_ends_remove_the_natural_end_bias(seed):
+    t = np.arange(0.0, 40.0, 0.02)
+    track, tr = _poses(t, seed)
+    ends = np.r_[0:150, t.size - 150:t.size]
+    inner = slice(250, -250)
+    plain = body_states_from_poses(track, _inputs(41.0), 10.0, pad_ends=False)
+    padded = body_states_from_poses(track, _inputs(41.0), 10.0)
+    assert np.all(_rms(padded, tr, ends) < 0.3 * _rms(plain, tr, ends))
+    np.testing.assert_allclose(_rms(padded, tr, inner), _rms(plain, tr, inner), rtol=0.2)
+
+
 def test_body_frame_rotation_and_smoothed_pose():
     t = np.arange(0.0, 30.0, 0.02)
     track, tr = _poses(t, 4)
