@@ -1,0 +1,155 @@
+"""The chain on the real Warthog campaigns of ../shared/data (issue 6).
+
+Independent references: the baselines measured in ../shared/data/README.md (reproduced here with
+velocities from plain centred differences, not the package's splines), the envelope recomputed
+from the data, and the times of a hole cut into a real run.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identification.baselines import ConstantVelocityModel, UnicycleModel
+from identification.evaluate import evaluate_model, make_windows
+from identification.search import states_of_runs
+from identification.trajectory import read_trajectory_campaign, write_trajectory_campaign
+from identification.types import BodyStates, TrajectoryRun
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "real_warthog.py"
+
+
+def _example():
+    spec = importlib.util.spec_from_file_location("real_warthog", EXAMPLE)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("real_warthog", module)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def ex():
+    return _example()
+
+
+@pytest.fixture(scope="module")
+def data(shared_dir) -> Path:
+    return shared_dir / "data"
+
+
+@pytest.fixture(scope="module")
+def identified(ex, data):
+    """Models identified on the train runs of both campaigns with the small fixed grid."""
+    return {name: ex.run_campaign(data / name, ex.QUICK_REAL_GRID) for name in ex.CAMPAIGNS}
+
+
+def _differenced_states(run: TrajectoryRun, half_width: int = 2) -> BodyStates:
+    """Return body states from centred differences over +-``half_width`` poses (no spline)."""
+    p, n = run.poses, run.poses.t.size
+    i = np.arange(n)
+    a, b = np.clip(i - half_width, 0, n - 1), np.clip(i + half_width, 0, n - 1)
+    dt = p.t[b] - p.t[a]
+    vx_l, vy_l, omega = (p.x[b] - p.x[a]) / dt, (p.y[b] - p.y[a]) / dt, (p.yaw[b] - p.yaw[a]) / dt
+    c, s = np.cos(p.yaw), np.sin(p.yaw)
+    return BodyStates(t=p.t, vx=c * vx_l + s * vy_l, vy=-s * vx_l + c * vy_l, omega=omega,
+                      u1=np.interp(p.t, run.inputs.t, run.inputs.u1), u2=np.interp(p.t, run.inputs.t, run.inputs.u2),
+                      x=p.x, y=p.y, yaw=p.yaw)
+
+
+@pytest.mark.parametrize("name, pos_m, yaw_deg, cv_m", [
+    ("warthog-drive-cmd", 0.51, 30.7, 1.40),
+    ("warthog-drive-wheels", 0.13, 2.7, 1.34),
+])
+def test_evaluation_reproduces_the_readme_baselines(data, name, pos_m, yaw_deg, cv_m):
+    camp = read_trajectory_campaign(data / name)
+    train = [_differenced_states(r) for r in camp.split("train")]
+    test = [_differenced_states(r) for r in camp.split("test")]
+    uni = evaluate_model(UnicycleModel().fit(train), test)
+    # README: unicycle 0.51 m / 30.7 deg and 0.13 m / 2.7 deg (5 s windows, 50 % overlap)
+    assert uni.pos_err_5s_m == pytest.approx(pos_m, abs=0.015)
+    assert uni.yaw_err_5s_deg == pytest.approx(yaw_deg, abs=1.0)
+    # constant velocity keeps the initial velocity, so it depends on how that velocity is
+    # estimated from 10 Hz poses with 50 ms stamp jitter: 1.1 to 1.8 m for the usual estimators
+    cv = evaluate_model(ConstantVelocityModel(), test)
+    assert cv.pos_err_5s_m == pytest.approx(cv_m, rel=0.2)
+    assert cv.n_windows == uni.n_windows == {"warthog-drive-cmd": 47, "warthog-drive-wheels": 76}[name]
+
+
+@pytest.mark.parametrize("name, max_ratio", [("warthog-drive-cmd", 0.6), ("warthog-drive-wheels", 1.0)])
+def test_identified_model_beats_the_unicycle_on_the_test_runs(ex, identified, data, name, max_ratio):
+    sc = identified[name]
+    sindy, uni = sc.results["sindy"], sc.results["unicycle"]
+    readme_uni = ex.README_BASELINES[name]["unicycle"][0]
+    assert sindy.n_windows == uni.n_windows > 40
+    assert sindy.pos_err_5s_m < uni.pos_err_5s_m  # same states, same windows
+    assert sindy.pos_err_5s_m < max_ratio * readme_uni  # issue 6 target for cmd: 0.6 x 0.51 m
+    assert sindy.yaw_err_5s_deg < uni.yaw_err_5s_deg
+    train_names = {r.name for r in read_trajectory_campaign(data / name).split("train")}
+    assert {r for fold in sc.search.folds for r in fold} == train_names  # identified on train runs only
+
+
+def test_model_trained_on_one_campaign_scored_on_the_other(ex, identified, data):
+    camps = {n: read_trajectory_campaign(data / n) for n in ex.CAMPAIGNS}
+    for a, b in (ex.CAMPAIGNS, ex.CAMPAIGNS[::-1]):
+        sc = ex.score(identified[a].model, camps[a], camps[b])
+        assert np.isfinite(sc.results["sindy"].pos_err_5s_m)
+        # sensible: better than keeping the initial velocity, within a metre after 5 s
+        assert sc.results["sindy"].pos_err_5s_m < sc.results["constant_velocity"].pos_err_5s_m < 1.5
+        # envelope warning iff a test sample leaves the training range (+-10 % of its width)
+        segs, _, _ = states_of_runs(camps[b].split("test"), identified[a].model.hyperparameters["s"])
+        z = np.vstack([np.column_stack([s.state, s.inputs]) for s in segs])
+        env = identified[a].model.envelope
+        lo, hi = (np.array([env[v][k] for v in ("vx", "vy", "omega", "u1", "u2")]) for k in (0, 1))
+        outside = ((z < lo - 0.1 * (hi - lo)) | (z > hi + 0.1 * (hi - lo))).any()
+        assert bool(sc.envelope_warnings) == bool(outside)
+
+
+def test_inputs_beyond_the_training_range_warn_and_still_predict(ex, identified, data, tmp_path):
+    camp = read_trajectory_campaign(data / "warthog-drive-wheels")
+    run = camp.split("test")[0]
+    fast = replace(run, inputs=replace(run.inputs, u1=1.6 * run.inputs.u1))  # faster than ever driven
+    out = write_trajectory_campaign(tmp_path / "fast", "fast", [(r, None) for r in camp.split("train")] + [(fast, None)])
+    sc = ex.score(identified["warthog-drive-wheels"].model, camp, read_trajectory_campaign(out))
+    assert len(sc.envelope_warnings) == 1 and "u1" in sc.envelope_warnings[0]
+    assert np.isfinite(sc.results["sindy"].pos_err_5s_m)
+
+
+def test_hole_nan_rows_and_duplicates_in_a_real_run_are_counted_and_not_bridged(data, tmp_path):
+    camp = read_trajectory_campaign(data / "warthog-drive-wheels")
+    run = camp.split("test")[0]
+    p = run.poses
+    t_rel = p.t - p.t[0]
+    hole = (t_rel > 60.0) & (t_rel < 70.0)
+    cols = {c: getattr(p, c)[~hole] for c in ("t", "x", "y", "z", "pitch", "yaw", "x_std", "y_std", "z_std",
+                                              "pitch_std", "yaw_std")}
+    cols["yaw"] = np.angle(np.exp(1j * cols["yaw"]))  # and wrapped, as many tools write it
+    damaged = replace(run, poses=replace(p, **cols))
+    out = write_trajectory_campaign(tmp_path / "c", "damaged", [(damaged, None)])
+    csv = out / "runs" / run.name / "poses.csv"
+    lines = csv.read_text().splitlines()
+    lines[10] = lines[10].replace(lines[10].split(",")[5], "nan")  # x is column 1, yaw column 5
+    lines.insert(20, lines[20])  # a duplicated row
+    csv.write_text("\n".join(lines) + "\n")
+    back = read_trajectory_campaign(out).runs[0]
+    assert back.repairs == {"nan_pose_rows": 1, "duplicate_pose_stamps": 1, "gaps": 1}
+    kept = np.delete(np.flatnonzero(~hole), 9)  # file line 11 is pose row 9
+    np.testing.assert_allclose(back.poses.t, p.t[kept], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(back.poses.yaw, p.yaw[kept], rtol=0, atol=1e-9)  # unwrapped again
+    segs, names, _ = states_of_runs([back], 10.0)
+    assert len(segs) == 2 and segs[0].t[-1] < p.t[0] + 60.0 < 70.0 + p.t[0] < segs[1].t[0]
+    w = make_windows(segs, names=names)
+    t_hole = p.t[0] + np.array([60.0, 70.0])
+    assert not np.any((w.t0 < t_hole[1]) & (w.t0 + 5.0 > t_hole[0]))  # no window spans the hole
+
+
+def test_example_main_prints_the_comparison(ex, capsys):
+    assert ex.main(["--quick"]) == 0
+    text = capsys.readouterr().out
+    for needle in ("warthog-drive-cmd: 5 s position error", "warthog-drive-wheels: 5 s position error",
+                   "warthog-drive-cmd -> warthog-drive-wheels", "constant_velocity", "README unicycle"):
+        assert needle in text
