@@ -96,9 +96,10 @@ def _cache_dir(root: Path) -> Path:
     return Path.home() / ".cache" / "sindy-ekf" / digest / "preprocessed"
 
 
-def preprocessed_dir(path: str | Path, smoothing: float | None = None) -> Path:
+def preprocessed_dir(path: str | Path, smoothing: float | None = None, jobs: int | None = None) -> Path:
     """Return the folder of the trajectory campaign preprocessed from a tracker campaign,
-    preprocessing it first unless a valid cached one exists."""
+    preprocessing it first (runs in ``jobs`` processes, default up to 2) unless a valid cached
+    one exists."""
     from identification.preprocess import DEFAULT_SMOOTHING, preprocess_campaign
     from sindy_ekf.io_utils import atomic_write_json
 
@@ -115,7 +116,8 @@ def preprocessed_dir(path: str | Path, smoothing: float | None = None) -> Path:
         except (json.JSONDecodeError, OSError):
             pass
         log.info("%s: cached preprocessing is stale; preprocessing again", root)
-    preprocess_campaign(root, out, smoothing=smoothing, force=True)  # writes preprocess.json too
+    jobs = min(2, os.cpu_count() or 1) if jobs is None else jobs
+    preprocess_campaign(root, out, smoothing=smoothing, force=True, jobs=jobs)  # + preprocess.json
     atomic_write_json(key_file, {"key": key})  # written last: its presence marks a valid cache
     return out
 

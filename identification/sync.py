@@ -74,8 +74,9 @@ class SyncedRun:
     r_speed_before: float  # Pearson r of baseline variation with forward speed, before
     r_speed_after: float  # the same after the offset correction (and the hub terms, if joint)
     counts: dict[str, TrackerCounts]
-    residuals: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    # tracker -> (s_trigger of matched samples, mapped tracker time - trigger time), fig. 5.4
+    residuals: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
+    # tracker -> matched samples' (trigger time, mapped tracker time - trigger time, tracker
+    # time since its first sample), before the extra offset: figs. 5.3 and 5.4
 
     @property
     def t_utc(self) -> np.ndarray:
@@ -171,7 +172,7 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
         finite = np.isfinite(ps.xyz).all(axis=1)
         clock[tracker] = model
         counts[tracker] = count_samples(s.size, ps.t_tracker.size, i_trig, int((~finite).sum()))
-        resid[tracker] = (s[i_trig], s_tr[j_tr] - s[i_trig])
+        resid[tracker] = (s[i_trig], s_tr[j_tr] - s[i_trig], ps.t_tracker[j_tr] - model.t0_tracker)
         xyz = ps.xyz[finite]
         if tracker == "ltd800":
             xyz = xyz @ np.asarray(R_at960_ltd800).T + np.asarray(t_at960_ltd800)

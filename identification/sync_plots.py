@@ -75,12 +75,34 @@ def plot_xcorr(raw: RawRun, synced: SyncedRun, path=None):
     return _save(fig, path)
 
 
+def plot_clock_model(synced: SyncedRun, path=None):
+    """Return trigger time minus tracker time at the matched samples with the fitted linear
+    clock model (eqs. 5.10 to 5.12) for both trackers, like thesis fig. 5.3."""
+    fig, (ax,) = _figure(1, 4.0)
+    for tracker, color in (("ltd800", "C0"), ("at960", "C1")):
+        s, _, s_tr = synced.residuals[tracker]
+        c = synced.clock[tracker]
+        d = c.d - (synced.offset.dt if tracker == synced.offset_tracker else 0.0)  # eq. 5.12 only
+        step = max(1, s.size // 2000)
+        y0 = s[0] - s_tr[0]  # common reference so that both lines start near zero
+        ax.plot(s_tr[::step], (s[::step] - s_tr[::step] - y0) * 1e3, ".", ms=2, color=color,
+                label=f"{tracker} matched samples")
+        x = np.array([s_tr[0], s_tr[-1]])
+        ax.plot(x, (c.k * (x - c.tau) + d - x - y0) * 1e3, "-", color=color, lw=1,
+                label=f"{tracker}: drift {c.drift_ppm:.3f} ppm")
+    ax.set_xlabel("tracker clock since its first sample [s]")
+    ax.set_ylabel("trigger minus tracker time [ms]")
+    ax.set_title(f"run {synced.name}: linear clock models (eqs. 5.10-5.12)")
+    ax.legend(loc="best", markerscale=4)
+    return _save(fig, path)
+
+
 def plot_clock_residuals(synced: SyncedRun, path=None):
     """Return the mapped tracker stamps minus the trigger times for the AT960 (top) and LTD800
     (bottom) after the clock model, before the extra offset, like thesis fig. 5.4."""
     fig, axes = _figure(2)
     for ax, tracker in zip(axes, ("at960", "ltd800")):
-        s, r = synced.residuals[tracker]
+        s, r, _ = synced.residuals[tracker]
         c = synced.clock[tracker]
         ax.plot(s, r * 1e6, ".", ms=1.5)
         ax.set_ylabel(f"{tracker} [us]")
@@ -149,6 +171,7 @@ def plot_run(raw: RawRun, run, out_dir) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     figs = {"fig5_1_gap_signal.png": lambda p: plot_gap_signal(raw, "ltd800", p),
             "fig5_2_xcorr.png": lambda p: plot_xcorr(raw, s, p),
+            "fig5_3_clock_model.png": lambda p: plot_clock_model(s, p),
             "fig5_4_clock_residuals.png": lambda p: plot_clock_residuals(s, p),
             "fig5_5_baseline.png": lambda p: plot_baseline(s, p),
             "fig5_6_offset_fit.png": lambda p: plot_offset_fit(s, p),

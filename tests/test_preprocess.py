@@ -267,7 +267,8 @@ def test_figures_only_on_request(synthetic_campaign, tmp_path):
     assert not list(tmp_path.rglob("*.png"))
     preprocess_campaign(camp, tmp_path / "b", plots_dir=tmp_path / "plots")
     names = {p.name for p in (tmp_path / "plots" / "run_1").glob("*.png")}
-    assert {"fig5_1_gap_signal.png", "fig5_2_xcorr.png", "fig5_4_clock_residuals.png",
+    assert {"fig5_1_gap_signal.png", "fig5_2_xcorr.png", "fig5_3_clock_model.png",
+            "fig5_4_clock_residuals.png",
             "fig5_5_baseline.png", "fig5_6_offset_fit.png", "baseline_vs_speed.png",
             "fig5_7_hub_model.png"} <= names
     assert any(n.startswith("fig7_2_7_3_poses") for n in names)
