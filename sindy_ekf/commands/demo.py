@@ -1,61 +1,80 @@
-"""``sindy-ekf demo``: the whole chain on a built-in simulated campaign (first step: simulate).
+"""``sindy-ekf demo``: the whole chain on a built-in simulated campaign, ending in an HTML report.
 
-This first version simulates a short campaign (into a temporary folder, or ``--out``) and
-prints what it holds: runs, durations, message counts per topic read back from the bags, and
-the lost/spurious pulses and dropouts the simulator put in. Later stages append to ``run``.
+Simulates a short campaign (seed 0, 4 minutes of driving in the 9 runs of thesis table 6.4),
+preprocesses it (synchronisation, hub model, poses, body states), identifies a SINDy model with
+a reduced but real grid search (2 tau x 3 alpha x 3 T, 3-fold CV by run), evaluates it against
+the baselines and the simulator's true dynamics, benchmarks the estimators and diagnoses the
+model, and writes ``OUT/report/report.html``. Prints where the report is and the headline
+figures. The default output folder ``./demo-out`` is replaced on every run; any other non-empty
+folder needs ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
-import tempfile
+import shutil
+import time
 from pathlib import Path
 
-from sindy_ekf.io_utils import atomic_write_json
+from sindy_ekf.errors import InputError
 
 DEMO_MINUTES = 4.0
+DEFAULT_OUT = Path("demo-out")
+MARKER = ".sindy-ekf-demo"  # marks a folder the demo wrote, so a rerun may replace it
 
 
 def add_parser(sub, common) -> argparse.ArgumentParser:
     """Register the ``demo`` subcommand; return its parser."""
     p = sub.add_parser("demo", parents=[common], help="the whole chain on a built-in simulated campaign",
                        description=__doc__.splitlines()[0])
-    p.add_argument("--out", type=Path, default=None, help="folder for the campaign (default: temporary)")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default: ./demo-out)")
     p.add_argument("--minutes", type=float, default=DEMO_MINUTES, help="driving time to simulate")
     p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
+                   help="a dynamics effect for the simulator to hide (e.g. input_delay=0.15)")
     p.add_argument("--force", action="store_true", help="replace a non-empty --out")
-    p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
+    p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the headline figures as JSON")
     return p
 
 
-def simulate_step(out: Path, args) -> dict:
-    """Simulate the demo campaign into ``out``, print what it holds; return the summary."""
-    from simulation.bags import count_messages
-    from simulation.campaign import simulate_campaign
-    from sindy_ekf.commands.simulate import summary
+def prepare_out(out: Path, force: bool) -> Path:
+    """Return ``out`` emptied when the demo wrote it before (or ``force``), else raise InputError."""
+    from sindy_ekf.report import check_report_dir
 
-    truth = simulate_campaign(out, seed=args.seed, minutes=args.minutes, force=args.force)
-    result = summary(truth)
-    print(f"demo campaign {out}: {len(truth.runs)} runs, "
-          f"{sum(r.duration_s for r in truth.runs) / 60:.1f} min of driving, seed {truth.seed}")
-    print(f"{'run':8} {'split':5} {'dur s':>6} {'trigger':>7} {'at960':>6} {'ltd800':>6} {'joy':>5} {'hub':>5}"
-          f" {'lost':>4} {'spur':>4} {'dropouts a/l':>12}")
-    for r in truth.runs:
-        counts = count_messages(out / "runs" / r.name)
-        result["runs"][r.name]["messages"] = counts
-        print(f"{r.name:8} {r.split:5} {r.duration_s:6.1f} {counts.get('/rpi/trigger', 0):7d} "
-              f"{counts.get('/at960/measurement', 0):6d} {counts.get('/ltd800/measurement', 0):6d} "
-              f"{counts.get('/joy_teleop/joy', 0):5d} {counts.get('/turning_hub/azimuth', 0):5d} "
-              f"{r.at960['n_lost']:4d} {r.at960['n_spurious']:4d} "
-              f"{len(r.at960['dropouts_utc']):>6d}/{len(r.ltd800['dropouts_utc']):<5d}")
-    return result
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: output exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()):
+        if not (force or (out / MARKER).is_file()):
+            raise InputError(f"{out}: output folder is not empty and not a demo folder (use --force to replace it)")
+        shutil.rmtree(out)
+    check_report_dir(out)
+    (out / MARKER).write_text("written by sindy-ekf demo; rerunning the demo replaces this folder\n")
+    return out
 
 
 def run(args) -> int:
-    """Run the demo; return the exit code."""
-    with tempfile.TemporaryDirectory(prefix="sindy-ekf-demo-") as tmp:
-        out = args.out if args.out is not None else Path(tmp) / "campaign"
-        result = {"simulate": simulate_step(out, args)}
-        if args.json is not None:
-            atomic_write_json(args.json, result)
+    """Simulate, run the chain, write the report; print where it is and the headline figures."""
+    from simulation.campaign import simulate_campaign
+    from sindy_ekf.commands.report import format_headline
+    from sindy_ekf.io_utils import atomic_write_json
+    from sindy_ekf.report import render_report
+    from sindy_ekf.report_chain import QUICK, run_chain
+
+    tic = time.perf_counter()
+    out = prepare_out(args.out, args.force)
+    campaign = out / "campaign"
+    truth = simulate_campaign(campaign, seed=args.seed, minutes=args.minutes, effects=args.effect)
+    effect = ", ".join(f"{n}={v:g}" for n, v in truth.effects) or "none"
+    if not args.quiet:
+        print(f"simulated {campaign}: {len(truth.runs)} runs, {sum(r.duration_s for r in truth.runs) / 60:.1f} min, "
+              f"seed {truth.seed}, hidden effect: {effect} ({time.perf_counter() - tic:.0f} s)")
+    chain = run_chain(campaign, out / "report", grid=QUICK)
+    path = render_report(chain, out / "report")
+    if not args.quiet:
+        print(format_headline(chain))
+    print(f"report written to {path} ({time.perf_counter() - tic:.0f} s in all)")
+    if args.json is not None:
+        atomic_write_json(args.json, {"report": str(path), "seed": truth.seed, "minutes": truth.minutes,
+                                      "effects": [{"name": n, "value": v} for n, v in truth.effects],
+                                      "wall_s": time.perf_counter() - tic, **chain.headline()})
     return 0
