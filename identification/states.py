@@ -23,9 +23,12 @@ found by a root search so that the constraint holds with equality. It is the spl
 ``scipy.interpolate.make_smoothing_spline`` computes for a given penalty, at O(N) cost per
 trial penalty (one banded solve). With tracker-derived a priori sigmas (about 10 um, 0.001
 deg), the thesis's values 0.0005 to 0.01 (table 5.1, applied there to a posteriori sigmas
-inflated by the hub eccentricity) are close to interpolation; values around 1 to 100 smooth
-vibration-sized wiggles. When a pose track has no sigmas the noise level of each component
-is estimated from the data (robust spread of fourth differences), so ``s`` keeps its meaning.
+inflated by the hub eccentricity) are close to interpolation; ``s = 1`` is the noise-matched
+choice, and larger values also remove real high-frequency motion (simulated campaigns,
+``bench/results/poses.md``: vy RMS against truth 0.6 mm/s at s <= 0.01, 0.3 mm/s at s = 1,
+while vx grows from 1.1 to 2.4 mm/s at s = 10). When a pose track has no sigmas the noise
+level of each component is estimated from the data (robust spread of fourth differences), so
+``s`` keeps its meaning.
 
 The smoothing spline is natural (zero curvature at both ends of a segment), so over roughly
 one smoothing length at each end the derivative is pulled towards the straight-line slope
