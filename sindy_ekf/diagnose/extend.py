@@ -1,0 +1,306 @@
+"""The model extended by the winning mechanism, re-identified, and its gain before and after.
+
+:class:`ExtendedModel` is the given SINDy model's library with re-identified coefficients plus
+the mechanism: an input transform (the motors see ``T_theta(u)``) and/or additive columns
+``C(x6, u) beta`` (pose-dependent). It has the interface of the simulator's true dynamics,
+``f(x6, u, t) -> (..., 3)``, ``J_f_x -> (..., 3, 6)``, ``J_f_u -> (..., 3, 2)``, so the
+estimation code takes it like the oracle (``process_models.TrueDynamicsProcess``), and
+``uses_pose``/``f_full`` for the batched multi-step evaluation. It is saved as JSON (the base
+model's own file format nested, plus the mechanism).
+
+Re-identification (eqs. 5.55 to 5.59 on the model's support): the integral regression of the
+train runs with the inputs the motors see, the columns of the library the model uses per
+equation and the mechanism's columns, solved jointly by least squares (equations weighted by
+the inverse residual variance, as in the scoring).
+
+Gains: the 5 s multi-step position and heading errors on the test runs (thesis 5.3.8, as
+``evaluate``) before (the given model) and after (the extended model); and the dead-reckoning
+error at the end of 10 s GNSS outages in the EKF (``sindy_ekf.ekf.run_ekf``) with each model.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from identification.model import SindyModel
+from identification.types import BodyStates
+from sindy_ekf.diagnose.data import Split
+from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, null_prediction
+from sindy_ekf.errors import InputError
+
+log = logging.getLogger(__name__)
+
+FORMAT = "sindy-ekf-extended-model"
+
+
+@dataclass
+class ExtendedModel:
+    """A SINDy model plus one mechanism (input transform and/or additive pose-dependent columns)."""
+
+    base: SindyModel
+    family: str
+    theta: np.ndarray
+    beta: np.ndarray
+    estimate: dict = field(default_factory=dict)
+    uses_pose = True
+    kinematic = False
+
+    def __post_init__(self):
+        self.theta = np.asarray(self.theta, float).reshape(-1)
+        self.beta = np.asarray(self.beta, float).reshape(-1)
+
+    @property
+    def spec(self) -> Family:
+        """The family's mechanism."""
+        return FAMILY_SPECS[self.family]
+
+    @property
+    def name(self) -> str:
+        """Short name for tables."""
+        return f"sindy+{self.family}"
+
+    # inputs ---------------------------------------------------------------------------------
+    def motor_inputs(self, t_run: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return ``(n, 2)`` inputs the motors see, from one run's recorded inputs ``u`` at ``t_run``."""
+        return self.spec.motor_inputs(np.asarray(t_run, float), np.asarray(u, float), [slice(None)],
+                                      self.theta[None])[0]
+
+    def states_for_motors(self, states: BodyStates) -> BodyStates:
+        """Return ``states`` with the inputs replaced by the motor inputs and time from the run start."""
+        t = np.asarray(states.t, float) - float(states.t[0])
+        u = self.motor_inputs(t, states.inputs)
+        return replace(states, t=t, u1=u[:, 0], u2=u[:, 1])
+
+    # dynamics -------------------------------------------------------------------------------
+    def _columns(self, x6: np.ndarray, u: np.ndarray, jac: bool):
+        lead = x6.shape[:-1]
+        flat = x6.reshape(-1, 6)
+        uf = np.broadcast_to(u, lead + (2,)).reshape(-1, 2)
+        out = self.spec.columns(flat, uf, np.zeros(len(flat)), self.theta[None], with_jacobian=jac)
+        if jac:
+            cols, J = out
+            return cols[0].reshape(lead + (3, -1)), J[0].reshape(lead + (3, -1, 6))
+        return out[0].reshape(lead + (3, -1)), None
+
+    def f(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
+        """Return body accelerations ``(..., 3)`` at full states ``x6 (..., 6)`` and motor inputs ``u``."""
+        x6 = np.asarray(x6, float)
+        a = self.base.f(x6[..., 3:], u)
+        if self.spec.n_columns:
+            cols, _ = self._columns(x6, u, False)
+            a = a + cols @ self.beta
+        return a
+
+    def f_full(self, x6: np.ndarray, u: np.ndarray, t) -> np.ndarray:
+        """Return :meth:`f` (the interface of ``identification.evaluate`` for pose-dependent models)."""
+        return self.f(x6, u, t)
+
+    def f_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
+        """Return ``f (..., 3)``, ``J_f_x (..., 3, 6)`` and ``J_f_u (..., 3, 2)``."""
+        x6 = np.asarray(x6, float)
+        a, J3, J_u = self.base.f_and_jacobians(x6[..., 3:], u)
+        J_x = np.zeros(a.shape[:-1] + (3, 6))
+        J_x[..., 3:] = J3
+        if self.spec.n_columns:
+            cols, J = self._columns(np.broadcast_to(x6, a.shape[:-1] + (6,)), u, True)
+            a = a + cols @ self.beta
+            J_x = J_x + np.einsum("...emk,m->...ek", J, self.beta)
+        return a, J_x, J_u
+
+    def J_f_x(self, x6, u, t=0.0) -> np.ndarray:
+        """Return ``d f / d x6`` ``(..., 3, 6)`` (analytic; pose columns included)."""
+        return self.f_and_jacobians(x6, u, t)[1]
+
+    def J_f_u(self, x6, u, t=0.0) -> np.ndarray:
+        """Return ``d f / d u`` ``(..., 3, 2)`` with respect to the motor inputs."""
+        return self.f_and_jacobians(x6, u, t)[2]
+
+    def as_sindy(self) -> SindyModel:
+        """Return the extended model as a plain :class:`SindyModel` when its mechanism is library terms.
+
+        Only ``lateral_slip`` qualifies (its columns are ``vx omega`` and ``vy`` of the lateral
+        equation); raises InputError for the other families.
+        """
+        if self.family != "lateral_slip":
+            raise InputError(f"extended model {self.family!r}: not expressible in the SINDy library")
+        from sindy_ekf.diagnose.families import model_coefficient  # noqa: F401 - same term matching
+        from identification.library import parse_term
+
+        coef = self.base.coef.copy()
+        for term, b in zip(("vx omega", "vy"), self.beta):
+            j = self.base.library.atoms.index(parse_term(term, self.base.library.variables))
+            coef[1, j] += b
+        return SindyModel(library=self.base.library, coef=coef, hyperparameters=dict(self.base.hyperparameters),
+                          envelope=dict(self.base.envelope), training=dict(self.base.training))
+
+    # files ----------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Return the JSON-ready description: the base model file nested, plus the mechanism."""
+        return {"format": FORMAT, "format_version": 1, "family": self.family,
+                "theta": dict(zip(self.spec.theta_names, self.theta.tolist())),
+                "beta": dict(zip(self.spec.column_names, self.beta.tolist())),
+                "estimate": self.estimate, "base": self.base.to_dict()}
+
+    def to_json(self, path) -> Path:
+        """Write the extended model to ``path`` atomically; return the path."""
+        from sindy_ekf.io_utils import atomic_write_json
+
+        return atomic_write_json(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path) -> "ExtendedModel":
+        """Return the extended model stored at ``path``; raise InputError naming what is wrong."""
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise InputError(f"{path}: cannot read an extended model ({exc})") from None
+        if d.get("format") != FORMAT or d.get("family") not in FAMILY_SPECS:
+            raise InputError(f"{path}: not a sindy-ekf extended model (format {d.get('format')!r}, "
+                             f"family {d.get('family')!r})")
+        spec = FAMILY_SPECS[d["family"]]
+        try:
+            theta = [d["theta"][k] for k in spec.theta_names]
+            beta = [d["beta"][k] for k in spec.column_names]
+        except (KeyError, TypeError):
+            raise InputError(f"{path}: key theta or beta does not match family {d['family']!r}") from None
+        return cls(SindyModel.from_dict(d["base"], source=str(path)), d["family"], theta, beta,
+                   dict(d.get("estimate") or {}))
+
+
+def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,
+               weights: np.ndarray, estimate: dict | None = None) -> ExtendedModel:
+    """Return the model re-identified on ``train`` with the mechanism ``family`` at ``theta``.
+
+    Implements eqs. 5.55 to 5.57 on the model's support (its non-zero terms per equation) plus
+    the mechanism's columns, solved jointly by weighted least squares.
+    """
+    spec = FAMILY_SPECS[family]
+    theta = np.asarray(theta, float).reshape(-1)
+    u_m = spec.motor_inputs(train.t_run, train.u, train.runs_slices(), theta[None])[0]
+    theta_feat = model.library.transform(np.concatenate([train.v_body, u_m], axis=-1))
+    th_int = train.integrate(theta_feat)  # (p, k)
+    support = model.coef != 0  # (3, k)
+    m = spec.n_columns
+    X_mech = np.zeros((train.n_windows, 3, m))
+    if m:
+        cols = spec.columns(train.x6, train.u, train.t_run, theta[None])[0]
+        X_mech = train.integrate(cols.reshape(len(cols), 3 * m)).reshape(-1, 3, m)
+    idx = [np.flatnonzero(support[e]) for e in range(3)]
+    n_xi = sum(len(i) for i in idx)
+    p = train.n_windows
+    A = np.zeros((3, p, n_xi + m))
+    col = 0
+    for e in range(3):
+        A[e, :, col:col + len(idx[e])] = th_int[:, idx[e]]
+        col += len(idx[e])
+        A[e, :, n_xi:] = X_mech[:, e, :]
+    sw = np.sqrt(weights)[:, None, None]
+    A_w = (A * sw).reshape(3 * p, -1)
+    y_w = (train.delta_v.T[:, :, None] * sw).reshape(3 * p)
+    # a whisper of ridge: duplicated columns (a mechanism term the model already has) stay solvable
+    gram = A_w.T @ A_w
+    sol = np.linalg.solve(gram + 1e-10 * np.trace(gram) / len(gram) * np.eye(len(gram)), A_w.T @ y_w)
+    coef = np.zeros_like(model.coef)
+    col = 0
+    for e in range(3):
+        coef[e, idx[e]] = sol[col:col + len(idx[e])]
+        col += len(idx[e])
+    base = SindyModel(library=model.library, coef=coef, hyperparameters=dict(model.hyperparameters),
+                      envelope=dict(model.envelope),
+                      training={**model.training, "reidentified_with": family, "n_windows": int(p),
+                                "runs": list(train.names)})
+    return ExtendedModel(base, family, theta, sol[n_xi:], dict(estimate or {}))
+
+
+def check_extended(ext: ExtendedModel, model: SindyModel, train: Split) -> float:
+    """Return the relative change of the train residual of ``ext`` against ``model`` (negative: better)."""
+    r0 = train.delta_v - null_prediction(model, train)
+    u_m = ext.spec.motor_inputs(train.t_run, train.u, train.runs_slices(), ext.theta[None])[0]
+    r1 = train.delta_v - train.integrate(ext.f(train.x6, u_m))
+    return float(np.sum(r1 ** 2) / np.sum(r0 ** 2) - 1.0)
+
+
+def multistep(model, states: Sequence[BodyStates], names: Sequence[str], window_s: float = 5.0, dt: float = 0.02):
+    """Return the 5 s multi-step evaluation (``identification.evaluate``) of a model or an extended model.
+
+    An :class:`ExtendedModel` is driven by the motor inputs of its mechanism, with time counted
+    from each run's start.
+    """
+    import warnings
+
+    from identification.evaluate import evaluate_model
+
+    if isinstance(model, ExtendedModel):
+        states = [model.states_for_motors(st) for st in states]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # envelope warnings are the evaluate command's business
+        return evaluate_model(model, list(states), names=list(names), window_s=window_s, dt=dt)
+
+
+@dataclass(frozen=True)
+class OutageResult:
+    """Dead-reckoning errors at the end of GNSS outages, per model."""
+
+    outage_s: float
+    errors_m: dict  # model name -> (n_outages,) position error at the end of each outage, m
+
+    def rms(self) -> dict[str, float]:
+        """Return the RMS error over outages per model, m."""
+        return {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in self.errors_m.items()}
+
+
+def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[BodyStates],
+                  outage_s: float = 10.0, lead_s: float = 20.0, profile: str = "rtk", seed: int = 0,
+                  max_outages: int = 12) -> OutageResult:
+    """Return each model's EKF position error at the end of ``outage_s`` GNSS outages on the test runs.
+
+    For every outage (scheduled after ``lead_s`` of GNSS, then every ``lead_s + outage_s``) the
+    EKF (``sindy_ekf.ekf.run_ekf``, process noise from the model's one-step residuals on the train
+    runs) runs from ``lead_s`` before the outage to its end; the error is the distance between
+    the estimate and the recorded pose there. ``models`` maps a name to a ``SindyModel`` or an
+    :class:`ExtendedModel` (driven by its motor inputs).
+    """
+    from simulation.gnss import simulate_gnss
+    from sindy_ekf.ekf import estimation_grid, run_ekf
+    from sindy_ekf.process_models import (BodyModelProcess, TrueDynamicsProcess, fit_process_noise,
+                                          state_series_from_body_states)
+
+    def prepared(model, runs):
+        if isinstance(model, ExtendedModel):
+            return [model.states_for_motors(st) for st in runs]
+        return [replace(st, t=np.asarray(st.t) - st.t[0]) for st in runs]
+
+    errors = {}
+    for name, model in models.items():
+        proc = TrueDynamicsProcess(model, name) if isinstance(model, ExtendedModel) else BodyModelProcess(model, name)
+        fit_process_noise(proc, [state_series_from_body_states(st, f"train{i}")
+                                 for i, st in enumerate(prepared(model, train))])
+        errs = []
+        for i, st in enumerate(prepared(model, test)):
+            t = np.asarray(st.t)
+            starts = np.arange(t[0] + lead_s, t[-1] - outage_s, lead_s + outage_s)
+            for k, t_out in enumerate(starts):
+                if len(errs) >= max_outages:
+                    break
+                sel = (t >= t_out - lead_s) & (t <= t_out + outage_s + 1e-9)
+                ts = t[sel]
+                gnss = simulate_gnss(ts, st.x[sel], st.y[sel], st.yaw[sel], profile=profile,
+                                     seed=seed + 100 * i + k,
+                                     outages=np.array([[t_out, t_out + outage_s + 1.0]]))
+                grid = estimation_grid(ts, gnss.t_valid)
+                u = np.column_stack([np.interp(grid, ts, st.u1[sel]), np.interp(grid, ts, st.u2[sel])])
+                x0 = np.array([st.x[sel][0], st.y[sel][0], st.yaw[sel][0], st.vx[sel][0], st.vy[sel][0],
+                               st.omega[sel][0]])
+                P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.05, 0.05]) ** 2
+                res = run_ekf(proc, grid, u, x0, P0, gnss=gnss, name=name)
+                j = int(np.argmin(np.abs(grid - ts[-1])))
+                errs.append(float(np.hypot(res.x[j, 0] - st.x[sel][-1], res.x[j, 1] - st.y[sel][-1])))
+        errors[name] = np.array(errs)
+    return OutageResult(outage_s, errors)

@@ -1,0 +1,245 @@
+"""The diagnosis end to end: residuals, every family scored, ranking, extension and its gain.
+
+:func:`diagnose_states` works on body states (train and test runs) and a given model;
+:func:`diagnose_campaign` opens a campaign and a model file first. The result
+:class:`Diagnosis` carries everything the ``diagnose`` command prints and writes as JSON
+(``causes`` most likely first, INTERFACES.md).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from identification.library import INPUT_NAMES, STATE_NAMES
+from identification.model import SindyModel
+from identification.types import BodyStates
+from sindy_ekf.diagnose.data import split_from_states
+from sindy_ekf.diagnose.extend import ExtendedModel, multistep, outage_errors, reidentify
+from sindy_ekf.diagnose.families import FAMILIES, equation_weights, null_prediction, score_family
+from sindy_ekf.diagnose.rank import THRESHOLD_PROVENANCE, RankedCause, rank_families, verdict
+from sindy_ekf.errors import InputError
+from sindy_ekf.progress import progress
+
+log = logging.getLogger(__name__)
+
+WINDOW_S = 5.0
+MIN_TEST_WINDOWS = 4  # fewer 5 s windows on the test runs cannot support an out-of-sample verdict
+
+
+@dataclass
+class Diagnosis:
+    """What the model gets wrong, the most likely cause, the extended model and its gain."""
+
+    verdict: str
+    ranked: list[RankedCause]
+    before: dict  # {"pos_err_5s_m", "yaw_err_5s_deg", "n_windows"} of the given model
+    after: dict  # the same for the extended model (equal to before when the verdict is none)
+    extended: ExtendedModel | None
+    outage: dict = field(default_factory=dict)  # {"outage_s", "before_m", "after_m", "n"}
+    seconds: dict = field(default_factory=dict)
+
+    def to_json_dict(self) -> dict:
+        """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
+        causes = []
+        for c in self.ranked:
+            entry = {"name": c.name, "estimate": c.score.estimate, "estimate_std": c.score.estimate_std,
+                     "gain": c.gain, "threshold": c.threshold, "significant": bool(c.significant)}
+            if c.name == self.verdict:
+                entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": self.after["pos_err_5s_m"]}
+                entry["yaw_err_5s_deg"] = {"before": self.before["yaw_err_5s_deg"],
+                                           "after": self.after["yaw_err_5s_deg"]}
+                if self.outage:
+                    entry["outage_pos_err_m"] = {"before": self.outage["before_m"], "after": self.outage["after_m"],
+                                                 "outage_s": self.outage["outage_s"], "n": self.outage["n"]}
+            causes.append(entry)
+        if self.verdict == "none":
+            causes.insert(0, {"name": "none", "estimate": {},
+                              "pos_err_5s_m": {"before": self.before["pos_err_5s_m"],
+                                               "after": self.before["pos_err_5s_m"]},
+                              "yaw_err_5s_deg": {"before": self.before["yaw_err_5s_deg"],
+                                                 "after": self.before["yaw_err_5s_deg"]}})
+        return {"causes": causes, "verdict": self.verdict,
+                "scores": {c.name: c.score.to_dict() for c in self.ranked},
+                "thresholds": {c.name: c.threshold for c in self.ranked},
+                "threshold_provenance": THRESHOLD_PROVENANCE,
+                "n_test_windows_5s": self.before.get("n_windows"), "seconds": self.seconds}
+
+
+def errors_5s(before, after) -> tuple[dict, dict]:
+    """Return the 5 s RMS errors of two evaluations over the windows where neither diverged.
+
+    A model that leaves its envelope may blow up in a few windows (``inf``); comparing on the
+    common finite windows keeps the numbers meaningful, and ``n_diverged`` says how many were left out.
+    """
+    ok = (np.isfinite(before.eps_p[:, -1]) & np.isfinite(after.eps_p[:, -1])
+          & (before.eps_p[:, -1] < 1e3) & (after.eps_p[:, -1] < 1e3))
+    out = []
+    for r in (before, after):
+        out.append({"pos_err_5s_m": float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else float("nan"),
+                    "yaw_err_5s_deg": float(np.degrees(np.sqrt(np.mean(r.eps_h[ok, -1] ** 2)))) if ok.any()
+                    else float("nan"),
+                    "n_windows": int(ok.sum()),
+                    "n_diverged": int(np.count_nonzero(~np.isfinite(r.eps_p[:, -1]) | (r.eps_p[:, -1] >= 1e3)))})
+    return out[0], out[1]
+
+
+def check_model_inputs(model, source: str = "model") -> None:
+    """Raise InputError unless ``model`` works on ``[vx, vy, omega]`` and inputs ``[u1, u2]``."""
+    variables = tuple(getattr(getattr(model, "library", None), "variables", ()))
+    if variables != STATE_NAMES + INPUT_NAMES:
+        raise InputError(f"{source}: trained on variables {list(variables)}, but a campaign provides "
+                         f"states {list(STATE_NAMES)} and inputs {list(INPUT_NAMES)}")
+
+
+def load_model(path) -> SindyModel:
+    """Return the SINDy model in ``path``, checking first that it was trained on inputs ``u1, u2``."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: model file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a JSON model file ({exc})") from None
+    if isinstance(d, dict):
+        ins, sts = d.get("input_names"), d.get("state_names")
+        if ins is not None and list(ins) != list(INPUT_NAMES):
+            raise InputError(f"{path}: model trained on inputs {list(ins)}, but a campaign provides "
+                             f"{list(INPUT_NAMES)}")
+        if sts is not None and list(sts) != list(STATE_NAMES):
+            raise InputError(f"{path}: model trained on states {list(sts)}, expected {list(STATE_NAMES)}")
+    model = SindyModel.from_dict(d, source=str(path))
+    check_model_inputs(model, str(path))
+    return model
+
+
+def check_scorable(test: Sequence[BodyStates], names: Sequence[str], window_s: float = WINDOW_S) -> None:
+    """Raise InputError when the test runs cannot score a model out of sample (too few 5 s windows)."""
+    if not len(test):
+        raise InputError("campaign: no runs marked test, nothing to score out of sample on")
+    lengths = {n: float(st.t[-1] - st.t[0]) if len(st.t) else 0.0 for st, n in zip(test, names)}
+    n_win = sum(max(int((d - window_s) // (window_s / 2)) + 1, 0) for d in lengths.values() if d >= window_s)
+    if n_win < MIN_TEST_WINDOWS:
+        desc = ", ".join(f"{n} {d:.1f} s" for n, d in lengths.items())
+        raise InputError(f"test runs too short to score out of sample: {desc} give {n_win} windows of "
+                         f"{window_s:g} s (need {MIN_TEST_WINDOWS})")
+
+
+def choose_extension(model, name, best, tr, weights, train, train_names) -> ExtendedModel:
+    """Return the extended model: re-identified with the mechanism, or the given model plus the
+    mechanism as scored, the re-identified one if it predicts the *train* runs 10 % better over 5 s (short campaigns can
+    make a full re-identification worse than the model it started from)."""
+    candidates = [reidentify(model, name, best.theta, tr, weights, best.estimate),
+                  ExtendedModel(model, name, best.theta, best.beta, dict(best.estimate))]
+    errs = []
+    for cand in candidates:
+        r = multistep(cand, train, train_names).eps_p[:, -1]
+        errs.append(float(np.sqrt(np.mean(np.where(np.isfinite(r), r, 1e3) ** 2))))
+    # the re-identified model must earn its extra freedom: 10 % better on the train runs
+    chosen = candidates[0] if errs[0] < 0.9 * errs[1] else candidates[1]
+    chosen.estimate = {**chosen.estimate, "extension": "reidentified" if chosen is candidates[0] else "added"}
+    return chosen
+
+
+def in_envelope(model, split, margin: float = 0.1):
+    """Return ``split`` without the windows that leave the model's training envelope (widened by
+    ``margin`` of its width): a model cannot be judged where it was never trained, and its
+    extrapolation there (cubic terms) would swamp every residual."""
+    env = getattr(model, "envelope", None)
+    if not env:
+        return split
+    z = np.concatenate([split.v_body, split.u], axis=-1)
+    names = STATE_NAMES + INPUT_NAMES
+    lo = np.array([env.get(v, [-np.inf, np.inf])[0] for v in names])
+    hi = np.array([env.get(v, [-np.inf, np.inf])[1] for v in names])
+    pad = margin * (hi - lo)
+    keep = split.windows_inside(np.all((z >= lo - pad) & (z <= hi + pad), axis=1))
+    if keep.sum() < 0.2 * len(keep):
+        log.warning("%s: only %d of %d windows inside the model's training envelope; using all",
+                    ", ".join(split.names), int(keep.sum()), len(keep))
+        return split
+    return split.select_windows(keep)
+
+
+def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequence[BodyStates],
+                    train_names: Sequence[str], test_names: Sequence[str], families: Sequence[str] = FAMILIES,
+                    ekf: bool = False, tau: float | None = None, thresholds: dict | None = None,
+                    uncertainty: bool = True) -> Diagnosis:
+    """Return the diagnosis of ``model`` on the runs: every family scored, ranked, the winner extended.
+
+    Parameters
+    ----------
+    model : the given SINDy model (kept fixed while the families are scored).
+    train, test : body states of the train runs (families fitted) and test runs (scored).
+    ekf : also measure the EKF dead-reckoning error through 10 s GNSS outages before and after.
+    tau : integration window, s; default the model's ``tau`` hyperparameter (else 2 s).
+
+    Raises
+    ------
+    InputError
+        Model trained on other variables, no or too short test runs, no train runs.
+    """
+    check_model_inputs(model)
+    check_scorable(test, test_names)
+    if not len(train):
+        raise InputError("campaign: no runs marked train, nothing to fit a mechanism on")
+    seconds = {}
+    t0 = time.perf_counter()
+    tau = float(tau or model.hyperparameters.get("tau") or 2.0)
+    tr = in_envelope(model, split_from_states(train, train_names, tau, what="train runs"))
+    te = in_envelope(model, split_from_states(test, test_names, tau, what="test runs"))
+    weights = equation_weights(model, tr)
+    base_pred = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
+    scores = [score_family(f, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+              for f in progress(list(families), "diagnose: families")]
+    ranked = rank_families(scores, thresholds)
+    name = verdict(ranked)
+    seconds["families"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res_before = multistep(model, test, test_names)
+    extended, res_after = None, res_before
+    if name != "none":
+        best = ranked[0].score
+        extended = choose_extension(model, name, best, tr, weights, train, train_names)
+        res_after = multistep(extended, test, test_names)
+    before, after = errors_5s(res_before, res_after)
+    seconds["multistep"] = time.perf_counter() - t0
+    outage = {}
+    if ekf and extended is not None:
+        t0 = time.perf_counter()
+        res = outage_errors({"before": model, "after": extended}, train, test)
+        rms = res.rms()
+        outage = {"outage_s": res.outage_s, "before_m": rms["before"], "after_m": rms["after"],
+                  "n": int(len(res.errors_m["before"]))}
+        seconds["ekf"] = time.perf_counter() - t0
+    return Diagnosis(name, ranked, before, after, extended, outage, seconds)
+
+
+def states_of_runs(runs, smoothing: float | None) -> list[BodyStates]:
+    """Return the body states of trajectory runs (H5's spline step, ``identification.states``)."""
+    try:
+        from identification.states import body_states_from_poses
+    except ImportError:  # pragma: no cover - preprocessing's state step not installed
+        raise InputError("diagnose: identification.states is missing; cannot derive body states") from None
+    return [body_states_from_poses(r.poses, r.inputs, smoothing=smoothing) for r in runs]
+
+
+def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:
+    """Return the diagnosis of the model in ``model_path`` on a campaign (trajectory or tracker)."""
+    from identification.campaigns import open_campaign
+
+    model = load_model(model_path)
+    camp = open_campaign(campaign)
+    train_runs, test_runs = camp.split("train"), camp.split("test")
+    s = model.hyperparameters.get("s")
+    kw = {} if s is None else {"smoothing": float(s)}
+    train = states_of_runs(train_runs, **({"smoothing": None} | kw))
+    test = states_of_runs(test_runs, **({"smoothing": None} | kw))
+    return diagnose_states(model, train, test, [r.name for r in train_runs], [r.name for r in test_runs],
+                           families=families, ekf=ekf)
