@@ -83,7 +83,7 @@ def detect_gaps(t: np.ndarray, threshold_s: float = GAP_THRESHOLD_S) -> np.ndarr
 
 
 def _gap_grid(t: np.ndarray, rate_hz: float) -> np.ndarray:
-    """Gap signal resampled at ``rate_hz`` from the series' first stamp (thesis: numpy interp).
+    """Return the gap signal resampled at ``rate_hz`` from the first stamp (thesis: np.interp).
 
     The median (the nominal period) is removed so that the correlation is made by the gaps, not
     by the overlap length, and dropouts are clipped to twice a gap so one long silence cannot

@@ -41,7 +41,8 @@ class TrackerCounts:
 
     samples: int  # messages on the topic
     matched: int  # samples matched one-to-one to a trigger
-    spurious: int  # samples matching no trigger (extra pulses on the cable)
+    spurious: int  # samples within the trigger train matching no trigger (extra pulses)
+    outside: int  # samples before the first or after the last trigger
     lost: int  # triggers without a sample inside short stretches (lost pulses)
     out_of_view: int  # triggers in long stretches without samples (prism lost, tracker silent)
     dropped_nan: int  # samples with non-finite coordinates, not used for positions
@@ -94,8 +95,17 @@ class SyncedRun:
         return float(np.nanstd(base))
 
 
-def count_samples(n_trigger: int, n_samples: int, i_trig: np.ndarray, n_nan: int) -> TrackerCounts:
-    """Return the counts of one tracker: matched, spurious, lost and out-of-view triggers."""
+def count_samples(s_trigger: np.ndarray, s_samples: np.ndarray, i_trig: np.ndarray,
+                  n_nan: int) -> TrackerCounts:
+    """Return the counts of one tracker: matched, spurious, outside, lost and out-of-view.
+
+    ``s_samples`` are the tracker's stamps on the trigger time base, ``i_trig`` the triggers
+    they matched one-to-one. Unmatched samples within the trigger train are spurious pulses,
+    those before or after it (a tracker recording longer than the trigger) are "outside".
+    """
+    n_trigger, n_samples = s_trigger.size, s_samples.size
+    half = 0.5 * float(np.median(np.diff(s_trigger)))
+    outside = int(np.sum((s_samples < s_trigger[0] - half) | (s_samples > s_trigger[-1] + half)))
     answered = np.zeros(n_trigger, bool)
     answered[i_trig] = True
     # stretches of unanswered triggers: short ones are lost pulses, long ones a silent tracker
@@ -106,7 +116,7 @@ def count_samples(n_trigger: int, n_samples: int, i_trig: np.ndarray, n_nan: int
     inner = (starts > 0) & (stops < n_trigger)  # a run starting/ending without the tracker
     lost = int(length[short & inner].sum())
     return TrackerCounts(samples=n_samples, matched=int(i_trig.size),
-                         spurious=int(n_samples - i_trig.size), lost=lost,
+                         spurious=int(n_samples - i_trig.size - outside), outside=outside, lost=lost,
                          out_of_view=int(length.sum() - lost), dropped_nan=n_nan)
 
 
@@ -171,7 +181,7 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
         s_tr = model.s_trigger_from_tracker(ps.t_tracker)
         finite = np.isfinite(ps.xyz).all(axis=1)
         clock[tracker] = model
-        counts[tracker] = count_samples(s.size, ps.t_tracker.size, i_trig, int((~finite).sum()))
+        counts[tracker] = count_samples(s, s_tr, i_trig, int((~finite).sum()))
         resid[tracker] = (s[i_trig], s_tr[j_tr] - s[i_trig], ps.t_tracker[j_tr] - model.t0_tracker)
         xyz = ps.xyz[finite]
         if tracker == "ltd800":

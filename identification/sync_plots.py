@@ -165,8 +165,7 @@ def plot_baseline_vs_speed(synced: SyncedRun, path=None):
 
 
 def plot_run(raw: RawRun, run, out_dir) -> list[Path]:
-    """Save every figure of one preprocessed run (a ``RunResult``) in ``out_dir``; return the
-    files written."""
+    """Return the figure files of one preprocessed run (a ``RunResult``), saved in ``out_dir``."""
     out_dir, s = Path(out_dir), run.synced
     out_dir.mkdir(parents=True, exist_ok=True)
     figs = {"fig5_1_gap_signal.png": lambda p: plot_gap_signal(raw, "ltd800", p),

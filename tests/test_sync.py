@@ -106,7 +106,7 @@ def test_counts_match_the_generated_lost_and_spurious_pulses(run_and_truth):
     raw, truth, r = run_and_truth
     c = r.counts["at960"]
     assert c.samples == raw.at960.t_tracker.size
-    assert c.matched + c.spurious == c.samples
+    assert c.matched + c.spurious + c.outside == c.samples and c.outside == 0
     assert abs(c.lost - truth["lost_at960"]) <= 3
     assert abs(c.spurious - truth["spurious_at960"]) <= 3
     assert r.counts["ltd800"].lost == 0 and r.counts["ltd800"].spurious == 0
@@ -175,3 +175,11 @@ def test_offset_unbiased_and_jackknife_std_honest_over_seeds():
         z.append(err[-1] / o.dt_std_jackknife)
     assert abs(np.mean(err)) < 3 * np.std(err) / np.sqrt(len(err))
     assert 0.4 < np.sqrt(np.mean(np.square(z))) < 2.5
+
+
+def test_tracker_samples_before_the_trigger_train_are_outside_not_spurious():
+    raw, _ = synth_run(seed=8, minutes=0.5)
+    late = replace(raw, t_trigger_utc=raw.t_trigger_utc[250:])  # the trigger log starts 5 s late
+    r = sync.sync_run(late, R_LT, T_LT)
+    c = r.counts["ltd800"]
+    assert c.outside == 250 and c.spurious == 0 and c.matched == c.samples - 250
