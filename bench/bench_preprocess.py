@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
 import time
@@ -94,6 +95,7 @@ def main() -> int:
         print(f"simulated {camp} in {time.perf_counter() - tic:.1f} s", flush=True)
     out = work / f"preprocessed_{tag}_seed{args.seed}"
     shutil.rmtree(out, ignore_errors=True)
+    load = os.getloadavg()
     tic = time.perf_counter()
     result = preprocess_campaign(camp, out, jobs=args.jobs)
     wall = time.perf_counter() - tic
@@ -110,7 +112,8 @@ def main() -> int:
         f"{len(result.runs)} runs, {minutes:.1f} min of triggers, {n_poses} poses; "
         f"{len(result.skipped)} runs skipped).", "",
         f"**Wall time: {wall:.1f} s** with `jobs={args.jobs}` on 2 cores (target: at most 60 s for "
-        "the full default campaign).", "",
+        f"the full default campaign); load average {load[0]:.1f} before and "
+        f"{os.getloadavg()[0]:.1f} after (the machine is shared).", "",
         "| stage | seconds |", "|---|---:|",
         *[f"| {k} | {v:.2f} |" for k, v in sec.items()],
         "", "Stages `read` to `plots` are summed over runs (CPU time across the workers); "

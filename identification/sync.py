@@ -142,7 +142,10 @@ def timing_error_correlation(baseline_m: np.ndarray, v_forward: np.ndarray) -> f
 
     A prism measured at another time than the other one moves by ``v * dt`` along the baseline,
     so ``|r|`` near 1 reveals a timing error (the thesis saw about 0.9, which is how it found the
-    AT960's wrong trigger edge); after a correct synchronisation ``|r|`` is small.
+    AT960's wrong trigger edge); after a correct synchronisation ``|r|`` is small. The sign
+    tells which prism is late: a rear prism measured later than its time stamp says has already
+    moved on when driving forward, which shortens the baseline, so ``r < 0``; a late front
+    prism gives ``r > 0``.
     """
     return pearson_r(baseline_m - np.nanmean(baseline_m), v_forward)
 
