@@ -56,14 +56,6 @@ def find_bags(run_dir: Path) -> list[Path]:
     return bags
 
 
-def is_tracker_campaign(path: str | Path) -> bool:
-    """Return True if ``path`` looks like a tracker campaign (campaign.yaml and bags under runs/)."""
-    path = Path(path)
-    if not (path / "campaign.yaml").is_file() or not (path / "runs").is_dir():
-        return False
-    return any(find_bags(d) for d in (path / "runs").iterdir() if d.is_dir())
-
-
 def read_campaign_yaml(path: Path) -> tuple[str, list[tuple[str, str]]]:
     """Return the campaign name and its ``(run, split)`` list from ``campaign.yaml``."""
     file = Path(path) / "campaign.yaml"
