@@ -151,15 +151,17 @@ def bench_accuracy(root: Path) -> tuple[list[str], dict]:
             sec["states"] += time.perf_counter() - tic
             vel_err[s].append(np.column_stack([b.vx - st.vx[i], b.vy - st.vy[i], b.omega - st.omega[i]]))
     figures = {"err_single": err_single, "err_joint": err_joint, "n": n_total, "sec": sec}
-    lines = [f"Campaign `{root.name}` ({len(runs)} of {len(truth.runs)} runs, {n_total} poses; truth seed {truth.seed}, "
-             f"{'table 6.4 durations' if truth.minutes is None else f'{truth.minutes:g} min'}):", "",
+    durations = "table 6.4 durations" if truth.minutes is None else f"{truth.minutes:g} min"
+    lines = [f"Campaign `{root.name}` ({len(runs)} of {len(truth.runs)} runs, {n_total} poses; "
+             f"truth seed {truth.seed}, {durations}):", "",
              f"- hub radii (horizontal, truth {r_true[0] * 1e3:.4f} / {r_true[1] * 1e3:.4f} mm): per-run fits "
              f"max |error| {np.abs(err_single[:, 0]).max() * 1e6:.1f} / {np.abs(err_single[:, 1]).max() * 1e6:.1f} um; "
              f"joint fit error {err_joint[0] * 1e6:+.1f} / {err_joint[1] * 1e6:+.1f} um "
              f"(+- {joint[0].radius_std_m[0] * 1e6:.1f} / {joint[0].radius_std_m[1] * 1e6:.1f} um)",
              f"- runs not synchronised by `identification.sync` (skipped): {'; '.join(skipped) or 'none'}",
              f"- baseline RMS before/after the joint model, mean over runs: "
-             f"{np.mean([m.rms_before_m for m in joint]) * 1e3:.4f} / {np.mean([m.rms_after_m for m in joint]) * 1e3:.4f} mm"]
+             f"{np.mean([m.rms_before_m for m in joint]) * 1e3:.4f} / "
+             f"{np.mean([m.rms_after_m for m in joint]) * 1e3:.4f} mm"]
     floor_deg = np.degrees(np.sqrt(np.mean(np.concatenate(yaw_std) ** 2)))
     lines += ["", "| hub correction before poses | position RMS [mm] | yaw RMS [deg] |", "|---|---|---|"]
     for key, label in (("none", "none (thesis)"), ("single", "per-run eq. 5.25"), ("joint", "joint eq. 5.25")):

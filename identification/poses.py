@@ -266,11 +266,11 @@ def plot_poses(poses: PoseTrack, path_prefix=None):
 
     t = poses.t - poses.t[0]
     figs = []
-    groups = (("position", (("x", poses.x, poses.x_std, 1.0, "m", 1e3, "mm"),
-                            ("y", poses.y, poses.y_std, 1.0, "m", 1e3, "mm"),
-                            ("z", poses.z, poses.z_std, 1.0, "m", 1e3, "mm"))),
-              ("attitude", (("pitch", poses.pitch, poses.pitch_std, np.degrees(1), "deg", 3600 * np.degrees(1), "arcsec"),
-                            ("yaw", poses.yaw, poses.yaw_std, np.degrees(1), "deg", 3600 * np.degrees(1), "arcsec"))))
+    deg, arcsec = np.degrees(1.0), 3600.0 * np.degrees(1.0)
+    groups = (("position", [(k, getattr(poses, k), getattr(poses, f"{k}_std"), 1.0, "m", 1e3, "mm")
+                            for k in ("x", "y", "z")]),
+              ("attitude", [(k, getattr(poses, k), getattr(poses, f"{k}_std"), deg, "deg", arcsec, "arcsec")
+                            for k in ("pitch", "yaw")]))
     for name, comps in groups:
         fig, axes = plt.subplots(2, len(comps), sharex=True, figsize=(4 * len(comps), 5), squeeze=False)
         for j, (label, val, std, k, unit, k_std, unit_std) in enumerate(comps):

@@ -66,12 +66,14 @@ def test_hub_model_then_poses_reaches_yaw_floor():
 
 def test_2d_start_exact_without_pitch_and_noise():
     m = measurements(duration_s=20.0, seed=3, noise_m=0.0, radius_m=(0.0, 0.0))
-    flat = measurements(duration_s=20.0, seed=3, noise_m=0.0, radius_m=(0.0, 0.0))
-    # rebuild the prisms with zero pitch: 2D similarity (eqs. 5.26-5.31) is then exact
-    tr = flat.truth
+    tr = m.truth
     c, s = np.cos(tr.yaw), np.sin(tr.yaw)
-    rot = lambda lev: np.column_stack([tr.x + c * lev[0] - s * lev[1], tr.y + s * lev[0] + c * lev[1], tr.z + lev[2]])  # noqa: E731
-    start = fit_poses_2d(rot(LEVER_FRONT), rot(LEVER_REAR), LEVER_FRONT, LEVER_REAR)
+
+    def prism_flat(lev):
+        """Prism positions with zero pitch: the 2D similarity of eqs. 5.26-5.31 is then exact."""
+        return np.column_stack([tr.x + c * lev[0] - s * lev[1], tr.y + s * lev[0] + c * lev[1], tr.z + lev[2]])
+
+    start = fit_poses_2d(prism_flat(LEVER_FRONT), prism_flat(LEVER_REAR), LEVER_FRONT, LEVER_REAR)
     np.testing.assert_allclose(start[:, 0], tr.x, atol=1e-9)
     np.testing.assert_allclose(np.cos(start[:, 2] - tr.yaw), 1.0, atol=1e-15)
     assert np.ptp(np.diff(start[:, 2]) - np.diff(tr.yaw)) < 1e-9  # unwrapped like the truth
