@@ -273,3 +273,16 @@ def test_figures_only_on_request(synthetic_campaign, tmp_path):
             "fig5_7_hub_model.png"} <= names
     assert any(n.startswith("fig7_2_7_3_poses") for n in names)
     assert matplotlib.get_backend().lower() == "agg"
+
+
+def test_parallel_runs_give_the_same_result(synthetic_campaign, tmp_path):
+    from identification.preprocess import preprocess_campaign
+
+    one = preprocess_campaign(synthetic_campaign, tmp_path / "one", jobs=1)
+    two = preprocess_campaign(synthetic_campaign, tmp_path / "two", jobs=2)
+    assert list(one.runs) == list(two.runs)
+    for name in one.runs:
+        np.testing.assert_array_equal(one.runs[name].poses.x, two.runs[name].poses.x)
+        assert one.runs[name].synced.offset.dt == two.runs[name].synced.offset.dt
+    assert (tmp_path / "one" / "runs" / "run_1" / "poses.csv").read_text() == \
+        (tmp_path / "two" / "runs" / "run_1" / "poses.csv").read_text()
