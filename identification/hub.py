@@ -239,6 +239,10 @@ def fit_hub_model(t, baseline_length_m, azimuth_front, azimuth_rear) -> HubModel
             raise InputError(f"{key}: azimuth does not vary enough to fit the hub eccentricity "
                              f"(span {np.ptp(np.unwrap(arrays[key][ok])):.3g} rad)")
     As = A / scale
+    sv = np.linalg.svd(As, compute_uv=False)
+    if sv[-1] < sv[0] / MAX_CONDITION**0.5:
+        raise InputError("azimuth_rear: moves in lockstep with azimuth_front, the two hubs cannot be "
+                         "separated in this run (fit_hub_model_joint pools runs)")
     params_s, *_ = np.linalg.lstsq(As, l, rcond=None)
     params = params_s / scale
     v = l - A @ params
@@ -269,7 +273,8 @@ def fit_hub_model_joint(runs) -> tuple[HubModel, ...]:
     Parameters
     ----------
     runs : sequence of ``(t, baseline_length_m, azimuth_front, azimuth_rear)`` tuples, as the
-        arguments of :func:`fit_hub_model`.
+        arguments of :func:`fit_hub_model`. Each run must be fittable on its own (its linear
+        fit gives the start values); :class:`InputError` otherwise, naming the argument.
     """
     from scipy.optimize import least_squares
 

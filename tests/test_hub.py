@@ -124,6 +124,13 @@ def test_bad_constant_azimuth_names_it():
         fit_hub_model(m.t, length, np.full_like(m.az_front, 0.3), m.az_rear)
 
 
+def test_bad_azimuths_in_lockstep():
+    m = measurements(duration_s=20.0)
+    length = np.linalg.norm(m.p_front - m.p_rear, axis=1)
+    with pytest.raises(InputError, match="azimuth_rear.*lockstep"):
+        fit_hub_model(m.t, length, m.az_front, m.az_front + 0.3)
+
+
 def test_bad_too_few_samples():
     with pytest.raises(InputError, match="baseline_length_m.*usable"):
         fit_hub_model(np.arange(5.0), np.full(5, 0.77), np.arange(5.0), np.arange(5.0))
