@@ -122,8 +122,9 @@ def hub_json(hub) -> dict:
     """Return the JSON dict of a turning-hub model (eq. 5.25): c, radii, phases, stds, RMS."""
     r, r_std = hub.radius_m, hub.radius_std_m
     phi, phi_std = hub.phase_rad, hub.phase_std_rad
-    return {"c_m": hub.c_m, "c_std_m": hub.c_std_m, "r1_m": float(r[0]), "r2_m": float(r[1]),
-            "r1_std_m": float(r_std[0]), "r2_std_m": float(r_std[1]),
+    # r1, r2 (and their stds) in metres, as eq. 5.25 names them; sindy_ekf.report reads them
+    return {"c_m": hub.c_m, "c_std_m": hub.c_std_m, "r1": float(r[0]), "r2": float(r[1]),
+            "r1_std": float(r_std[0]), "r2_std": float(r_std[1]),
             "phi1_rad": float(phi[0]), "phi2_rad": float(phi[1]),
             "phi1_std_rad": float(phi_std[0]), "phi2_std_rad": float(phi_std[1]),
             "rms_before_m": hub.rms_before_m, "rms_after_m": hub.rms_after_m, "n": int(hub.n)}

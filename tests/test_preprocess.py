@@ -72,8 +72,8 @@ def test_counts_against_truth(small_trajectory, truth):
 
 def test_hub_radii_against_truth(small_trajectory, truth):
     report = _report(small_trajectory)
-    r1 = [r["hub"]["r1_m"] for r in report["runs"].values() if "hub" in r]
-    r2 = [r["hub"]["r2_m"] for r in report["runs"].values() if "hub" in r]
+    r1 = [r["hub"]["r1"] for r in report["runs"].values() if "hub" in r]
+    r2 = [r["hub"]["r2"] for r in report["runs"].values() if "hub" in r]
     assert len(r1) == len(report["runs"])
     # per run, as the thesis estimated them (eq. 5.25); median over the runs
     assert abs(np.median(r1) - truth.hubs["front"]["radius_eq525_m"]) < 0.03e-3
