@@ -121,7 +121,7 @@ def bench_accuracy(root: Path) -> tuple[list[str], dict]:
     r_true = np.array([truth.hubs["front"]["radius_m"], truth.hubs["rear"]["radius_m"]])
     err_single = np.array([m.radius_horizontal(lf, lr) - r_true for m in single])
     err_joint = joint[0].radius_horizontal(lf, lr) - r_true
-    pose_err = {"none": [], "single": [], "joint": []}
+    pose_err = {"none": [], "single": [], "joint": [], "joint_cw": []}
     vel_err = {s: [] for s in SMOOTHINGS}
     yaw_std = []
     for r, m_single, m_joint in zip(runs, single, joint):
@@ -131,12 +131,13 @@ def bench_accuracy(root: Path) -> tuple[list[str], dict]:
         std_r = point_std_m(cal.prism_tracker["rear"], pr, origin[cal.prism_tracker["rear"]])
         st = rt.states
         i = _nearest(st.t_utc_ns * 1e-9, sy.t_utc[both])
-        for key, model in (("none", None), ("single", m_single), ("joint", m_joint)):
+        for key, model, sense in (("none", None, -1), ("single", m_single, -1), ("joint", m_joint, -1),
+                                  ("joint_cw", m_joint, 1)):
             tic = time.perf_counter()
             if model is None:
                 qf, qr = pf, pr
             else:
-                qf, qr = model.correct(pf, pr, r["az"][both, 0], r["az"][both, 1])
+                qf, qr = model.correct(pf, pr, r["az"][both, 0], r["az"][both, 1], sense=sense)
             poses = fit_poses(sy.t_utc[both], qf, qr, lf, lr, std_f[:, None].repeat(3, 1), std_r[:, None].repeat(3, 1))
             if key == "joint":
                 sec["poses"] += time.perf_counter() - tic
@@ -164,7 +165,8 @@ def bench_accuracy(root: Path) -> tuple[list[str], dict]:
              f"{np.mean([m.rms_after_m for m in joint]) * 1e3:.4f} mm"]
     floor_deg = np.degrees(np.sqrt(np.mean(np.concatenate(yaw_std) ** 2)))
     lines += ["", "| hub correction before poses | position RMS [mm] | yaw RMS [deg] |", "|---|---|---|"]
-    for key, label in (("none", "none (thesis)"), ("single", "per-run eq. 5.25"), ("joint", "joint eq. 5.25")):
+    for key, label in (("none", "none (thesis)"), ("single", "per-run eq. 5.25"), ("joint", "joint eq. 5.25"),
+                       ("joint_cw", "joint eq. 5.25, opposite turning sense (sense=+1, wrong)")):
         e = np.concatenate(pose_err[key])
         lines.append(f"| {label} | {np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)) * 1e3:.4f} | "
                      f"{np.degrees(np.sqrt(np.mean(e[:, 2] ** 2))):.5f} |")

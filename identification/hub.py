@@ -24,13 +24,22 @@ The baseline observes only the component of each eccentricity vector along the b
 ``(r_1 + r_2) / c``, about 0.025 deg) follows only from the sense in which the hub turns: a
 hub that keeps its prism facing the tracker turns clockwise as the azimuth of eq. 4.6 grows
 (``sense=-1``, the default); ``sense=+1`` flips the perpendicular part for a hub mounted the
-other way. Nothing in the baseline tells where the prism was
-when the lever arms were surveyed (thesis 5.2.3): :meth:`HubModel.eccentricity_body` removes the
-whole circular motion, i.e. it refers the prisms to the hub axes, which is right when the lever
-arms are the hub axes (as in the simulator) and leaves a constant body-frame offset of at most
-``r_i`` per prism otherwise. The fitted ``r_i`` is the amplitude along the 3D baseline;
+other way. Nothing in the baseline tells where the prism was when the lever arms were
+surveyed (thesis 5.2.3): :meth:`HubModel.eccentricity_body` and :meth:`HubModel.correct`
+remove the whole circular motion, i.e. refer the prisms to the hub axes, which is right when
+the lever arms are the hub axes (as in the simulator) and leaves a constant body-frame offset
+of at most ``r_i`` per prism otherwise. The fitted ``r_i`` is the amplitude along the 3D baseline;
 the horizontal radius is ``r_i / cos(elevation)`` with the baseline's elevation in the body
 (about 10 deg for table 7.1, i.e. 1.6 %), which :meth:`HubModel.radius_horizontal` applies.
+
+Per run or pooled
+-----------------
+Both azimuths follow the robot's heading, so within a run they move almost together
+(correlation about 0.98 on simulated runs) and only their slowly varying difference separates
+the two circles. Runs of several minutes do that well (simulated default campaign: radii
+within 2 um per run), runs of half a minute do not (up to 0.1 mm off). :func:`fit_hub_model_joint`
+shares the radii across runs, as thesis 5.2.3 proposes, and recovers them within a few um even
+from nine 30 s runs (``bench/results/poses.md``).
 """
 
 from __future__ import annotations
