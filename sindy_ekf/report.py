@@ -40,6 +40,9 @@ SECTION_MARKERS = {"overview": (230, 25, 75), "calibration": (60, 180, 75), "syn
                    "poses": (245, 130, 48), "identification": (145, 30, 180), "evaluation": (70, 240, 240),
                    "estimation": (240, 50, 230), "diagnosis": (128, 128, 0)}
 MARKER_WIDTH_PX = 14
+FIGURE_WIDTH_PX = 660  # displayed width of every figure; two side by side in a 1400 px window
+FIGURE_GAP_PX = 12
+CONTENT_LEFT_PX = MARKER_WIDTH_PX + 24  # left edge of a section's content
 FIGURE_DPI = 80
 
 CSS = f"""
@@ -47,12 +50,13 @@ body {{ font-family: DejaVu Sans, Helvetica, Arial, sans-serif; margin: 0; color
 header {{ padding: 16px 24px 8px {MARKER_WIDTH_PX + 24}px; }}
 h1 {{ margin: 0 0 4px 0; font-size: 24px; }}
 nav a {{ margin-right: 14px; color: #225; }}
-section {{ border-left: {MARKER_WIDTH_PX}px solid; padding: 4px 24px 12px 24px; margin: 0 0 18px 0; }}
+section {{ border-left: {MARKER_WIDTH_PX}px solid; padding: 4px 24px 12px {CONTENT_LEFT_PX - MARKER_WIDTH_PX}px;
+           margin: 0 0 18px 0; }}
 h2 {{ margin: 8px 0; font-size: 20px; }}
 .note {{ color: #555; font-style: italic; }}
 .fail {{ color: #a00; }}
-.figs {{ display: flex; flex-wrap: wrap; gap: 12px; align-items: flex-start; }}
-figure {{ margin: 0; width: 660px; }}
+.figs {{ display: flex; flex-wrap: wrap; gap: {FIGURE_GAP_PX}px; align-items: flex-start; }}
+figure {{ margin: 0; width: {FIGURE_WIDTH_PX}px; }}
 figure img {{ width: 100%; height: auto; display: block; }}
 figcaption {{ font-size: 12px; color: #444; margin-top: 2px; }}
 table {{ border-collapse: collapse; font-size: 13px; margin: 6px 0 10px 0; }}
@@ -103,7 +107,8 @@ class Section:
     def to_html(self) -> str:
         """Return the section as HTML with its marker band."""
         r, g, b = SECTION_MARKERS[self.id]
-        return (f'<section id="{self.id}" data-status="{self.status}" style="border-left-color: rgb({r},{g},{b})">'
+        return (f'<section id="{self.id}" data-status="{self.status}" data-figures="{self.n_figures}" '
+                f'style="border-left-color: rgb({r},{g},{b})">'
                 f"<h2>{html.escape(self.title)}</h2>" + "".join(self.parts) + "</section>")
 
 
