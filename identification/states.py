@@ -21,7 +21,8 @@ placement takes minutes for 30 000 poses at small ``s``, so the spline here is R
 (1967) smoothing spline: a natural cubic spline with a knot at every pose, the penalty weight
 found by a root search so that the constraint holds with equality. It is the spline
 ``scipy.interpolate.make_smoothing_spline`` computes for a given penalty, at O(N) cost per
-trial penalty (one banded solve). With tracker-derived a priori sigmas (about 10 um, 0.001
+trial penalty (one banded Cholesky factorisation; Newton's method with the analytic slope of
+the residual needs two to six). With tracker-derived a priori sigmas (about 10 um, 0.001
 deg), the thesis's values 0.0005 to 0.01 (table 5.1, applied there to a posteriori sigmas
 inflated by the hub eccentricity) are close to interpolation; ``s = 1`` is the noise-matched
 choice, and larger values also remove real high-frequency motion (simulated campaigns,
@@ -60,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.linalg import solveh_banded
+from scipy.linalg import cho_solve_banded, cholesky_banded, solveh_banded
 
 from identification.trajectory import gap_segments
 from identification.types import BodyStates, InputSeries, PoseTrack
@@ -114,64 +115,81 @@ class _Reinsch:
         F1 = np.mean(self.var * Q_gamma**2)
         return 0.5 * float(np.log10(s / max(F1, 1e-300)))
 
+    def _Q(self, gamma: np.ndarray) -> np.ndarray:
+        """Return ``Q gamma`` (second divided differences, transposed) for interior ``gamma``."""
+        slope = np.diff(np.concatenate([[0.0], gamma, [0.0]])) * self.inv_h
+        return np.diff(np.concatenate([[0.0], slope, [0.0]]))
+
+    def _T_matvec(self, v: np.ndarray) -> np.ndarray:
+        """Return ``Q^T D Q v`` from the upper banded storage of the symmetric matrix."""
+        T = self.T
+        out = T[2] * v
+        out[1:] += T[1, 1:] * v[:-1]
+        out[:-1] += T[1, 1:] * v[1:]
+        out[2:] += T[0, 2:] * v[:-2]
+        out[:-2] += T[0, 2:] * v[2:]
+        return out
+
     def values(self, lam: float) -> np.ndarray:
         """Return the smoothing spline's values at the knots for penalty ``lam``."""
         if lam == 0.0:
             return self.y.copy()
         gamma = solveh_banded(self.R + lam * self.T, self.rhs, check_finite=False)
-        slope = np.diff(np.concatenate([[0.0], gamma, [0.0]])) * self.inv_h
-        Q_gamma = np.diff(np.concatenate([[0.0], slope, [0.0]]))
-        return self.y - lam * self.var * Q_gamma
+        return self.y - lam * self.var * self._Q(gamma)
+
+    def chi2_and_slope(self, lam: float) -> tuple[float, float]:
+        """Return ``F = mean(((y - g) / sigma)^2)`` and ``d ln F / d ln lam`` at penalty ``lam``.
+
+        ``y - g = lam D Q gamma`` and ``d gamma / d lam = -(R + lam T)^-1 T gamma``: one
+        banded Cholesky factor serves both solves.
+        """
+        factor = cholesky_banded(self.R + lam * self.T, check_finite=False)
+        gamma = cho_solve_banded((factor, False), self.rhs, check_finite=False)
+        q = self._Q(gamma)
+        dq = self._Q(-cho_solve_banded((factor, False), self._T_matvec(gamma), check_finite=False))
+        vq2 = np.mean(self.var * q * q)
+        F = lam**2 * vq2
+        dF = 2.0 * lam * vq2 + 2.0 * lam**2 * np.mean(self.var * q * dq)
+        return float(F), float(lam * dF / max(F, 1e-300))
 
 
-def _solve_log_lambda(excess, u0: float, tol: float = 5e-3, max_eval: int = 40) -> float | None:
-    """Return the root of ``excess(u)`` (increasing in ``u = log10 lam``), or None if none.
+def _solve_log_lambda(problem: "_Reinsch", s: float, tol: float = 5e-3, max_iter: int = 40) -> float | None:
+    """Return ``u = log10 lam`` at which ``mean(((y - g) / sigma)^2) = s``, or None if none.
 
-    A secant search started from the small-penalty asymptote ``u0`` (where ``log F`` rises with
-    slope ``2 ln 10`` in ``u``), bracketed as soon as the sign changes and safeguarded by the
-    Illinois rule: typically five or six banded solves instead of the dozen of a bracketing
-    search over the whole range. ``tol`` is on ``log F``: 0.5 % in the residual of eq. 5.68.
+    Newton's method on ``f(u) = ln F - ln s`` with the analytic slope of
+    :meth:`_Reinsch.chi2_and_slope`, started from the small-penalty asymptote and kept inside
+    the bracket found so far (bisection when a step leaves it): typically three to five banded
+    factorisations. ``tol`` is on ``ln F``: 0.5 % in the residual of eq. 5.68.
     """
     lo, hi = _LOG_LAMBDA_RANGE
-    u = float(np.clip(u0, lo, hi))
-    f = excess(u)
-    slope = 2.0 * np.log(10.0)
-    a = b = None  # bracket ends (u, f) with f(a) < 0 < f(b)
-    side = 0
-    for _ in range(max_eval):
+    a, b = lo, hi  # f(a) < 0 < f(b) once evaluated; the ends are only assumed so
+    u = float(np.clip(problem.log_lambda_guess(s), lo, hi))
+    for _ in range(max_iter):
+        F, dlnF = problem.chi2_and_slope(10.0**u)
+        f = np.log(max(F, 1e-300)) - np.log(s)
         if abs(f) < tol:
             return u
         if f < 0:
-            if side == -1 and b is not None:  # Illinois: the stale end's value is halved
-                b = (b[0], 0.5 * b[1])
-            a, side = (u, f), -1
+            a = u
         else:
-            if side == 1 and a is not None:
-                a = (a[0], 0.5 * a[1])
-            b, side = (u, f), 1
-        if a is not None and b is not None:
-            if b[0] - a[0] < 1e-6:
-                return u
-            u_new = a[0] - a[1] * (b[0] - a[0]) / (b[1] - a[1])  # regula falsi in the bracket
-        else:
-            u_new = float(np.clip(u - f / slope, u - 4.0, u + 4.0))  # secant step towards it
-            if u_new >= hi:
-                if excess(hi) <= 0:
+            b = u
+        if b - a < 1e-6:
+            return u
+        slope = np.log(10.0) * dlnF
+        u_new = u - f / slope if slope > 1e-9 else np.nan
+        if not a < u_new < b:  # Newton left the bracket: bisect it, or step out by 4 decades
+            if f < 0 and b >= hi:
+                if u >= hi:
                     return None  # even the largest penalty leaves the residual below s
-                u_new = hi
-            u_new = max(u_new, lo)
-        f_new = excess(u_new)
-        if (a is None or b is None) and u_new != u:
-            slope = max((f_new - f) / (u_new - u), 1e-3)
-        u, f = u_new, f_new
+                u_new = min(u + 4.0, hi)
+            elif f > 0 and a <= lo:
+                if u <= lo:
+                    return lo  # the smallest penalty already reaches s: interpolation
+                u_new = max(u - 4.0, lo)
+            else:
+                u_new = 0.5 * (a + b)
+        u = u_new
     return u
-
-
-def _smooth_values(t: np.ndarray, y: np.ndarray, var: np.ndarray, lam: float) -> np.ndarray:
-    """Return the values at ``t`` of the cubic smoothing spline with penalty ``lam`` (see _Reinsch)."""
-    if lam == 0.0 or t.size < 3:
-        return np.asarray(y, float).copy()
-    return _Reinsch(t, y, var).values(lam)
 
 
 def smoothing_spline(t, y, y_std, s: float, pad_ends: bool = False) -> tuple[CubicSpline, float]:
@@ -214,11 +232,6 @@ def smoothing_spline(t, y, y_std, s: float, pad_ends: bool = False) -> tuple[Cub
     tau_n, y_n, var_n = tau / h_ref, (y - y[0]) / std_ref, var / std_ref**2
 
     problem = _Reinsch(tau_n, y_n, var_n)
-
-    def excess(log_lam: float) -> float:
-        g = problem.values(10.0**log_lam)
-        return float(np.log(np.mean((y_n - g) ** 2 / var_n) + 1e-300) - np.log(s))
-
     w = 1.0 / var_n
     A = np.column_stack([np.ones_like(tau_n), tau_n])
     coef = np.linalg.lstsq(A * np.sqrt(w)[:, None], y_n * np.sqrt(w), rcond=None)[0]
@@ -226,7 +239,7 @@ def smoothing_spline(t, y, y_std, s: float, pad_ends: bool = False) -> tuple[Cub
     if chi2_line <= s:
         g_n, lam = A @ coef, np.inf
     else:
-        log_lam = _solve_log_lambda(excess, problem.log_lambda_guess(s))
+        log_lam = _solve_log_lambda(problem, s)
         if log_lam is None:
             g_n, lam = A @ coef, np.inf
         else:

@@ -62,6 +62,24 @@ def test_smoothing_spline_is_scipys_smoothing_spline_and_meets_eq_5_68():
     assert lam == 0.0 and np.allclose(spline(t), y)
 
 
+def test_penalty_slope_matches_numerical_derivative():
+    """The Newton search for the penalty uses d ln F / d ln lam analytically: check it."""
+    from identification.states import _Reinsch
+
+    rng = np.random.default_rng(1)
+    t = np.cumsum(rng.uniform(0.5, 1.5, 400))
+    var = rng.uniform(0.5, 2.0, t.size)
+    y = 30 * np.sin(0.05 * t) + rng.normal(0, 1, t.size) * np.sqrt(var)
+    problem = _Reinsch(t, y, var)
+    for lam in (0.01, 1.0, 100.0):
+        F, slope = problem.chi2_and_slope(lam)
+        assert F == pytest.approx(np.mean((y - problem.values(lam)) ** 2 / var), rel=1e-9)
+        eps = 1e-4
+        num = (np.log(problem.chi2_and_slope(lam * np.exp(eps))[0])
+               - np.log(problem.chi2_and_slope(lam * np.exp(-eps))[0])) / (2 * eps)
+        assert slope == pytest.approx(num, rel=1e-5)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_body_velocities_vs_analytic_derivatives(seed):
     t = np.arange(0.0, 60.0, 0.02)
