@@ -49,7 +49,7 @@ from identification.evaluate import EvaluationResult, evaluate_model, make_windo
 from identification.model import EnvelopeWarning, SindyModel  # noqa: E402
 from identification.search import SearchGrid, SearchResult, search, states_of_runs  # noqa: E402
 from identification.trajectory import read_trajectory_campaign  # noqa: E402
-from identification.types import TrajectoryCampaign  # noqa: E402
+from identification.types import BodyStates, TrajectoryCampaign, TrajectoryRun  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +94,24 @@ class CampaignScores:
     def rows(self) -> list[tuple[str, float, float, int]]:
         """Return ``(name, pos_err_5s_m, yaw_err_5s_deg, n_windows)`` per model."""
         return [(k, r.pos_err_5s_m, r.yaw_err_5s_deg, r.n_windows) for k, r in self.results.items()]
+
+
+def states_by_differences(run: TrajectoryRun, half_width: int = 2) -> BodyStates:
+    """Return body states from centred pose differences over +-``half_width`` poses (no spline).
+
+    The plain estimator behind the README's baselines: a difference over 0.4 s averages the
+    up-to-50 ms stamp jitter of the ICP poses, where a spline through every pose follows it.
+    Inputs are interpolated linearly at the pose times.
+    """
+    p, n = run.poses, run.poses.t.size
+    i = np.arange(n)
+    a, b = np.clip(i - half_width, 0, n - 1), np.clip(i + half_width, 0, n - 1)
+    dt = p.t[b] - p.t[a]
+    vx_l, vy_l, omega = (p.x[b] - p.x[a]) / dt, (p.y[b] - p.y[a]) / dt, (p.yaw[b] - p.yaw[a]) / dt
+    c, s = np.cos(p.yaw), np.sin(p.yaw)
+    return BodyStates(t=p.t, vx=c * vx_l + s * vy_l, vy=-s * vx_l + c * vy_l, omega=omega,
+                      u1=np.interp(p.t, run.inputs.t, run.inputs.u1),
+                      u2=np.interp(p.t, run.inputs.t, run.inputs.u2), x=p.x, y=p.y, yaw=p.yaw)
 
 
 def identify(campaign: TrajectoryCampaign, grid: SearchGrid = REAL_GRID, n_jobs: int = 1) -> SearchResult:

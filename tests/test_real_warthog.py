@@ -19,7 +19,6 @@ from identification.baselines import ConstantVelocityModel, UnicycleModel
 from identification.evaluate import evaluate_model, make_windows
 from identification.search import states_of_runs
 from identification.trajectory import read_trajectory_campaign, write_trajectory_campaign
-from identification.types import BodyStates, TrajectoryRun
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "real_warthog.py"
 
@@ -48,27 +47,14 @@ def identified(ex, data):
     return {name: ex.run_campaign(data / name, ex.QUICK_REAL_GRID) for name in ex.CAMPAIGNS}
 
 
-def _differenced_states(run: TrajectoryRun, half_width: int = 2) -> BodyStates:
-    """Return body states from centred differences over +-``half_width`` poses (no spline)."""
-    p, n = run.poses, run.poses.t.size
-    i = np.arange(n)
-    a, b = np.clip(i - half_width, 0, n - 1), np.clip(i + half_width, 0, n - 1)
-    dt = p.t[b] - p.t[a]
-    vx_l, vy_l, omega = (p.x[b] - p.x[a]) / dt, (p.y[b] - p.y[a]) / dt, (p.yaw[b] - p.yaw[a]) / dt
-    c, s = np.cos(p.yaw), np.sin(p.yaw)
-    return BodyStates(t=p.t, vx=c * vx_l + s * vy_l, vy=-s * vx_l + c * vy_l, omega=omega,
-                      u1=np.interp(p.t, run.inputs.t, run.inputs.u1), u2=np.interp(p.t, run.inputs.t, run.inputs.u2),
-                      x=p.x, y=p.y, yaw=p.yaw)
-
-
 @pytest.mark.parametrize("name, pos_m, yaw_deg, cv_m", [
     ("warthog-drive-cmd", 0.51, 30.7, 1.40),
     ("warthog-drive-wheels", 0.13, 2.7, 1.34),
 ])
-def test_evaluation_reproduces_the_readme_baselines(data, name, pos_m, yaw_deg, cv_m):
+def test_evaluation_reproduces_the_readme_baselines(ex, data, name, pos_m, yaw_deg, cv_m):
     camp = read_trajectory_campaign(data / name)
-    train = [_differenced_states(r) for r in camp.split("train")]
-    test = [_differenced_states(r) for r in camp.split("test")]
+    train = [ex.states_by_differences(r) for r in camp.split("train")]
+    test = [ex.states_by_differences(r) for r in camp.split("test")]
     uni = evaluate_model(UnicycleModel().fit(train), test)
     # README: unicycle 0.51 m / 30.7 deg and 0.13 m / 2.7 deg (5 s windows, 50 % overlap)
     assert uni.pos_err_5s_m == pytest.approx(pos_m, abs=0.015)
