@@ -12,7 +12,6 @@ start and the recorded joystick inputs; the RMS position error at 5 s against th
 
 from __future__ import annotations
 
-import math
 import platform
 import sys
 import time

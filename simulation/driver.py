@@ -82,8 +82,8 @@ def simulate_joy_stamps(duration_s: float, rng: np.random.Generator, rate_hz: fl
 class DriverParams:
     """Tuning of the human-like driver (look-ahead, soft limits, reaction of the supervisor)."""
 
-    lookahead_s: float = 0.6
-    soft_radius: float = 0.88  # supervisor takes over beyond this normalised elliptic radius
+    lookahead_s: float = 0.5
+    soft_radius: float = 0.92  # supervisor takes over beyond this normalised elliptic radius
     soft_tracker_distance_m: float = 1.85
     home_radius: float = 0.3  # ... and hands back inside this one
     heading_soft_rad: float = math.radians(110.0)  # +-150 deg is the hard limit
@@ -107,17 +107,20 @@ class HumanDriver:
         Initial heading (rad); the unwrapped heading is kept within +-150 deg of it.
     area, params
         Driving area and tuning.
+    latency_s
+        Input latency the driver has got used to: added to the supervisor's look-ahead.
     """
 
     KINDS = ("hold", "sweep", "slalom", "turn", "reverse", "stop")
     PROBS = (0.24, 0.22, 0.18, 0.12, 0.16, 0.08)
 
     def __init__(self, rng: np.random.Generator, psi0: float, area: DrivingArea | None = None,
-                 params: DriverParams | None = None):
+                 params: DriverParams | None = None, latency_s: float = 0.0):
         self.rng = rng
         self.psi0 = float(psi0)
         self.area = area or DrivingArea()
         self.p = params or DriverParams()
+        self.lookahead_s = self.p.lookahead_s + latency_s  # a human learns a laggy robot
         self.mode = "free"  # free | return | unwind
         self.t_end = -1.0
         self.plan = None
@@ -125,6 +128,7 @@ class HumanDriver:
         self.last_sign = np.zeros(2)
         self.zero_since = np.zeros(2)
         self.rest = np.full(2, 0.3)
+        self.style = (1.6, 0.75, 0.6)  # per supervisor episode: turn gain, speed, unwind rate
 
     # -- manoeuvres ---------------------------------------------------------------------------
     def _new_manoeuvre(self, t: float) -> None:
@@ -175,19 +179,21 @@ class HumanDriver:
             if best is None or key < best[0]:
                 best = (key, direction, d_psi)
         _, direction, d_psi = best
-        u2 = float(np.clip(1.6 * d_psi, -0.8, 0.8))
-        if abs(d_psi) > math.radians(35.0):
-            return np.array([0.0, u2 if abs(u2) > 0.35 else math.copysign(0.35, u2)])
+        gain, speed, _ = self.style
+        u2 = float(np.clip(gain * d_psi, -0.9, 0.9))
+        if abs(d_psi) > math.radians(35.0) and abs(u2) < 0.5:
+            u2 = math.copysign(0.5, u2)
+        # drive while turning (a pure turn in place would let a slope or slip carry it out)
         dist = float(self.area.ellipse_radius(x, y))
-        return np.array([direction * min(0.75, 0.35 + 0.6 * dist), u2])
+        return np.array([direction * min(speed, 0.3 + 0.6 * dist) * max(math.cos(d_psi), 0.0), u2])
 
     def command(self, t: float, x: float, y: float, psi: float, vx: float, vy: float,
                 omega: float) -> tuple[float, float]:
         """Return the joystick command ``(u1, u2)`` the driver gives at time ``t`` for this state."""
         p = self.p
         c, s = math.cos(psi), math.sin(psi)
-        xa = x + p.lookahead_s * (c * vx - s * vy)
-        ya = y + p.lookahead_s * (s * vx + c * vy)
+        xa = x + self.lookahead_s * (c * vx - s * vy)
+        ya = y + self.lookahead_s * (s * vx + c * vy)
         d_head = psi - self.psi0
         d_head_ahead = d_head + 0.8 * omega
         if self.mode == "free":
@@ -196,12 +202,15 @@ class HumanDriver:
             elif (self.area.ellipse_radius(xa, ya) > p.soft_radius
                   or self.area.tracker_distance(xa, ya) < p.soft_tracker_distance_m):
                 self.mode = "return"
+            if self.mode != "free":  # a human does not correct the same way twice
+                self.style = (float(self.rng.uniform(1.0, 2.5)), float(self.rng.uniform(0.45, 0.9)),
+                              float(self.rng.uniform(0.4, 0.9)))
         if self.mode == "unwind":
             if abs(d_head) < p.heading_home_rad:
                 self.mode = "free"
                 self.t_end = -1.0
             else:
-                u = np.array([0.0, -math.copysign(0.6, d_head)])
+                u = np.array([0.0, -math.copysign(self.style[2], d_head)])
         if self.mode == "return":
             if self.area.ellipse_radius(x, y) < p.home_radius:
                 self.mode = "free"
@@ -234,3 +243,54 @@ class HumanDriver:
                 self.rest[i] = self.rng.uniform(*self.p.neutral_rest_s)
         self.u_prev = out
         return float(out[0]), float(out[1])
+
+
+def plot_input_density(runs, path=None, bins: int = 40):
+    """Return a matplotlib Figure like thesis fig. 6.3: density of (u1, u2) and of (vx, omega).
+
+    ``runs`` are :class:`simulation.robot.TrueRun`; the inputs are the joystick messages, the
+    states the true body velocities. Saved to ``path`` when given (Agg, no display needed).
+    """
+    from matplotlib.colors import LogNorm
+    from matplotlib.figure import Figure
+
+    u = np.concatenate([r.u_joy for r in runs])
+    vx = np.concatenate([r.vx for r in runs])
+    om = np.concatenate([r.omega for r in runs])
+    fig = Figure(figsize=(10, 4.2), layout="constrained")
+    ax1, ax2 = fig.subplots(1, 2)
+    h1 = ax1.hist2d(u[:, 1], u[:, 0], bins=bins, range=[[-1, 1], [-1, 1]], norm=LogNorm(), cmap="viridis")
+    ax1.set(xlabel="steering $u_2$", ylabel="throttle $u_1$", title="control inputs", aspect="equal")
+    fig.colorbar(h1[3], ax=ax1, label="messages")
+    h2 = ax2.hist2d(om, vx, bins=bins, range=[[-1.3, 1.3], [-0.9, 0.9]], norm=LogNorm(), cmap="viridis")
+    ax2.set(xlabel=r"yaw rate $\omega$ [rad/s]", ylabel=r"forward velocity $v_x$ [m/s]",
+            title="driving states")
+    fig.colorbar(h2[3], ax=ax2, label="samples")
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def plot_driving_path(run, area: DrivingArea | None = None, path=None):
+    """Return a matplotlib Figure like thesis fig. 6.4: the path in the local frame, the area
+    and the trackers. Saved to ``path`` when given."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Circle, Ellipse
+
+    area = area or DrivingArea()
+    fig = Figure(figsize=(7, 6), layout="constrained")
+    ax = fig.subplots()
+    ax.add_patch(Ellipse(area.center_local_m, 2 * area.semi_axes_m[0], 2 * area.semi_axes_m[1],
+                         angle=math.degrees(area.axis_angle_rad), fill=False, ls="--", color="grey",
+                         label="driving area"))
+    for (tx, ty), name in zip(area.trackers_local_m, ("AT960", "LTD800")):
+        ax.add_patch(Circle((tx, ty), area.min_tracker_distance_m, fill=False, ls=":", color="tab:red"))
+        ax.plot(tx, ty, "^", color="tab:red")
+        ax.annotate(name, (tx, ty), textcoords="offset points", xytext=(6, -12))
+    ax.plot(run.x, run.y, lw=0.8, label="path")
+    ax.plot(run.x[0], run.y[0], "o", color="tab:green", label="start")
+    ax.set(xlabel="x local [m]", ylabel="y local [m]", aspect="equal")
+    ax.legend(loc="upper left")
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig

@@ -5,15 +5,21 @@ them):
 
 - ``vx_dot`` and ``omega_dot``: the thesis's identified model B, eqs. 7.7 and 7.9, with its
   coefficients verbatim (including the ``vy omega^2`` and ``vy u1^2`` terms of 7.9). Over the
-  input square its steady states reach 0.81 m/s and 1.13 rad/s (table 3.1: 1.0 m/s max).
+  input square its steady states reach 0.81 m/s and 1.15 rad/s (table 3.1: 1.0 m/s max).
 - ``vy_dot = -k_y vy - c_y vx omega`` (eq. 7.8 says 0; a skid-steered body does slip sideways in
   turns): the rigid-body lateral equation ``vy_dot + vx omega = F_y / m`` with a linear lateral
   tyre force ``F_y = -m k_y vy`` (``c_y = 1``). With ``k_y = 15 1/s`` the outward drift is
   ``vx omega / k_y``, about 2 cm/s at 0.5 m/s and 0.6 rad/s.
-- Speed limiter of the drive controller: beyond ``|vx| > 0.9 m/s`` or ``|omega| > 1.3 rad/s``
-  (outside the fig. 6.3 envelope, where model B's cubic terms turn destabilising) a smooth
-  quadratic braking term ``-k_guard relu(|s| - s_lim)^2 sign(s)`` keeps the state bounded. It is
-  zero in normal driving and not part of :meth:`TrueDynamics.true_terms`.
+- Limiters of the drive controller, outside fig. 6.3's envelope only: each track's speed
+  ``|vx -+ b omega|`` (``b = 0.29 m``, half the hub distance across an axle, table 6.3) beyond
+  0.9 m/s and the yaw rate beyond 1.2 rad/s are braked by ``-k relu(|s| - s_lim)^2 sign(s)``
+  (``k = 2000``). Model B's steady states reach 0.876 m/s track speed and 1.149 rad/s, so the
+  limiters are idle in normal driving and not part of :meth:`TrueDynamics.true_terms`. They
+  are needed because model B, a fit to data near its steady states, turns unphysical beyond
+  them: its cubic terms make friction fall with speed (a fold at about 0.9 m/s, where a 1.5 deg
+  slope already tips it into runaway) and ``7.69 vx^2 omega``, ``2.896 omega^3`` and
+  ``-4.349 omega^2 u2`` drive a fast-reversing robot into a spin against the command. A
+  per-track limit (the motors' speed) cuts off exactly that corner of high speed and yaw rate.
 - Process noise: Ornstein-Uhlenbeck accelerations (vibration, floor texture) added to the three
   body accelerations, std ``(0.06 m/s^2, 0.03 m/s^2, 0.15 rad/s^2)``, correlation time 50 ms
   (velocity jitter of about 4 mm/s, 1.3 mm/s and 0.011 rad/s).
@@ -35,7 +41,7 @@ driver (:mod:`simulation.driver`) closes the loop at each joystick message.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
@@ -69,9 +75,10 @@ class RobotParams:
     lateral_damping_1_s: float = 15.0  # k_y
     lateral_coupling: float = 1.0  # c_y (rigid-body value)
     max_speed_m_s: float = 1.0  # table 3.1
-    guard_speed_m_s: float = 0.9
-    guard_omega_rad_s: float = 1.3
-    guard_gain: float = 300.0  # 1/(m s) resp. 1/rad
+    track_half_width_m: float = 0.29  # half the hub-to-hub distance across an axle (table 6.3)
+    guard_track_speed_m_s: float = 0.9  # per-track speed limit (model B's steady states: 0.876)
+    guard_omega_rad_s: float = 1.2  # yaw-rate limit (model B's steady states: 1.149)
+    guard_gain: float = 2000.0  # 1/m resp. s/rad^2: 0.8 m/s^2 at 2 cm/s beyond the limit
     accel_noise_std: tuple = (0.06, 0.03, 0.15)  # vx_dot m/s^2, vy_dot m/s^2, omega_dot rad/s^2
     noise_corr_time_s: float = 0.05
     pitch_per_accel_rad: float = math.radians(0.5)  # rad per m/s^2
@@ -117,11 +124,15 @@ def _compile_acc(params: RobotParams, effect: Effect | None, lib) -> callable:
     for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
         body = " + ".join(f"({c!r})*{_monomial_source(ex)}" for c, ex in eqs[key]) or "0.0"
         lines.append(f"    {out} = {body}")
-    g, kg = params.guard_speed_m_s, params.guard_gain
-    gw = params.guard_omega_rad_s
+    g, kg = params.guard_track_speed_m_s, params.guard_gain
+    gw, b = params.guard_omega_rad_s, params.track_half_width_m
     # relu(s) = (s + |s|) / 2 works on floats and arrays alike
-    lines += [f"    e1 = vx - {g!r}; e2 = -vx - {g!r}",
-              f"    ax = ax - {kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)",
+    lines += [f"    e1 = vx - {b!r}*om - {g!r}; e2 = -vx + {b!r}*om - {g!r}",
+              f"    al = -{kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)",
+              f"    e1 = vx + {b!r}*om - {g!r}; e2 = -vx - {b!r}*om - {g!r}",
+              f"    ar = -{kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)",
+              "    ax = ax + 0.5*(al + ar)",
+              f"    aw = aw + (ar - al)*{0.5 / b!r}",
               f"    e1 = om - {gw!r}; e2 = -om - {gw!r}",
               f"    aw = aw - {kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)"]
     if effect is not None and effect.name == "heading_dependence":
@@ -168,9 +179,15 @@ def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple
     lines = []
     for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
         lines.append(f"{indent}{out} = {_horner(coef[key], names)}")
-    g, gw, kg = params.guard_speed_m_s, params.guard_omega_rad_s, params.guard_gain
-    lines += [f"{indent}if {vx} > {g!r}: ax -= {kg!r}*({vx} - {g!r})**2",
-              f"{indent}elif {vx} < {-g!r}: ax += {kg!r}*({vx} + {g!r})**2",
+    g, gw, kg = params.guard_track_speed_m_s, params.guard_omega_rad_s, params.guard_gain
+    b = params.track_half_width_m
+    lines += [f"{indent}vt = abs({vx}) + {b!r}*abs({om})",  # the faster track's speed
+              f"{indent}if vt > {g!r}:",
+              f"{indent}    vl = {vx} - {b!r}*{om}; vr = {vx} + {b!r}*{om}",
+              f"{indent}    al = -{kg!r}*(abs(vl) - {g!r})**2 if vl > {g!r} or vl < {-g!r} else 0.0",
+              f"{indent}    ar = -{kg!r}*(abs(vr) - {g!r})**2 if vr > {g!r} or vr < {-g!r} else 0.0",
+              f"{indent}    al = al if vl > 0 else -al; ar = ar if vr > 0 else -ar",
+              f"{indent}    ax += 0.5*(al + ar); aw += (ar - al)*{0.5 / b!r}",
               f"{indent}if {om} > {gw!r}: aw -= {kg!r}*({om} - {gw!r})**2",
               f"{indent}elif {om} < {-gw!r}: aw += {kg!r}*({om} + {gw!r})**2"]
     name = effect.name if effect is not None else None
@@ -329,8 +346,14 @@ class TrueDynamics:
         J_u = Jp[..., :, 3:5].copy()
         p = self.params
         vx, om = x6[..., 3], x6[..., 5]
-        # speed limiter: d/ds of -k relu(|s| - lim)^2 sign(s) = -2 k relu(|s| - lim)
-        J_x[..., 0, 3] -= 2 * p.guard_gain * np.maximum(np.abs(vx) - p.guard_speed_m_s, 0.0)
+        # limiters: d/ds of -k relu(|s| - lim)^2 sign(s) = -2 k relu(|s| - lim)
+        b = p.track_half_width_m
+        d_l = -2 * p.guard_gain * np.maximum(np.abs(vx - b * om) - p.guard_track_speed_m_s, 0.0)
+        d_r = -2 * p.guard_gain * np.maximum(np.abs(vx + b * om) - p.guard_track_speed_m_s, 0.0)
+        J_x[..., 0, 3] += 0.5 * (d_l + d_r)
+        J_x[..., 0, 5] += 0.5 * b * (d_r - d_l)
+        J_x[..., 2, 3] += (d_r - d_l) * 0.5 / b
+        J_x[..., 2, 5] += 0.5 * (d_l + d_r)
         J_x[..., 2, 5] -= 2 * p.guard_gain * np.maximum(np.abs(om) - p.guard_omega_rad_s, 0.0)
         eff = self.effect
         if eff is not None and eff.name == "heading_dependence":
@@ -473,7 +496,8 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
     u_joy = np.zeros((t_joy.size, 2))
     noise = simulate_ou_noise(n, dt, params.accel_noise_std, params.noise_corr_time_s, rng_noise)
     n1, n2, n3 = (noise[:, i].tolist() for i in range(3))
-    driver = HumanDriver(rng_drv, start_pose[2], area)
+    latency = effect.value if effect is not None and effect.name == "input_delay" else 0.0
+    driver = HumanDriver(rng_drv, start_pose[2], area, latency_s=latency)
     u_motor = np.empty((n, 2))
     integrate, _ = _compile_stepper(params, effect)
     state = tuple(float(v) for v in start_pose) + (0.0, 0.0, 0.0)

@@ -95,10 +95,11 @@ def test_neutral_rest_keeps_model_b_inside_its_envelope():
         for k in range(1000):  # 4 s at 4 ms
             u = np.where(flip & (k * 0.004 < rest_s), 0.0, u_new)
             xs[:, 3:] += 0.004 * dyn.f(xs, u)
-            top = np.maximum(top, np.abs(xs[:, [3, 5]]))
+            track = np.abs(xs[:, 3]) + p.track_half_width_m * np.abs(xs[:, 5])
+            top = np.maximum(top, np.column_stack([track, np.abs(xs[:, 5])]))
         peak[rest_s] = top.max(axis=0)
-    assert peak[0.2][0] < p.guard_speed_m_s and peak[0.2][1] < p.guard_omega_rad_s
-    assert peak[0.0][0] > p.guard_speed_m_s or peak[0.0][1] > p.guard_omega_rad_s
+    assert peak[0.2][0] < p.guard_track_speed_m_s and peak[0.2][1] < p.guard_omega_rad_s
+    assert peak[0.0][0] > p.guard_track_speed_m_s or peak[0.0][1] > p.guard_omega_rad_s
 
 
 def test_supervisor_brings_the_robot_back_and_unwinds_the_heading():

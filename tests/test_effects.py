@@ -163,3 +163,16 @@ def test_heading_effect_tilts_pitch_and_floor_height():
     extra = np.radians(tilt) * np.cos(run.psi)
     assert np.abs(run.pitch - extra).max() < 0.04  # the rest is the suspension's few tenths deg
     assert np.abs(np.mean(run.pitch - plain.pitch) - np.mean(extra)) < 0.01
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_strongest_effect_keeps_the_run_sane(name):
+    """At the top of its range every effect still gives a bounded run inside the area."""
+    from simulation.driver import DrivingArea
+    from simulation.robot import RobotParams
+
+    run = simulate_run(60.0, np.random.default_rng(4), effect=Effect(name, EFFECTS[name].valid_range[1]))
+    p = RobotParams()
+    assert DrivingArea().contains(run.x, run.y).all()
+    assert np.degrees(np.abs(run.psi - run.psi[0])).max() < 150.0
+    assert np.abs(run.vx).max() < p.max_speed_m_s and np.abs(run.omega).max() < p.guard_omega_rad_s + 0.1

@@ -17,11 +17,14 @@ from simulation.robot import (RobotParams, TrueDynamics, _compile_stepper, expon
 ALL_EFFECTS = [None] + [Effect(n, s.moderate) for n, s in EFFECTS.items()]
 
 
-def _random_states(rng, n, v_max=0.85, w_max=1.2):
-    """States in and around the driving area, velocities inside fig. 6.3's envelope."""
+def _random_states(rng, n, track_max=0.9, w_max=1.2):
+    """States in and around the driving area; velocities inside the limiters' bounds (track
+    speed ``|vx| + b |omega|`` and yaw rate) unless larger bounds are asked for."""
+    omega = rng.uniform(-w_max, w_max, n)
+    v_lim = track_max - RobotParams().track_half_width_m * np.abs(omega)
     return np.column_stack([rng.uniform(0.5, 6.5, n), rng.uniform(0.5, 5.5, n),
-                            rng.uniform(-4, 4, n), rng.uniform(-v_max, v_max, n),
-                            rng.uniform(-0.08, 0.08, n), rng.uniform(-w_max, w_max, n)])
+                            rng.uniform(-4, 4, n), rng.uniform(-1, 1, n) * v_lim,
+                            rng.uniform(-0.08, 0.08, n), omega])
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +108,7 @@ def test_speed_limiter_bounds_states_model_b_would_blow_up():
 @pytest.mark.parametrize("effect", ALL_EFFECTS, ids=lambda e: e.name if e else "none")
 def test_jacobians_match_central_differences(effect):
     rng = np.random.default_rng(11)
-    x6 = _random_states(rng, 60, v_max=1.1, w_max=1.6)  # includes the limiter's range
+    x6 = _random_states(rng, 60, track_max=1.3, w_max=1.6)  # includes the limiter's range
     if effect is not None and effect.name == "position_dependence":  # around the patch edge
         c = np.array(EFFECTS["position_dependence"].fixed["patch_center_local_m"])
         ang = rng.uniform(0, 2 * np.pi, 60)
@@ -139,7 +142,7 @@ def test_float_stepper_matches_numpy_f_and_scipy_ode(effect):
     dyn = TrueDynamics(effect=effect)
     integrate, acc = _compile_stepper(dyn.params, effect)
     rng = np.random.default_rng(5)
-    x6 = _random_states(rng, 50, v_max=1.1, w_max=1.6)
+    x6 = _random_states(rng, 50, track_max=1.3, w_max=1.6)
     u = rng.uniform(-1, 1, (50, 2))
     a_float = np.array([acc(*s, *v) for s, v in zip(x6.tolist(), u.tolist())])
     np.testing.assert_allclose(a_float, dyn.f(x6, u), rtol=1e-12, atol=1e-12)
@@ -173,7 +176,8 @@ def test_pitch_is_second_order_response_to_acceleration():
 def test_run_physics_is_sane(run):
     area = DrivingArea()
     assert np.abs(run.vx).max() <= RobotParams().max_speed_m_s + 0.02
-    assert np.abs(run.vx).max() < RobotParams().guard_speed_m_s  # limiter idle: model B envelope
+    p = RobotParams()  # limiters idle: the run stays in model B's envelope
+    assert (np.abs(run.vx) + p.track_half_width_m * np.abs(run.omega)).max() < p.guard_track_speed_m_s
     assert np.abs(run.omega).max() < RobotParams().guard_omega_rad_s
     assert 0.5 < np.abs(run.vx).max() and 0.005 < np.abs(run.vy).max() < 0.06
     assert np.abs(run.ax).max() < 8.0
