@@ -30,6 +30,7 @@ GAP_THRESHOLD_S = 0.035  # thesis 5.2.2: separates the skipped pulse (40 ms) fro
 XCORR_RATE_HZ = 1000.0  # thesis eq. 5.8
 GAP_MATCH_TOL_S = 0.004  # thesis 5.2.2
 MIN_CLOCK_GAPS = 3
+OUTLIER_SIGMAS = 6.0  # matched samples further off the clock model (robust sigmas) are not fitted
 AMBIGUOUS_RATIO = 0.9  # a second xcorr peak this high: the periodic gaps leave the shift open
 RECEIVE_WINDOW_S = 1.0  # half the 3 s gap period: bag receive times pick the peak within this
 
@@ -208,10 +209,17 @@ def fit_clock_model(tracker: str, s_trigger: np.ndarray, t_tracker: np.ndarray, 
     res_gap = gaps_rpi[ig] - (k * (gaps_tr[jt] - tau) + d)
     spread = 1.4826 * np.median(np.abs(res_gap - np.median(res_gap)))
     tol = float(np.clip(10 * spread, 1e-3, 5e-3))
-    for _ in range(2):
+    use = slice(None)
+    for _ in range(3):
         i_trig, j_tr = match_nearest(s_trigger, k * (s_tr - tau) + d, tol)
-        k, d, k_std, d_std, res_std = fit_linear_clock(s_tr[j_tr] - tau, s_trigger[i_trig])
+        x, y = s_tr[j_tr] - tau, s_trigger[i_trig]
+        # a spurious pulse next to a lost one is matched to it but sits far off the model:
+        # it stays matched in the counts and is left out of the fit
+        r = y - (k * x + d)
+        r_std = 1.4826 * np.median(np.abs(r - np.median(r)))
+        use = np.abs(r - np.median(r)) <= max(OUTLIER_SIGMAS * r_std, 1e-6)
+        k, d, k_std, d_std, res_std = fit_linear_clock(x[use], y[use])
     model = ClockModel(tracker=tracker, k=k, d=d, tau=tau, t0_tracker=t0_tr, k_std=k_std,
                        d_std=d_std, residual_std=res_std, n_gaps_tracker=int(gaps_tr.size),
-                       n_gaps_matched=int(n_gaps), n_fit=int(i_trig.size), xcorr_peak_ratio=ratio)
+                       n_gaps_matched=int(n_gaps), n_fit=int(np.sum(use)), xcorr_peak_ratio=ratio)
     return model, i_trig, j_tr
