@@ -48,6 +48,7 @@ from scipy import signal
 
 from simulation.driver import DrivingArea, HumanDriver, simulate_joy_stamps
 from simulation.effects import EFFECTS, Effect
+from sindy_ekf.errors import InputError
 
 VARS = ("vx", "vy", "omega", "u1", "u2")  # order of the exponents of a monomial
 
@@ -481,6 +482,12 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
         ``(x, y, psi)`` in the local frame; default: near the area centre, heading along the
         line between the trackers (either way) with some scatter.
     """
+    if not (np.isfinite(duration_s) and duration_s > 0):
+        raise InputError(f"simulate_run: duration_s={duration_s!r} must be a positive number of seconds")
+    if not (np.isfinite(dt) and 0 < dt <= 0.02):
+        raise InputError(f"simulate_run: dt={dt!r} must lie in (0, 0.02] s")
+    if effect is not None and not isinstance(effect, Effect):
+        raise InputError(f"simulate_run: effect={effect!r} is not a simulation.effects.Effect")
     params = params or RobotParams()
     dyn = TrueDynamics(params, effect)
     rng_drv, rng_joy, rng_noise, rng_start = rng.spawn(4)

@@ -237,3 +237,15 @@ def test_start_pose_is_honoured():
     r = simulate_run(2.0, np.random.default_rng(1), start_pose=(3.0, 2.0, 0.5), dt=0.004)
     assert (r.x[0], r.y[0], r.psi[0]) == (3.0, 2.0, 0.5)
     assert r.t.size == 501 and r.t[-1] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("kwargs, culprit", [
+    ({"duration_s": -5.0}, "duration_s=-5.0"),
+    ({"duration_s": 2.0, "dt": 0.5}, "dt=0.5"),
+    ({"duration_s": 2.0, "effect": "input_delay=0.1"}, "effect='input_delay=0.1'"),
+])
+def test_simulate_run_bad_arguments_are_named(kwargs, culprit):
+    from sindy_ekf.errors import InputError
+
+    with pytest.raises(InputError, match=re.escape(culprit)):
+        simulate_run(rng=np.random.default_rng(0), **kwargs)
