@@ -36,6 +36,7 @@ log = logging.getLogger(__name__)
 
 REPORT_FILE = "preprocess.json"  # in the output folder: the --json dict of the run
 DEFAULT_SMOOTHING = 0.0005  # thesis table 5.1 tests 0, 0.0005, 0.005, 0.01 (eq. 5.68)
+TIMING_ERROR_R = 0.5  # |r| of baseline variation vs speed above which a timing error is reported
 HUB_CORRECTION = True  # refer the prisms to the hub axes with the eq. 5.25 model before poses
 
 # Per-coordinate point noise std ``a + b * range`` from the repeatability of thesis table 3.2,
@@ -104,7 +105,9 @@ def run_json(r: RunResult) -> dict:
         "extra_offset_tracker": s.offset_tracker,
         "baseline_rms_m": {"before": s.baseline_rms_m("before"), "after": s.baseline_rms_m("after")},
         "timing_error": {"r_baseline_speed_before": s.r_speed_before,
-                         "r_baseline_speed_after": s.r_speed_after},
+                         "r_baseline_speed_after": s.r_speed_after,
+                         "detected": bool(abs(s.r_speed_before) > TIMING_ERROR_R),
+                         "late_tracker": s.offset_tracker},
         "counts": {"triggers": int(s.s_trigger.size), "poses": int(r.poses.t.size),
                    "one_prism_only": r.n_one_prism, "no_prism": r.n_no_prism,
                    **{k: c.to_dict() for k, c in s.counts.items()}},

@@ -160,8 +160,12 @@ def test_command_writes_interface_files_and_json(synthetic_campaign, tmp_path, c
 
     out, js = tmp_path / "out", tmp_path / "pre.json"
     assert main(["preprocess", str(synthetic_campaign), "--out", str(out), "--json", str(js),
-                 "--quiet", "--jobs", "1"]) == 0
+                 "--jobs", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "run_1" in printed and "run_2" in printed
+    assert "timing error found" in printed and "the AT960 measures 1.4" in printed  # duty 1.3-1.5
     report = json.loads(js.read_text())
+    assert all(r["timing_error"]["detected"] for r in report["runs"].values())
     assert {"transform", "lever_arms_m", "runs"} <= set(report)
     assert set(report["transform"]) >= {"translation_m", "rotation_deg"}
     for r in report["runs"].values():

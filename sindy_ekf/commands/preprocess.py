@@ -30,6 +30,10 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
 
 def format_summary(result) -> str:
     """Return the per-run summary table printed by the command."""
+    import numpy as np
+
+    from identification.preprocess import TIMING_ERROR_R
+
     head = (f"{'run':<10} {'split':<5} {'LTD800 ppm':>11} {'AT960 ppm':>10} {'offset ms':>10} "
             f"{'r before':>8} {'r after':>8} {'base rms mm':>12} {'poses':>6} "
             f"{'lost':>5} {'spur':>5} {'1-prism':>7}")
@@ -46,6 +50,15 @@ def format_summary(result) -> str:
             f"{r.n_one_prism:>7d}")
     for name, why in result.skipped.items():
         lines.append(f"{name:<10} skipped: {why}")
+    synced = [r.synced for r in result.runs.values()]
+    r0 = np.array([s.r_speed_before for s in synced])
+    if np.any(np.abs(r0) > TIMING_ERROR_R):
+        late = max({s.offset_tracker for s in synced}, key=[s.offset_tracker for s in synced].count)
+        dt = np.median([s.offset.dt for s in synced]) * 1e3
+        lines.append(f"timing error found: the baseline length follows the forward speed (median r "
+                     f"{np.median(r0):+.2f}); the {late.upper()} measures {dt:.3f} ms after the "
+                     f"trigger pulse (median over runs), corrected (median r after "
+                     f"{np.median([s.r_speed_after for s in synced]):+.2f})")
     return "\n".join(lines)
 
 
