@@ -124,3 +124,15 @@ def test_same_rng_same_commands():
         cmds.append([drv.command(0.05 * k, 3.4, 2.9, 0.3, 0.2, 0.0, 0.1) for k in range(400)])
     assert cmds[0] == cmds[1]
     assert len(set(cmds[0])) > 50
+
+
+def test_plots_of_fig_6_3_and_6_4(runs, tmp_path):
+    from simulation.driver import plot_driving_path, plot_input_density
+
+    fig = plot_input_density(runs, tmp_path / "fig_6_3.png")
+    counts = fig.axes[0].collections[0].get_array()
+    assert np.nansum(counts) == sum(len(r.u_joy) for r in runs)  # every message in the square
+    assert (tmp_path / "fig_6_3.png").stat().st_size > 10_000
+    fig = plot_driving_path(runs[0], path=tmp_path / "fig_6_4.png")
+    xy = fig.axes[0].lines[-2].get_xydata()
+    np.testing.assert_array_equal(xy, np.column_stack([runs[0].x, runs[0].y]))
