@@ -14,6 +14,20 @@
 A run that cannot go on (a missing topic, no gaps, trackers that disagree) is skipped with a
 warning and listed in the result, so that the other runs go on. Every count (matched, lost and
 spurious triggers, dropped samples, trigger times with only one prism) is in the result's JSON.
+
+Where this departs from the thesis, and why (each measured on simulated campaigns against their
+truth, see ``bench/results/preprocess.md``):
+
+- the clock model is refitted on every matched sample, not only on the gaps (drift std of the
+  LTD800 ~0.001 ppm instead of ~0.01 on short runs), which also counts lost/spurious pulses;
+- the AT960 offset is estimated jointly with the eq. 5.25 hub terms: the eccentricity along the
+  baseline correlates with the speed and biased the thesis's estimate by up to ~90 us;
+- tracker positions are interpolated with a cubic spline, not linearly (up to 0.7 mm error
+  across a lost pulse in a turn);
+- the prisms are referred to the hub axes with the eq. 5.25 model before the poses
+  (``hub_correction``; without it the yaw RMS is ~0.018 deg instead of ~0.002 deg);
+- the offset also gets a jackknife standard deviation, since eq. 5.21's only measures how well
+  ten samples lie on a parabola (thesis 7.3.2).
 """
 
 from __future__ import annotations
