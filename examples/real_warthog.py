@@ -126,13 +126,14 @@ def identify(campaign: TrajectoryCampaign, grid: SearchGrid = REAL_GRID, n_jobs:
 def score(model: SindyModel, train: TrajectoryCampaign, test: TrajectoryCampaign) -> CampaignScores:
     """Return the model and both baselines scored on the test runs of ``test``.
 
-    The unicycle's gains are fitted on the train runs of ``train`` with the model's spline
+    A campaign without test runs (a recording never split, e.g. another day) is scored on all
+    its runs. The unicycle's gains are fitted on the train runs of ``train`` with the model's spline
     smoothing, so that baseline and model see the same states; all three are integrated over
     the same windows (segments of the test runs split at pose gaps).
     """
     s = float(model.hyperparameters["s"])
     train_states, _, _ = states_of_runs(train.split("train"), s)
-    test_states, names, _ = states_of_runs(test.split("test"), s)
+    test_states, names, _ = states_of_runs(test.split("test") or test.runs, s)
     windows = make_windows(test_states, names=names)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", EnvelopeWarning)
@@ -173,11 +174,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, default=DATA, help="folder holding the two campaigns")
     parser.add_argument("--quick", action="store_true", help="small fixed grid instead of the full search")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes for the search")
+    parser.add_argument("--score-on", type=Path, nargs="*", default=[], metavar="CAMPAIGN",
+                        help="other trajectory campaigns of the robot to score both models on")
+    parser.add_argument("--models-out", type=Path, default=None, metavar="DIR",
+                        help="write the identified models as DIR/<campaign>.json (for sindy-ekf evaluate etc.)")
     args = parser.parse_args(argv)
     grid = QUICK_REAL_GRID if args.quick else REAL_GRID
     scores = {name: run_campaign(args.data / name, grid, args.jobs) for name in CAMPAIGNS}
     campaigns = {name: read_trajectory_campaign(args.data / name) for name in CAMPAIGNS}
     cross = [score(scores[a].model, campaigns[a], campaigns[b]) for a, b in (CAMPAIGNS, CAMPAIGNS[::-1])]
+    for path in args.score_on:
+        other = read_trajectory_campaign(path)
+        cross += [score(scores[a].model, campaigns[a], other) for a in CAMPAIGNS]
+    if args.models_out is not None:
+        args.models_out.mkdir(parents=True, exist_ok=True)
+        for name, sc in scores.items():
+            sc.model.to_json(args.models_out / f"{name}.json")
     print(f"grid: {grid.size} points, {grid.n_folds}-fold cross-validation by run\n")
     for name, sc in scores.items():
         hp = sc.model.hyperparameters

@@ -8,6 +8,7 @@ from the data, and the times of a hole cut into a real run.
 from __future__ import annotations
 
 import importlib.util
+import re
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -133,9 +134,20 @@ def test_hole_nan_rows_and_duplicates_in_a_real_run_are_counted_and_not_bridged(
     assert not np.any((w.t0 < t_hole[1]) & (w.t0 + 5.0 > t_hole[0]))  # no window spans the hole
 
 
-def test_example_main_prints_the_comparison(ex, capsys):
-    assert ex.main(["--quick"]) == 0
+def test_example_main_prints_the_comparison_and_scores_an_unseen_recording(ex, data, capsys, tmp_path):
+    # an "other day": one real run cut to its second half, no train/test split marked test
+    run = read_trajectory_campaign(data / "warthog-drive-wheels").split("train")[0]
+    keep = run.poses.t > run.poses.t[0] + 0.5 * (run.poses.t[-1] - run.poses.t[0])
+    half = replace(run, name="later", poses=replace(run.poses, **{c: getattr(run.poses, c)[keep] for c in (
+        "t", "x", "y", "z", "pitch", "yaw", "x_std", "y_std", "z_std", "pitch_std", "yaw_std")}))
+    other = write_trajectory_campaign(tmp_path / "other", "other-day", [(half, None)])
+    assert ex.main(["--quick", "--score-on", str(other), "--models-out", str(tmp_path / "models")]) == 0
     text = capsys.readouterr().out
     for needle in ("warthog-drive-cmd: 5 s position error", "warthog-drive-wheels: 5 s position error",
-                   "warthog-drive-cmd -> warthog-drive-wheels", "constant_velocity", "README unicycle"):
+                   "warthog-drive-cmd -> warthog-drive-wheels", "README unicycle"):
         assert needle in text
+    assert re.search(r"warthog-drive-wheels\s+other-day\s+sindy\s+\d+\.\d+", text)
+    from identification.model import SindyModel
+
+    model = SindyModel.load(tmp_path / "models" / "warthog-drive-wheels.json")
+    assert model.hyperparameters["s"] == ex.QUICK_REAL_GRID.s[0]
