@@ -290,3 +290,18 @@ def test_parallel_runs_give_the_same_result(synthetic_campaign, tmp_path):
         assert one.runs[name].synced.offset.dt == two.runs[name].synced.offset.dt
     assert (tmp_path / "one" / "runs" / "run_1" / "poses.csv").read_text() == \
         (tmp_path / "two" / "runs" / "run_1" / "poses.csv").read_text()
+
+
+def test_run_without_gaps_is_skipped_and_named(tmp_path):
+    from identification.calibration import calibrate
+    from identification.io_survey import read_survey
+    from identification.preprocess import preprocess_campaign
+
+    tf = calibrate(read_survey(CALIBRATION)).transform
+    good, bad = (synth_run(seed=50 + i, minutes=0.5, name=f"run_{i}", R_at960_ltd800=tf.R_at960_ltd800,
+                           t_at960_ltd800=tf.t_at960_ltd800)[0] for i in (1, 2))
+    bad = replace(bad, t_trigger_utc=bad.t_trigger_utc[0] + 0.02 * np.arange(bad.t_trigger_utc.size))
+    camp = write_campaign(tmp_path / "c", [good, bad], CALIBRATION.read_text())
+    result = preprocess_campaign(camp, tmp_path / "out")
+    assert list(result.runs) == ["run_1"]
+    assert result.skipped["run_2"].startswith("run run_2: topic /rpi/trigger: no detectable gaps")
