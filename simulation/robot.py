@@ -103,61 +103,6 @@ def exponents_from_name(name: str) -> tuple[int, ...]:
     return tuple(exps)
 
 
-def _monomial_source(exps) -> str:
-    return "*".join(f"{v}_{e}" for v, e in zip(("vx", "vy", "om", "u1", "u2"), exps) if e) or "1.0"
-
-
-def _compile_acc(params: RobotParams, effect: Effect | None, lib) -> callable:
-    """Return ``acc(x, y, psi, vx, vy, om, u1, u2) -> (ax, ay, aw)`` compiled for ``lib``.
-
-    The source is generated once from the term table and compiled twice, with ``lib = math``
-    for the float integrator and ``lib = numpy`` for the vectorised :meth:`TrueDynamics.f`, so
-    both evaluate the same expression.
-    """
-    terms = params.terms()
-    eqs = {k: [(c, exponents_from_name(n)) for n, c in terms[k].items()] for k in terms}
-    used = {(v, e) for eq in eqs.values() for _, ex in eq for v, e0 in zip(range(5), ex)
-            for e in range(1, e0 + 1)}
-    names = ("vx", "vy", "om", "u1", "u2")
-    lines = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
-    for v, e in sorted(used):
-        lines.append(f"    {names[v]}_{e} = {names[v]}" + f"*{names[v]}" * (e - 1))
-    for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
-        body = " + ".join(f"({c!r})*{_monomial_source(ex)}" for c, ex in eqs[key]) or "0.0"
-        lines.append(f"    {out} = {body}")
-    g, kg = params.guard_track_speed_m_s, params.guard_gain
-    gw, b = params.guard_omega_rad_s, params.track_half_width_m
-    # relu(s) = (s + |s|) / 2 works on floats and arrays alike
-    lines += [f"    e1 = vx - {b!r}*om - {g!r}; e2 = -vx + {b!r}*om - {g!r}",
-              f"    al = -{kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)",
-              f"    e1 = vx + {b!r}*om - {g!r}; e2 = -vx - {b!r}*om - {g!r}",
-              f"    ar = -{kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)",
-              "    ax = ax + 0.5*(al + ar)",
-              f"    aw = aw + (ar - al)*{0.5 / b!r}",
-              f"    e1 = om - {gw!r}; e2 = -om - {gw!r}",
-              f"    aw = aw - {kg / 4!r}*((e1 + abs(e1))**2 - (e2 + abs(e2))**2)"]
-    if effect is not None and effect.name == "heading_dependence":
-        a_g = params.g_m_s2 * math.sin(math.radians(effect.value))
-        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
-        lines += [f"    ax = ax + {a_g!r}*lib.cos(psi - {pd!r})",
-                  f"    ay = ay - {a_g!r}*lib.sin(psi - {pd!r})"]
-    elif effect is not None and effect.name == "position_dependence":
-        fx = EFFECTS["position_dependence"].fixed
-        (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
-        half_scale = fx["patch_edge_m"] / (2.0 * math.log(9.0))  # 10-90 % of the logistic
-        d_vx, d_om = -terms["vx"]["vx"], -terms["omega"]["omega"]
-        lines += [f"    d = lib.sqrt((x - {cx!r})**2 + (y - {cy!r})**2 + 1e-12)",
-                  f"    s = 0.5*(1.0 + lib.tanh(({r!r} - d)/{half_scale!r}))",
-                  f"    ax = ax - {effect.value * d_vx!r}*s*vx",
-                  f"    aw = aw - {effect.value * d_om!r}*s*om"]
-    elif effect is not None and effect.name == "lateral_slip":
-        lines.append(f"    ay = ay - {(effect.value - 1.0) * params.lateral_coupling!r}*vx*om")
-    lines.append("    return ax, ay, aw")
-    namespace = {"lib": lib}
-    exec("\n".join(lines), namespace)  # noqa: S102 - source generated from the numeric term table
-    return namespace["acc"]
-
-
 def _horner(poly: dict, names: tuple) -> str:
     """Return a nested (Horner) expression of ``{exponents: coefficient source}`` in ``names``."""
     if not poly:
@@ -172,9 +117,11 @@ def _horner(poly: dict, names: tuple) -> str:
     return f"({head}{names[v]}*{_horner(inner, names)})"
 
 
-def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple, indent: str) -> list[str]:
+def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple, indent: str,
+               vectorised: bool = False) -> list[str]:
     """Return source lines computing ``ax, ay, aw`` from the states named ``sv`` (x, y, psi, vx,
-    vy, om) and the per-input coefficients ``coef`` (state monomial -> variable name)."""
+    vy, om) and the per-input coefficients ``coef`` (state monomial -> variable name); the
+    limiters branch on floats and use ``relu(s) = (s + |s|) / 2`` on arrays."""
     x, y, psi, vx, vy, om = sv
     names = (vx, vy, om)
     lines = []
@@ -182,21 +129,32 @@ def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple
         lines.append(f"{indent}{out} = {_horner(coef[key], names)}")
     g, gw, kg = params.guard_track_speed_m_s, params.guard_omega_rad_s, params.guard_gain
     b = params.track_half_width_m
-    lines += [f"{indent}vt = abs({vx}) + {b!r}*abs({om})",  # the faster track's speed
-              f"{indent}if vt > {g!r}:",
-              f"{indent}    vl = {vx} - {b!r}*{om}; vr = {vx} + {b!r}*{om}",
-              f"{indent}    al = -{kg!r}*(abs(vl) - {g!r})**2 if vl > {g!r} or vl < {-g!r} else 0.0",
-              f"{indent}    ar = -{kg!r}*(abs(vr) - {g!r})**2 if vr > {g!r} or vr < {-g!r} else 0.0",
-              f"{indent}    al = al if vl > 0 else -al; ar = ar if vr > 0 else -ar",
-              f"{indent}    ax += 0.5*(al + ar); aw += (ar - al)*{0.5 / b!r}",
-              f"{indent}if {om} > {gw!r}: aw -= {kg!r}*({om} - {gw!r})**2",
-              f"{indent}elif {om} < {-gw!r}: aw += {kg!r}*({om} + {gw!r})**2"]
+    if vectorised:
+        relu2 = "((e1 + abs(e1))**2 - (e2 + abs(e2))**2)"  # 4 sign(s) relu(|s| - lim)^2
+        lines += [f"{indent}e1 = {vx} - {b!r}*{om} - {g!r}; e2 = -{vx} + {b!r}*{om} - {g!r}",
+                  f"{indent}al = -{kg / 4!r}*{relu2}",
+                  f"{indent}e1 = {vx} + {b!r}*{om} - {g!r}; e2 = -{vx} - {b!r}*{om} - {g!r}",
+                  f"{indent}ar = -{kg / 4!r}*{relu2}",
+                  f"{indent}ax = ax + 0.5*(al + ar)",
+                  f"{indent}aw = aw + (ar - al)*{0.5 / b!r}",
+                  f"{indent}e1 = {om} - {gw!r}; e2 = -{om} - {gw!r}",
+                  f"{indent}aw = aw - {kg / 4!r}*{relu2}"]
+    else:
+        lines += [f"{indent}vt = abs({vx}) + {b!r}*abs({om})",  # the faster track's speed
+                  f"{indent}if vt > {g!r}:",
+                  f"{indent}    vl = {vx} - {b!r}*{om}; vr = {vx} + {b!r}*{om}",
+                  f"{indent}    al = -{kg!r}*(abs(vl) - {g!r})**2 if vl > {g!r} or vl < {-g!r} else 0.0",
+                  f"{indent}    ar = -{kg!r}*(abs(vr) - {g!r})**2 if vr > {g!r} or vr < {-g!r} else 0.0",
+                  f"{indent}    al = al if vl > 0 else -al; ar = ar if vr > 0 else -ar",
+                  f"{indent}    ax += 0.5*(al + ar); aw += (ar - al)*{0.5 / b!r}",
+                  f"{indent}if {om} > {gw!r}: aw -= {kg!r}*({om} - {gw!r})**2",
+                  f"{indent}elif {om} < {-gw!r}: aw += {kg!r}*({om} + {gw!r})**2"]
     name = effect.name if effect is not None else None
     if name == "heading_dependence":
         a_g = params.g_m_s2 * math.sin(math.radians(effect.value))
         pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
-        lines += [f"{indent}ax += {a_g!r}*cos({psi} - {pd!r})",
-                  f"{indent}ay -= {a_g!r}*sin({psi} - {pd!r})"]
+        lines += [f"{indent}ax = ax + {a_g!r}*cos({psi} - {pd!r})",
+                  f"{indent}ay = ay - {a_g!r}*sin({psi} - {pd!r})"]
     elif name == "position_dependence":
         fx = EFFECTS["position_dependence"].fixed
         (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
@@ -204,10 +162,10 @@ def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple
         d_vx, d_om = -dict(params.terms_vx)["vx"], -dict(params.terms_omega)["omega"]
         lines += [f"{indent}s_ = 0.5*(1.0 + tanh(({r!r} - sqrt(({x} - {cx!r})**2 + ({y} - {cy!r})**2"
                   f" + 1e-12))/{half_scale!r}))",
-                  f"{indent}ax -= {effect.value * d_vx!r}*s_*{vx}",
-                  f"{indent}aw -= {effect.value * d_om!r}*s_*{om}"]
+                  f"{indent}ax = ax - {effect.value * d_vx!r}*s_*{vx}",
+                  f"{indent}aw = aw - {effect.value * d_om!r}*s_*{om}"]
     elif name == "lateral_slip":
-        lines.append(f"{indent}ay -= {(effect.value - 1.0) * params.lateral_coupling!r}*{vx}*{om}")
+        lines.append(f"{indent}ay = ay - {(effect.value - 1.0) * params.lateral_coupling!r}*{vx}*{om}")
     return lines
 
 
@@ -241,17 +199,13 @@ def _compile_stepper(params: RobotParams, effect: Effect | None):
 
     ``integrate(k0, k1, state, U, N1, N2, N3, out, h)`` advances ``state`` (6 floats) over the
     steps ``k0..k1-1`` with RK4, the inputs ``U[k - k0]`` and noise ``N*[k]`` held per step,
-    appending the state at each step start to ``out``; ``acc`` evaluates the same code once
-    (for tests). The polynomial is regrouped by state monomial with coefficients recomputed
+    appending the state at each step start to ``out``; ``acc`` is the same code as a function
+    of floats (for tests). The polynomial is regrouped by state monomial with coefficients recomputed
     only when the motor input changes (it is constant over a joystick message), which makes a
     stage about three times cheaper than the expanded form.
     """
     coef, coef_lines = _collect_by_state(params)
-    src = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
-    src += ["    " + ln for ln in coef_lines]
-    src += _acc_lines(params, effect, coef, ("x", "y", "psi", "vx", "vy", "om"), "    ")
-    src += ["    return ax, ay, aw", "",
-            "def integrate(k0, k1, state, U, N1, N2, N3, out, h):",
+    src = ["def integrate(k0, k1, state, U, N1, N2, N3, out, h):",
             "    x, y, psi, vx, vy, om = state",
             "    h2 = 0.5*h; h6 = h/6.0; u1p = u2p = None",
             "    for k in range(k0, k1):",
@@ -278,7 +232,21 @@ def _compile_stepper(params: RobotParams, effect: Effect | None):
     src.append("    return x, y, psi, vx, vy, om")
     namespace = {"cos": math.cos, "sin": math.sin, "tanh": math.tanh, "sqrt": math.sqrt}
     exec("\n".join(src), namespace)  # noqa: S102 - source generated from the numeric term table
-    return namespace["integrate"], namespace["acc"]
+    return namespace["integrate"], _compile_acc(params, effect, vectorised=False)
+
+
+def _compile_acc(params: RobotParams, effect: Effect | None, vectorised: bool):
+    """Return ``acc(x, y, psi, vx, vy, om, u1, u2) -> (ax, ay, aw)`` generated from the term
+    table: on numpy arrays (``vectorised``, for :meth:`TrueDynamics.f`) or on floats."""
+    coef, coef_lines = _collect_by_state(params)
+    src = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
+    src += ["    " + ln for ln in coef_lines]
+    src += _acc_lines(params, effect, coef, ("x", "y", "psi", "vx", "vy", "om"), "    ", vectorised)
+    src.append("    return ax, ay, aw")
+    lib = np if vectorised else math
+    namespace = {"cos": lib.cos, "sin": lib.sin, "tanh": lib.tanh, "sqrt": lib.sqrt}
+    exec("\n".join(src), namespace)  # noqa: S102 - source generated from the numeric term table
+    return namespace["acc"]
 
 
 class TrueDynamics:
@@ -295,8 +263,7 @@ class TrueDynamics:
     def __init__(self, params: RobotParams | None = None, effect: Effect | None = None):
         self.params = params or RobotParams()
         self.effect = effect
-        self._acc_float = _compile_acc(self.params, effect, math)
-        self._acc_np = _compile_acc(self.params, effect, np)
+        self._acc_np = _compile_acc(self.params, effect, vectorised=True)
         terms = self.params.terms()
         self._eqs = [[(c, np.array(exponents_from_name(n))) for n, c in terms[k].items()]
                      for k in ("vx", "vy", "omega")]
