@@ -68,7 +68,7 @@ def fit_reference_model(seed: int = 12345, n_runs: int = 6, run_s: float = 60.0)
     return fit_sindy(train, "poly3", tau=2.0, alpha=1.0, threshold=0.2, names=a)
 
 
-def fit_reference_with_lateral_law(seed: int = 12345, n_runs: int = 6, run_s: float = 60.0):
+def fit_reference_with_lateral_law(seed: int = 12345, n_runs: int = 6, run_s: float = 60.0, rate_hz: float = 50.0):
     """Return the reference model with a lateral law: identified, then extended by ``lateral_slip``.
 
     Integral SINDy cannot separate the lateral damping from the coupling (vy settles within
@@ -80,7 +80,8 @@ def fit_reference_with_lateral_law(seed: int = 12345, n_runs: int = 6, run_s: fl
     from sindy_ekf.diagnose.extend import reidentify
     from sindy_ekf.diagnose.families import equation_weights
 
-    train, _, names, _ = simulate_states_campaign(seed, None, n_train=n_runs, n_test=0, run_s=run_s)
+    train, _, names, _ = simulate_states_campaign(seed, None, n_train=n_runs, n_test=0, run_s=run_s,
+                                                  rate_hz=rate_hz)
     from identification.sindy import fit_sindy
 
     model = fit_sindy(train, "poly3", tau=2.0, alpha=1.0, threshold=0.2, names=names)

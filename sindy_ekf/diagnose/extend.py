@@ -257,7 +257,7 @@ class OutageResult:
 
 
 def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[BodyStates],
-                  outage_s: float = 10.0, lead_s: float = 20.0, profile: str = "rtk", seed: int = 0,
+                  outage_s: float = 10.0, lead_s: float = 10.0, profile: str = "rtk", seed: int = 0,
                   max_outages: int = 12) -> OutageResult:
     """Return each model's EKF position error at the end of ``outage_s`` GNSS outages on the test runs.
 

@@ -1,0 +1,66 @@
+"""``sindy-ekf diagnose CAMPAIGN --model MODEL.json``: what the model gets wrong, its cause, the gain of the fix."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(sub, common) -> argparse.ArgumentParser:
+    """Register the ``diagnose`` subcommand; return its parser."""
+    p = sub.add_parser("diagnose", parents=[common], help="what the model gets wrong, its cause and the gain of a fix",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("campaign", type=Path, help="trajectory or tracker campaign (train runs fit, test runs score)")
+    p.add_argument("--model", type=Path, required=True, metavar="MODEL.json", help="model file of identify")
+    p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
+    p.add_argument("--plots", type=Path, default=None, metavar="DIR",
+                   help="write residual structure, lag, family profiles and error curves into DIR")
+    p.add_argument("--no-ekf", action="store_true", help="skip the EKF dead-reckoning through 10 s GNSS outages")
+    p.add_argument("--extended-model", type=Path, default=None, metavar="PATH",
+                   help="write the extended model (JSON) when a cause is found")
+    return p
+
+
+def run(args) -> int:
+    """Diagnose, print the ranking and the gain, write JSON, plots and the extended model on request."""
+    from sindy_ekf.diagnose import diagnose_campaign
+    from sindy_ekf.diagnose.residuals import top_structure
+    from sindy_ekf.io_utils import atomic_write_json
+
+    d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf)
+    print(f"diagnosis of {args.model.name} on {args.campaign}: most likely cause: {d.verdict}")
+    print(f"{'family':20} {'test gain %':>11} {'threshold %':>11}  estimate")
+    for c in d.ranked:
+        est = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.score.estimate.items())
+        flag = "*" if c.significant else " "
+        print(f"{c.name:20} {100 * c.gain:11.2f} {100 * c.threshold:11.2f} {flag} {est}")
+    b, a = d.before, d.after
+    print(f"5 s error on the test runs ({b['n_windows']} windows): position {100 * b['pos_err_5s_m']:.2f} -> "
+          f"{100 * a['pos_err_5s_m']:.2f} cm, heading {b['yaw_err_5s_deg']:.2f} -> {a['yaw_err_5s_deg']:.2f} deg")
+    if d.outage:
+        print(f"EKF after {d.outage['outage_s']:g} s GNSS outages (RMS of {d.outage['n']}): "
+              f"{d.outage['before_m']:.3f} -> {d.outage['after_m']:.3f} m")
+    print("strongest residual structure: " + "; ".join(f"{eq} vs {r} eta2={e:.2f}" for eq, r, e, _ in
+                                                       top_structure(d.structure, 3)))
+    if args.plots:
+        from identification.evaluate import plot_error_curves
+        from sindy_ekf.diagnose.residuals import plot_family_profiles, plot_lag_profile, plot_residual_structure
+
+        args.plots.mkdir(parents=True, exist_ok=True)
+        plot_residual_structure(d.structure, args.plots / "residual_structure.png")
+        plot_residual_structure(d.multistep_structure, args.plots / "multistep_structure.png",
+                                title="5 s multi-step errors (along, cross, heading) against window regressors")
+        delay = next((c.score.theta[0] for c in d.ranked if c.name == "input_delay"), None)
+        plot_lag_profile(d.lag, args.plots / "lag_profile.png", delay)
+        plot_family_profiles([c.score for c in d.ranked], args.plots / "family_profiles.png")
+        ev = [d.evaluations["before"]]
+        if d.extended is not None:
+            ev.append(d.evaluations["after"])
+        for e, nm in zip(ev, ("model", f"extended ({d.verdict})")):
+            e.name = nm if hasattr(e, "name") else None
+        plot_error_curves(ev, path=args.plots / "before_after.png", stacked=False)
+    if args.extended_model and d.extended is not None:
+        d.extended.to_json(args.extended_model)
+    if args.json:
+        atomic_write_json(args.json, d.to_json_dict())
+    return 0
