@@ -444,10 +444,21 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
     duration_s
         Run length, s.
     rng
-        Seeded generator; same seed, same run.
+        Seeded generator; same seed, same run (driver, joystick clock, noise and start pose
+        draw from independent children of it).
+    params, effect
+        Robot parameters (default :class:`RobotParams`) and at most one effect.
+    dt
+        Integration and output step, s (the motor controller's update period).
     start_pose
         ``(x, y, psi)`` in the local frame; default: near the area centre, heading along the
         line between the trackers (either way) with some scatter.
+
+    Returns
+    -------
+    TrueRun
+        States on the grid ``t = k dt``; the pose follows eq. 5.75, the pitch
+        :func:`pitch_from_accel` (plus the floor's tilt with ``heading_dependence``).
     """
     if not (np.isfinite(duration_s) and duration_s > 0):
         raise InputError(f"simulate_run: duration_s={duration_s!r} must be a positive number of seconds")
