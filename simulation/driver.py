@@ -9,9 +9,11 @@ that with two layers:
 - a *manoeuvre generator* picking, from a seeded rng, segments of 0.5 to 6 s: ``hold`` (a step to
   a held command), ``sweep`` (a linear ramp to a new command), ``slalom`` (sinusoidal steering at a
   fixed throttle), ``turn`` (turn in place), ``reverse`` and ``stop``;
-- a *supervisor* overriding it when a 1 s look-ahead of the pose leaves the soft area or the
-  heading approaches its limit: it turns in place towards the centre (or away from the heading
-  limit) and drives back forwards or backwards, whichever keeps the heading within limits.
+- a *supervisor* overriding it when a 0.5 s look-ahead of the pose (plus any input latency the
+  driver is used to) leaves the soft area, or the heading approaches its limit: it steers back
+  towards the centre while driving forwards or backwards, whichever keeps the heading within
+  limits, or turns in place back towards the start heading. Each episode draws its own gain
+  and speed, as a human never corrects twice the same way.
 
 The output passes a *thumb filter*: when an axis changes sign, the thumb rests in neutral
 (|u| < 0.15) for 0.2 to 0.4 s first, as a human releasing the stick does. Thesis model B (eqs.
