@@ -153,10 +153,11 @@ def plot_baseline_vs_speed(synced: SyncedRun, path=None):
     """Return the baseline variation against the forward speed before and after the correction:
     the correlation that reveals the timing error (thesis 5.2.2, Pearson r about 0.9)."""
     fig, (ax,) = _figure(1, 4.0)
-    for base, label, r in ((synced.baseline_before_m, "before", synced.r_speed_before),
-                           (synced.baseline_after_m, "after", synced.r_speed_after)):
+    after = "after correction" + (" (r with the hub terms removed)" if synced.offset.hub_terms else "")
+    for base, label, r in ((synced.baseline_before_m, "before correction", synced.r_speed_before),
+                           (synced.baseline_after_m, after, synced.r_speed_after)):
         ax.plot(synced.v_forward, (base - np.nanmean(base)) * 1e3, ".", ms=1.5, alpha=0.5,
-                label=f"{label} correction: r = {r:.2f}")
+                label=f"{label}: r = {r:.2f}")
     ax.set_xlabel("forward speed [m/s]")
     ax.set_ylabel("baseline length - mean [mm]")
     ax.set_title(f"run {synced.name}: baseline variation vs forward speed")
