@@ -96,7 +96,8 @@ def _cache_dir(root: Path) -> Path:
     return Path.home() / ".cache" / "sindy-ekf" / digest / "preprocessed"
 
 
-def preprocessed_dir(path: str | Path, smoothing: float | None = None, jobs: int | None = None) -> Path:
+def preprocessed_dir(path: str | Path, smoothing: float | None = None,
+                     jobs: int | None = None) -> Path:
     """Return the folder of the trajectory campaign preprocessed from a tracker campaign,
     preprocessing it first (runs in ``jobs`` processes, default up to 2) unless a valid cached
     one exists."""

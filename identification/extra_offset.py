@@ -11,6 +11,7 @@ and the turning-hub design of eq. 5.25 used to estimate the offset jointly with 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -42,7 +43,7 @@ class OffsetEstimate:
 
 
 def track_interpolator(s_samples: np.ndarray, xyz: np.ndarray, max_gap_s: float = MAX_INTERP_GAP_S,
-                       method: str = "cubic"):
+                       method: str = "cubic") -> Callable[[np.ndarray], np.ndarray]:
     """Return ``f(s_query) -> (..., 3)`` interpolating a tracker's positions, NaN across gaps.
 
     The thesis (5.2.2) interpolated linearly. Its error is ``a * t1 * t2 / 2`` for an
