@@ -215,7 +215,7 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
     v_fwd = forward_speed(s, p_front, p_rear)
     # after the correction, what is left of the baseline once the hub terms are explained
     r0, r1 = timing_error_correlation(base_0, v_fwd), timing_error_correlation(
-        _without_hub_terms(base_1, A_hub) if A_hub is not None else base_1, v_fwd)
+        _without_hub_terms(base_1, A_hub) if offset.hub_terms else base_1, v_fwd)
     log.info("run %s: baseline vs forward speed r = %.2f before, %.2f after the %s offset of "
              "%.4f ms", raw.name, r0, r1, late, offset.dt * 1e3)
     clock[late] = _with_offset(clock[late], offset.dt)

@@ -193,3 +193,10 @@ def test_spurious_pulse_next_to_a_lost_one_is_matched_but_not_fitted():
     c = r.clock["ltd800"]
     assert r.counts["ltd800"].matched == t.size and c.n_fit == t.size - 1
     assert abs(c.drift_ppm - truth["drift_ltd_ppm"]) < 0.05 and c.residual_std < 1e-6
+
+
+def test_run_without_hub_azimuths_uses_the_thesis_estimate():
+    raw, truth = synth_run(seed=10, minutes=0.5)
+    r = sync.sync_run(replace(raw, t_hub_utc=np.empty(0), hub_azimuth=np.empty((0, 2))), R_LT, T_LT)
+    assert not r.offset.hub_terms and r.offset.dt == r.offset.dt_without_hub
+    assert abs(r.offset.dt - truth["mean_duty_s"]) < 20e-6 and abs(r.r_speed_after) < 0.3
