@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from identification.evaluate import errors_from_rollout, make_windows, rollout
 from identification.library import FeatureLibrary, make_library
@@ -178,14 +179,23 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     if not np.isfinite(table["pos_err_5s_m"][0]):
         raise InputError(f"hyperparameter search: no grid point gave a finite prediction error on runs {', '.join(names)}")
     cache: dict = {}
-    top = [refit(states_by_s, names, {k: table[k][i] for k in ("s", "tau", "alpha", "T", "library")}, cache)
-           for i in range(min(n_top, len(order)))]
+    with threadpool_limits(limits=1, user_api="blas"):
+        top = [refit(states_by_s, names, {k: table[k][i] for k in ("s", "tau", "alpha", "T", "library")}, cache)
+               for i in range(min(n_top, len(order)))]
     folds = [[names[i] for i in np.flatnonzero(fold == f)] for f in range(n_folds)]
     return SearchResult(table=table, model=top[0], top_models=top, folds=folds)
 
 
 def _score_combo(job) -> dict[str, np.ndarray]:
     """Return the scores of all ``(alpha, T)`` of one ``(s, tau, library)``, cross-validated by run."""
+    # The matrices here are small (k x k, or windows x k): multi-threaded BLAS only adds
+    # contention, six times slower on a loaded 2-core machine (measured); parallelism is per process.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _score_combo_serial(job)
+
+
+def _score_combo_serial(job) -> dict[str, np.ndarray]:
+    """Return the scores of all ``(alpha, T)`` of one ``(s, tau, library)`` (see :func:`_score_combo`)."""
     states, names, fold, s_val, tau, lib_name, grid = job
     library = make_library(lib_name)
     problem = integral_problem(states, library, tau, names)

@@ -27,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
+from threadpoolctl import threadpool_limits
 
 from identification.library import INPUT_NAMES, STATE_NAMES, FeatureLibrary, make_library
 from identification.model import SindyModel, envelope_from_data
@@ -149,7 +150,8 @@ def integral_problem(states: Sequence[BodyStates], library: FeatureLibrary | str
         runs.append(np.full(len(ok), i))
         t0s.append(st.t[ok])
         if len(ok):
-            q, r = np.linalg.qr(th, mode="reduced")
+            with threadpool_limits(limits=1, user_api="blas"):  # tall-skinny QR: threads only contend
+                q, r = np.linalg.qr(th, mode="reduced")
             rs.append(r)
             cs.append(q.T @ dx)
         else:
