@@ -1,0 +1,78 @@
+"""Every example's ``main()`` runs (so the examples cannot rot), and what it prints as its finding holds.
+
+Parametrised over the ``examples/*.py`` that exist (helpers starting with ``_`` excluded). An
+example whose own test file runs it (``tests/test_<name>.py``) is left to that file. The
+findings are checked against something independent of the code under test: the baselines the
+thesis compares with, and the simulator's true dynamics.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+TESTS = Path(__file__).resolve().parent
+
+
+def example_files() -> list[Path]:
+    """Return the example scripts (not the ``_`` helpers)."""
+    return sorted(p for p in EXAMPLES.glob("*.py") if not p.name.startswith("_"))
+
+
+def load(path: Path):
+    """Import an example as a module, with ``examples/`` importable for its helpers."""
+    if str(EXAMPLES) not in sys.path:
+        sys.path.insert(0, str(EXAMPLES))
+    spec = importlib.util.spec_from_file_location(f"example_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def check_identify_your_campaign(result: dict) -> None:
+    e = {k: v["pos_err_5s_m"] for k, v in result["errors"].items()}
+    # the identified model predicts better than both baselines of the thesis (5.3.8)
+    assert e["sindy"] < 0.5 * e["unicycle"] < 0.5 * e["constant_velocity"], e
+    assert result["errors"]["sindy"]["n_windows"] >= 10
+    assert result["model"].complexity >= 2
+
+
+def check_dead_reckoning_through_outage(result: dict) -> None:
+    rms = {k: float(np.sqrt(np.mean(v ** 2))) for k, v in result["errors_m"].items()}
+    assert result["n_outages"] >= 2
+    # the identified model dead-reckons like the simulator's own dynamics, far better than the baselines
+    assert rms["sindy"] < 0.5 * rms["unicycle"] and rms["sindy"] < 0.5 * rms["constant_velocity"], rms
+    assert rms["sindy"] < 3.0 * rms["true_dynamics"] + 0.05, rms
+
+
+def check_benchmark_estimators(result: dict) -> None:
+    s = {k: v["ate_pos_m"] for k, v in result["estimators"].items()}
+    assert set(s) >= {"dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "sindy_graph"}
+    assert s["sindy_ekf"] < s["unicycle_ekf"] < s["cv_ekf"], s
+    # the smoother uses the fixes after each outage too: no worse than the filter
+    assert s["sindy_graph"] <= 1.1 * s["sindy_ekf"], s
+    assert all(np.isfinite(v["runtime_s"]) for v in result["estimators"].values())
+
+
+CHECKS = {"identify_your_campaign": check_identify_your_campaign,
+          "dead_reckoning_through_outage": check_dead_reckoning_through_outage,
+          "benchmark_estimators": check_benchmark_estimators}
+
+
+@pytest.mark.parametrize("path", example_files(), ids=lambda p: p.stem)
+def test_example_runs_and_its_finding_holds(path, capsys):
+    if (TESTS / f"test_{path.stem}.py").is_file():
+        pytest.skip(f"run by tests/test_{path.stem}.py")
+    module = load(path)
+    assert (module.__doc__ or "").strip(), f"{path.name}: no docstring stating the problem and the model"
+    assert "Problem" in module.__doc__ and "Model" in module.__doc__, path.name
+    result = module.main()
+    printed = capsys.readouterr().out
+    assert printed.strip(), f"{path.name}: main() printed nothing"
+    if path.stem in CHECKS:
+        CHECKS[path.stem](result)
