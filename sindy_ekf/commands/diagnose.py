@@ -37,11 +37,15 @@ def run(args) -> int:
     b, a = d.before, d.after
     print(f"5 s error on the test runs ({b['n_windows']} windows): position {100 * b['pos_err_5s_m']:.2f} -> "
           f"{100 * a['pos_err_5s_m']:.2f} cm, heading {b['yaw_err_5s_deg']:.2f} -> {a['yaw_err_5s_deg']:.2f} deg")
-    if d.outage:
+    if d.outage.get("n"):
         print(f"EKF after {d.outage['outage_s']:g} s GNSS outages (RMS of {d.outage['n']}): "
               f"{d.outage['before_m']:.3f} -> {d.outage['after_m']:.3f} m")
     print("strongest residual structure: " + "; ".join(f"{eq} vs {r} eta2={e:.2f}" for eq, r, e, _ in
                                                        top_structure(d.structure, 3)))
+    for f in d.measurement:
+        g = f.gain["baseline_rms_m"]
+        print(f"measurement: {f.name}: {f.cause}; correction: {f.correction}; baseline RMS "
+              f"{1e6 * g['before']:.0f} -> {1e6 * g['after']:.0f} um ({f.runs} runs)")
     if args.plots:
         from identification.evaluate import plot_error_curves
         from sindy_ekf.diagnose.residuals import plot_family_profiles, plot_lag_profile, plot_residual_structure
@@ -53,11 +57,11 @@ def run(args) -> int:
         delay = next((c.score.theta[0] for c in d.ranked if c.name == "input_delay"), None)
         plot_lag_profile(d.lag, args.plots / "lag_profile.png", delay)
         plot_family_profiles([c.score for c in d.ranked], args.plots / "family_profiles.png")
-        ev = [d.evaluations["before"]]
+        from dataclasses import replace
+
+        ev = [replace(d.evaluations["before"], name="model")]
         if d.extended is not None:
-            ev.append(d.evaluations["after"])
-        for e, nm in zip(ev, ("model", f"extended ({d.verdict})")):
-            e.name = nm if hasattr(e, "name") else None
+            ev.append(replace(d.evaluations["after"], name=f"extended ({d.verdict})"))
         plot_error_curves(ev, path=args.plots / "before_after.png", stacked=False)
     if args.extended_model and d.extended is not None:
         d.extended.to_json(args.extended_model)

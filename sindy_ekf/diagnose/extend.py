@@ -253,7 +253,7 @@ class OutageResult:
 
     def rms(self) -> dict[str, float]:
         """Return the RMS error over outages per model, m."""
-        return {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in self.errors_m.items()}
+        return {k: float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan") for k, v in self.errors_m.items()}
 
 
 def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[BodyStates],

@@ -50,6 +50,7 @@ class Diagnosis:
     multistep_structure: dict = field(default_factory=dict)  # 5 s errors: {error: {regressor: BinnedEffect}}
     lag: dict = field(default_factory=dict)  # residual-input lag correlation (residuals.lag_profile)
     evaluations: dict = field(default_factory=dict)  # "before"/"after" EvaluationResult (plots)
+    measurement: list = field(default_factory=list)  # measurement.Finding of the preprocessing
 
     def to_json_dict(self) -> dict:
         """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
@@ -61,7 +62,7 @@ class Diagnosis:
                 entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": self.after["pos_err_5s_m"]}
                 entry["yaw_err_5s_deg"] = {"before": self.before["yaw_err_5s_deg"],
                                            "after": self.after["yaw_err_5s_deg"]}
-                if self.outage:
+                if self.outage.get("n"):
                     entry["outage_pos_err_m"] = {"before": self.outage["before_m"], "after": self.outage["after_m"],
                                                  "outage_s": self.outage["outage_s"], "n": self.outage["n"]}
             causes.append(entry)
@@ -81,6 +82,7 @@ class Diagnosis:
                 "scores": {c.name: c.score.to_dict() for c in self.ranked},
                 "thresholds": {c.name: c.threshold for c in self.ranked},
                 "threshold_provenance": THRESHOLD_PROVENANCE,
+                "measurement": [f.to_dict() for f in self.measurement],
                 "n_test_windows_5s": self.before.get("n_windows"), "seconds": self.seconds}
 
 
@@ -243,8 +245,11 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         t0 = time.perf_counter()
         res = outage_errors({"before": model, "after": extended}, train, test)
         rms = res.rms()
-        outage = {"outage_s": res.outage_s, "before_m": rms["before"], "after_m": rms["after"],
-                  "n": int(len(res.errors_m["before"]))}
+        if len(res.errors_m["before"]):
+            outage = {"outage_s": res.outage_s, "before_m": rms["before"], "after_m": rms["after"],
+                      "n": int(len(res.errors_m["before"]))}
+        else:
+            log.info("test runs too short for a %g s GNSS outage after %g s of GNSS", res.outage_s, 10.0)
         seconds["ekf"] = time.perf_counter() - t0
     return Diagnosis(name, ranked, before, after, extended, outage, seconds, structure, ms_structure, lag,
                      {"before": res_before, "after": res_after})
@@ -270,4 +275,8 @@ def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence
         raise InputError(f"{campaign}: campaign.yaml marks no run as train, nothing to fit a mechanism on")
     train, train_names, _ = states_of_runs(train_runs, s)
     test, test_names, _ = states_of_runs(test_runs, s)
-    return diagnose_states(model, train, test, train_names, test_names, families=families, ekf=ekf)
+    d = diagnose_states(model, train, test, train_names, test_names, families=families, ekf=ekf)
+    from sindy_ekf.diagnose.measurement import measurement_findings
+
+    d.measurement = measurement_findings(camp.root)
+    return d
