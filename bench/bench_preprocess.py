@@ -77,6 +77,14 @@ def score(result, truth) -> dict:
                              truth.hubs["rear"]["radius_eq525_m"] * 1e3)}
 
 
+def _cpu_s() -> float:
+    """Return the CPU seconds (user + system) of this process and its finished children."""
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=None, help="driving minutes (default 45.4)")
@@ -96,9 +104,11 @@ def main() -> int:
     out = work / f"preprocessed_{tag}_seed{args.seed}"
     shutil.rmtree(out, ignore_errors=True)
     load = os.getloadavg()
+    cpu0 = _cpu_s()
     tic = time.perf_counter()
     result = preprocess_campaign(camp, out, jobs=args.jobs)
     wall = time.perf_counter() - tic
+    cpu = _cpu_s() - cpu0
     print(f"preprocessed in {wall:.1f} s", flush=True)
     sc = score(result, read_truth(camp))
     n_poses = sum(r.poses.t.size for r in result.runs.values())
@@ -113,7 +123,9 @@ def main() -> int:
         f"{len(result.skipped)} runs skipped).", "",
         f"**Wall time: {wall:.1f} s** with `jobs={args.jobs}` on 2 cores (target: at most 60 s for "
         f"the full default campaign); load average {load[0]:.1f} before and "
-        f"{os.getloadavg()[0]:.1f} after (the machine is shared).", "",
+        f"{os.getloadavg()[0]:.1f} after (the machine is shared by other jobs). CPU time "
+        f"{cpu:.1f} s in all (this process and its workers), i.e. about {cpu / 2:.1f} s of wall "
+        "time on 2 otherwise idle cores.", "",
         "| stage | seconds |", "|---|---:|",
         *[f"| {k} | {v:.2f} |" for k, v in sec.items()],
         "", "Stages `read` to `plots` are summed over runs (CPU time across the workers); "
