@@ -67,7 +67,10 @@ def test_hidden_effect_is_found_estimated_and_fixed(reference_model, index, fami
     est = d.ranked[0].score.estimate[key]
     assert abs(est - truth) <= 0.25 * abs(truth), f"{key} = {est:.4g}, truth {truth:.4g} {why}"
     assert d.after["pos_err_5s_m"] < d.before["pos_err_5s_m"], f"5 s error {d.before} -> {d.after} {why}"
-    if family == "heading_dependence":
+    if family == "heading_dependence":  # the residual structure shows it too: vx residual vs heading
+        be = d.structure["vx"]["heading"]
+        assert be.eta2 > 0.3 and be.p_value < 1e-3, f"vx residual vs heading eta2 {be.eta2:.2f} {why}"
+        assert be.eta2 == max(x.eta2 for x in d.structure["vx"].values()), why
         psi_down = EFFECTS[family].fixed["psi_down_rad"]
         err = abs(np.angle(np.exp(1j * (d.ranked[0].score.estimate["psi_down_rad"] - psi_down))))
         assert err < 0.2, f"downhill azimuth off by {err:.3f} rad {why}"
@@ -187,3 +190,23 @@ def test_example_runs_and_finds_its_effect():
     out = mod.main(seed=4, family="deadband")
     assert out["verdict"] == out["hidden"]
     assert out["after"]["pos_err_5s_m"] < out["before"]["pos_err_5s_m"]
+
+
+def test_measurement_findings_in_cause_correction_gain_language():
+    """Preprocessing numbers (preprocess --json) come back as findings; a broken report is named."""
+    from sindy_ekf.diagnose.measurement import findings_from_report
+
+    run = {"at960_extra_offset_s": 0.0013, "at960_extra_offset_std_s": 3e-7, "extra_offset_tracker": "at960",
+           "baseline_rms_m": {"before": 5e-4, "after": 1.2e-4},
+           "timing_error": {"r_baseline_speed_before": -0.96, "r_baseline_speed_after": 0.01},
+           "hub": {"r1": 2.1e-4, "r2": 1.2e-4, "r1_std": 8e-6, "r2_std": 1e-5, "phi1_rad": -0.8, "phi2_rad": -1.1,
+                   "rms_before_m": 1.2e-4, "rms_after_m": 2e-5}}
+    other = {**run, "at960_extra_offset_s": 0.0015}
+    found = {f.name: f for f in findings_from_report({"runs": {"a": run, "b": other}, "hub_correction": True})}
+    assert set(found) == {"timing_offset", "hub_eccentricity"}
+    assert found["timing_offset"].estimate["extra_offset_s"] == pytest.approx(0.0014)  # median of the runs
+    assert found["timing_offset"].gain["baseline_rms_m"] == {"before": 5e-4, "after": 1.2e-4}
+    assert "-0.96" in found["timing_offset"].cause
+    assert found["hub_eccentricity"].gain["baseline_rms_m"]["after"] == 2e-5
+    with pytest.raises(InputError, match="p.json: key runs is missing"):
+        findings_from_report({"transform": {}}, "p.json")

@@ -129,7 +129,6 @@ class ExtendedModel:
         """
         if self.family != "lateral_slip":
             raise InputError(f"extended model {self.family!r}: not expressible in the SINDy library")
-        from sindy_ekf.diagnose.families import model_coefficient  # noqa: F401 - same term matching
         from identification.library import parse_term
 
         coef = self.base.coef.copy()

@@ -108,7 +108,6 @@ class Family:
     kind: str  # "input" or "additive"
     theta_names: tuple[str, ...] = ()
     column_names: tuple[str, ...] = ()
-    null_theta: tuple[float, ...] = ()
     bounds: tuple[tuple[float, float], ...] = ()
     doc: str = ""
     extra: dict = field(default_factory=dict)
@@ -229,16 +228,17 @@ def model_coefficient(model, equation: str, term: str) -> float:
 
 
 FAMILY_SPECS: dict[str, Family] = {
-    "input_delay": Family("input_delay", "input", ("delay_s",), null_theta=(0.0,), bounds=((0.0, 0.6),),
+    "input_delay": Family("input_delay", "input", ("delay_s",), bounds=((0.0, 0.6),),
                           doc="the motors see the inputs late", extra={"step": 0.04}),
-    "deadband": Family("deadband", "input", ("threshold",), null_theta=(0.0,), bounds=((0.0, 0.45),),
+    "deadband": Family("deadband", "input", ("threshold",), bounds=((0.0, 0.45),),
                        doc="small inputs do not move the motors", extra={"step": 0.03}),
-    "time_dependence": Family("time_dependence", "input", ("decay_per_10min",), null_theta=(0.0,),
+    "time_dependence": Family("time_dependence", "input", ("decay_per_10min",),
                               bounds=((-1.0, 1.5),), doc="input gain drifts with time since the run start",
                               extra={"step": 0.1}),
-    "asymmetry": Family("asymmetry", "input", ("imbalance",), null_theta=(0.0,), bounds=((-0.6, 0.6),),
+    "asymmetry": Family("asymmetry", "input", ("imbalance",), bounds=((-0.6, 0.6),),
                         doc="left and right tracks respond unequally", extra={"step": 0.05}),
-    "heading_dependence": Family("heading_dependence", "additive", column_names=("A_x_m_s2", "B_x_m_s2", "A_y_m_s2", "B_y_m_s2"),
+    "heading_dependence": Family("heading_dependence", "additive",
+                                 column_names=("A_x_m_s2", "B_x_m_s2", "A_y_m_s2", "B_y_m_s2"),
                                  doc="gravity on a tilted floor depends on the heading"),
     "position_dependence": Family("position_dependence", "additive", ("cx_m", "cy_m", "radius_m"),
                                   column_names=("patch_vx", "patch_omega"),
@@ -491,6 +491,7 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
             b_r = solve_design(normal_equations(yr, Xr, weights, train.window_run, len(train.names)), keep)[0][0]
             loo.append(family.estimate(np.atleast_1d(th_r), b_r, model))
         std = _jackknife(loo)
+    log.debug("%s: theta %s, beta %s, test gain %.4f, estimate %s", family.name, theta, beta, gain, estimate)
     profile = {}
     if grid.shape[1] == 1:
         profile = {"theta": grid[:, 0].tolist(), "train_sse": sse_grid.tolist()}
