@@ -30,6 +30,7 @@ GAP_THRESHOLD_S = 0.035  # thesis 5.2.2: separates the skipped pulse (40 ms) fro
 XCORR_RATE_HZ = 1000.0  # thesis eq. 5.8
 GAP_MATCH_TOL_S = 0.004  # thesis 5.2.2
 MIN_CLOCK_GAPS = 3
+MAX_GAP_FACTOR = 3.5  # steps longer than this many periods are dropouts, not skipped pulses
 OUTLIER_SIGMAS = 6.0  # matched samples further off the clock model (robust sigmas) are not fitted
 AMBIGUOUS_RATIO = 0.9  # a second xcorr peak this high: the periodic gaps leave the shift open
 RECEIVE_WINDOW_S = 1.0  # half the 3 s gap period: bag receive times pick the peak within this
@@ -87,14 +88,15 @@ def _gap_grid(t: np.ndarray, rate_hz: float) -> np.ndarray:
     """Return the gap signal resampled at ``rate_hz`` from the first stamp (thesis: np.interp).
 
     The median (the nominal period) is removed so that the correlation is made by the gaps, not
-    by the overlap length, and dropouts are clipped to twice a gap so one long silence cannot
-    outweigh many gaps.
+    by the overlap length. Steps longer than ``MAX_GAP_FACTOR`` periods (a dropout: the prism
+    was lost) are set to the median: they carry no alignment, and left in, a 2 s silence
+    correlates with every trigger gap it covers more strongly than a true gap with its match.
     """
     t_i, dt = gap_signal(t)
+    period = np.median(dt)
+    dt = np.where(dt > MAX_GAP_FACTOR * period, period, dt)
     grid = np.arange(0.0, t_i[-1] - t_i[0], 1.0 / rate_hz) + t_i[0]
-    f = np.interp(grid, t_i, dt)
-    f -= np.median(dt)
-    return np.clip(f, -GAP_THRESHOLD_S, 2 * GAP_THRESHOLD_S)
+    return np.interp(grid, t_i, dt) - period
 
 
 def xcorr_gap_signals(s_trigger: np.ndarray, s_tracker: np.ndarray,

@@ -200,3 +200,17 @@ def test_run_without_hub_azimuths_uses_the_thesis_estimate():
     r = sync.sync_run(replace(raw, t_hub_utc=np.empty(0), hub_azimuth=np.empty((0, 2))), R_LT, T_LT)
     assert not r.offset.hub_terms and r.offset.dt == r.offset.dt_without_hub
     assert abs(r.offset.dt - truth["mean_duty_s"]) < 20e-6 and abs(r.r_speed_after) < 0.3
+
+
+def test_dropout_does_not_pull_the_coarse_alignment():
+    """A 2 s dropout in a 15 s run: clipped into the gap signal it out-correlated the gaps."""
+    raw, truth = synth_run(seed=12, minutes=0.25)
+    ps = raw.ltd800
+    s = ps.t_tracker - ps.t_tracker[0]
+    keep = (s < 2.9) | (s > 5.1)
+    run = replace(raw, ltd800=PointSeries(ps.t_tracker[keep], ps.xyz[keep]),
+                  t_receive_utc={**raw.t_receive_utc, "ltd800": raw.t_receive_utc["ltd800"][keep]})
+    r = sync.sync_run(run, R_LT, T_LT)
+    assert abs(r.clock["ltd800"].tau) < 2e-3  # both clocks start with the run here
+    assert abs(r.clock["ltd800"].drift_ppm - truth["drift_ltd_ppm"]) < 0.05
+    assert r.counts["ltd800"].out_of_view >= 100
