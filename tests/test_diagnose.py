@@ -96,6 +96,8 @@ def test_effect_free_campaign_says_none(reference_model):
     out = d.to_json_dict()
     assert out["causes"][0]["name"] == "none"
     assert out["causes"][0]["pos_err_5s_m"]["before"] == out["causes"][0]["pos_err_5s_m"]["after"]
+    assert all({"name", "estimate", "pos_err_5s_m"} <= set(c) for c in out["causes"])  # INTERFACES.md keys
+    assert [c["name"] for c in out["causes"][1:]] == [c.name for c in d.ranked]
     json.dumps(out)  # JSON-ready
     # without an effect no residual structure stands out strongly against heading or time
     assert max(d.structure["vx"]["heading"].eta2, d.structure["vx"]["t_run"].eta2) < 0.3

@@ -51,6 +51,7 @@ class Diagnosis:
     lag: dict = field(default_factory=dict)  # residual-input lag correlation (residuals.lag_profile)
     evaluations: dict = field(default_factory=dict)  # "before"/"after" EvaluationResult (plots)
     measurement: list = field(default_factory=list)  # measurement.Finding of the preprocessing
+    others: dict = field(default_factory=dict)  # other significant family -> 5 s errors with its mechanism
 
     def to_json_dict(self) -> dict:
         """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
@@ -58,6 +59,12 @@ class Diagnosis:
         for c in self.ranked:
             entry = {"name": c.name, "estimate": c.score.estimate, "estimate_std": c.score.estimate_std,
                      "gain": c.gain, "threshold": c.threshold, "significant": bool(c.significant)}
+            if c.name in self.others:  # another significant family: its mechanism added to the model
+                o = self.others[c.name]
+                entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": o["pos_err_5s_m"]}
+                entry["yaw_err_5s_deg"] = {"before": self.before["yaw_err_5s_deg"], "after": o["yaw_err_5s_deg"]}
+            elif c.name != self.verdict:  # not significant: the model is left as it is
+                entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": self.before["pos_err_5s_m"]}
             if c.name == self.verdict:
                 entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": self.after["pos_err_5s_m"]}
                 entry["yaw_err_5s_deg"] = {"before": self.before["yaw_err_5s_deg"],
@@ -233,6 +240,11 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         extended = choose_extension(model, name, best, tr, weights, train, train_names)
         res_after = multistep(extended, test, test_names)
     before, after = errors_5s(res_before, res_after)
+    others = {}
+    for c in ranked[1:]:
+        if c.significant:  # what each other significant mechanism alone would buy
+            ext = ExtendedModel(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate))
+            others[c.name] = errors_5s(res_before, multistep(ext, test, test_names))[1]
     seconds["multistep"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     structure = residual_structure(model, te)
@@ -252,7 +264,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
             log.info("test runs too short for a %g s GNSS outage after %g s of GNSS", res.outage_s, 10.0)
         seconds["ekf"] = time.perf_counter() - t0
     return Diagnosis(name, ranked, before, after, extended, outage, seconds, structure, ms_structure, lag,
-                     {"before": res_before, "after": res_after})
+                     {"before": res_before, "after": res_after}, others=others)
 
 
 def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:
