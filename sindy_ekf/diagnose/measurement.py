@@ -4,7 +4,7 @@ Preprocessing (``identification.preprocess``) discovers two things in the raw tr
 corrects them; its ``preprocess.json`` records the numbers. This module reads them back and
 reports them in the diagnosis's language:
 
-- **timing offset** (thesis 5.2.2, eqs. 5.22 to 5.24): the distance between the two prisms, a
+- **timing offset** (thesis 5.2.2, eqs. 5.15 to 5.24): the distance between the two prisms, a
   rigid baseline, changes with the driving speed when one tracker's samples are late; the cause
   is an extra offset of that tracker's clock, the correction shifts its samples, the gain is the
   drop of the baseline's RMS variation and of its correlation with the speed;
@@ -82,7 +82,7 @@ def findings_from_report(report: dict, source: str = REPORT_FILE) -> list[Findin
             {"extra_offset_s": _median(offs),
              "extra_offset_std_s": _median([r.get("at960_extra_offset_std_s") for r in runs.values()]),
              "tracker": tracker},
-            f"{tracker} sample times shifted by the estimated offset (eqs. 5.22 to 5.24)",
+            f"{tracker} sample times shifted by the offset that minimises the baseline spread (eqs. 5.15 to 5.24)",
             {"baseline_rms_m": {"before": _median([b.get("before") for b in bl]),
                                 "after": _median([b.get("after") for b in bl])},
              "r_baseline_speed": {"before": r_before, "after": _median([t.get("r_baseline_speed_after") for t in te])}},
