@@ -336,6 +336,17 @@ def normal_equations(y: np.ndarray, X: np.ndarray, weights: np.ndarray, window_r
     return Design(G, b, yy)
 
 
+def design_for(family: Family, model, split: Split, grid: np.ndarray, weights: np.ndarray,
+               base_pred: np.ndarray | None = None) -> Design:
+    """Return the per-run normal equations of all candidates ``grid``, built in memory-bounded chunks."""
+    parts = []
+    per = split.n_windows * 3 * max(family.n_columns, 1)
+    for sl in _chunks(len(grid), per):
+        y, X = residual_and_columns(family, model, split, grid[sl], base_pred)
+        parts.append(normal_equations(y, X, weights, split.window_run, len(split.names)))
+    return Design(*(np.concatenate([getattr(d, k) for d in parts]) for k in ("G", "b", "yy")))
+
+
 def solve_design(d: Design, runs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Return ``beta (C, m)`` and the weighted residual sum of squares ``(C,)`` over ``runs``."""
     sel = slice(None) if runs is None else runs
@@ -454,8 +465,7 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
     weights = equation_weights(model, train) if weights is None else weights
     base_pred = base_pred or {"train": null_prediction(model, train), "test": null_prediction(model, test)}
     grid = family.grid(train)
-    y, X = residual_and_columns(family, model, train, grid, base_pred["train"])
-    design = normal_equations(y, X, weights, train.window_run, len(train.names))
+    design = design_for(family, model, train, grid, weights, base_pred["train"])
     _, sse_grid = solve_design(design)
     theta = _refine(family, model, train, grid, sse_grid, weights, base_pred["train"])
     y, X = residual_and_columns(family, model, train, theta[None], base_pred["train"])
