@@ -310,19 +310,23 @@ def section_estimation(chain: ChainResult) -> Section:
     sec = Section("estimation", "Estimation")
     if _absent_or_failed(sec, chain, ("identification", "estimation")):
         return sec
-    bench = chain.benchmark
-    d = bench.to_json_dict() if hasattr(bench, "to_json_dict") else {}
-    rows = []
-    for name, e in d.get("estimators", {}).items():
-        outs = e.get("outage_pos_err_m", {})
-        rows.append([name, f"{e.get('ate_pos_m', float('nan')):.3f}", f"{e.get('ate_yaw_deg', float('nan')):.2f}",
-                     ", ".join(f"{k} s: {v:.2f}" for k, v in outs.items()), f"{e.get('runtime_s', 0):.1f}"])
-    sec.add(table_html(["estimator", "ATE pos m", "ATE yaw deg", "error at end of outage m", "runtime s"], rows))
-    from sindy_ekf import benchmark
+    from sindy_ekf.benchmark import plot_nees, plot_outage_errors, plot_trajectories
 
-    plots = [(getattr(benchmark, n), n.removeprefix("plot_").replace("_", " ")) for n in dir(benchmark)
-             if n.startswith("plot_") and callable(getattr(benchmark, n))]
-    sec.figures([((lambda f=f: f(bench)), cap) for f, cap in plots])
+    b = chain.benchmark
+    lo, hi = b.nees_bounds_95
+    sec.note(f"GNSS profile {b.profile} on the test runs, outages as scheduled; the laser-tracker poses are the "
+             f"truth (alignment: {b.alignment}). NEES of the pose (3 dof): a consistent filter has mean 3 and "
+             f"95 % of the samples inside [{lo:.2f}, {hi:.2f}].")
+    durations = sorted({k for sc in b.scores.values() for k in sc.outage_pos_err_m}, key=float)
+    rows = [[n, f"{sc.ate_pos_m:.3f}", f"{sc.ate_yaw_deg:.2f}",
+             *[f"{sc.outage_pos_err_m[d]:.3f}" if d in sc.outage_pos_err_m else "-" for d in durations],
+             f"{sc.nees_mean:.2f}", f"{100 * sc.nees_inside_95:.0f}", f"{sc.runtime_s:.2f}",
+             f"{sc.realtime_factor:.0f}"] for n, sc in b.scores.items()]
+    sec.add(table_html(["estimator", "ATE pos m", "ATE yaw deg", *[f"end of {d} s outage m" for d in durations],
+                        "NEES mean", "NEES in 95 % %", "runtime s", "x real time"], rows))
+    sec.figures([(lambda: plot_trajectories(b), "trajectories of the test runs, outages shaded"),
+                 (lambda: plot_outage_errors(b), "RMS position error against time since the outage began"),
+                 (lambda: plot_nees(b), "pose NEES of the first test run with the 95 % bounds (consistency)")])
     return sec
 
 

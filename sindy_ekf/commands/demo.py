@@ -64,12 +64,15 @@ def run(args) -> int:
     out = prepare_out(args.out, args.force)
     campaign = out / "campaign"
     truth = simulate_campaign(campaign, seed=args.seed, minutes=args.minutes, effects=args.effect)
+    t_simulate = time.perf_counter() - tic
     effect = ", ".join(f"{n}={v:g}" for n, v in truth.effects) or "none"
     if not args.quiet:
         print(f"simulated {campaign}: {len(truth.runs)} runs, {sum(r.duration_s for r in truth.runs) / 60:.1f} min, "
               f"seed {truth.seed}, hidden effect: {effect} ({time.perf_counter() - tic:.0f} s)")
     chain = run_chain(campaign, out / "report", grid=QUICK)
+    tic_render = time.perf_counter()
     path = render_report(chain, out / "report")
+    chain.seconds = {"simulate": t_simulate, **chain.seconds, "render": time.perf_counter() - tic_render}
     if not args.quiet:
         print(format_headline(chain))
     print(f"report written to {path} ({time.perf_counter() - tic:.0f} s in all)")

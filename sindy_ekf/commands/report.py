@@ -31,11 +31,13 @@ def format_headline(chain) -> str:
         lines.append("5 s prediction error on the test runs (thesis model B, real data: 14.0 cm, 4.2 deg):")
         lines += [f"  {n:18} {100 * r.pos_err_5s_m:7.2f} cm {r.yaw_err_5s_deg:7.2f} deg"
                   for n, r in chain.evaluation.items()]
-    if chain.benchmark is not None and hasattr(chain.benchmark, "to_json_dict"):
-        est = chain.benchmark.to_json_dict().get("estimators", {})
-        lines.append("estimation, ATE position / heading:")
-        lines += [f"  {n:18} {e.get('ate_pos_m', float('nan')):7.3f} m {e.get('ate_yaw_deg', float('nan')):7.2f} deg"
-                  for n, e in est.items()]
+    if chain.benchmark is not None:
+        b = chain.benchmark
+        lines.append(f"estimation on the test runs, GNSS profile {b.profile}: ATE position, heading; "
+                     "error at the end of the outages")
+        for n, sc in b.scores.items():
+            ends = ", ".join(f"{k} s {v:.2f} m" for k, v in sc.outage_pos_err_m.items())
+            lines.append(f"  {n:18} {sc.ate_pos_m:7.3f} m {sc.ate_yaw_deg:7.2f} deg   {ends}")
     if chain.diagnosis is not None:
         d = chain.diagnosis
         lines.append(f"diagnosis: {d.verdict}; 5 s position error {100 * d.before['pos_err_5s_m']:.2f} cm -> "
