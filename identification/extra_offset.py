@@ -22,7 +22,8 @@ log = logging.getLogger(__name__)
 
 MAX_INTERP_GAP_S = 0.05  # interpolate across one missing sample at most, never across a dropout
 FIT_STEP_S = 2e-5  # spacing of the ten spread samples of the quadratic (eq. 5.19)
-JACKKNIFE_BLOCKS = 10  # time blocks for the jackknife standard deviation of the extra offset
+JACKKNIFE_BLOCKS = 10
+HUB_DELAYS_S = np.arange(0.0, 0.2001, 0.01)  # trial delays of the hubs behind their commands  # time blocks for the jackknife standard deviation of the extra offset
 
 
 @dataclass(frozen=True)
@@ -39,6 +40,7 @@ class OffsetEstimate:
     dt_fit: np.ndarray  # the ten samples of the quadratic fit (eq. 5.19)
     spread_fit: np.ndarray
     hub_terms: bool  # spread taken after removing the eq. 5.25 hub terms (joint estimate)
+    hub_delay_s: float  # delay of the hubs behind their commands used for the hub terms
     dt_without_hub: float  # the thesis's estimate: spread of the raw baseline length, s
 
 
@@ -139,7 +141,8 @@ def _spread(dt: np.ndarray, s: np.ndarray, p_ref: np.ndarray, late_at,
 
 
 def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_late: np.ndarray,
-                     search_s: float = 0.01, run: str = "?", A_hub: np.ndarray | None = None,
+                     search_s: float = 0.01, run: str = "?",
+                     hub: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                      max_gap_s: float = MAX_INTERP_GAP_S) -> OffsetEstimate:
     """Return the extra offset of one tracker's times that minimises the baseline spread.
 
@@ -150,18 +153,48 @@ def fit_extra_offset(s: np.ndarray, p_ref: np.ndarray, s_late: np.ndarray, xyz_l
     the shifted tracker's positions at trigger time ``t`` are its samples at ``t - dt`` on its
     clock model; ``p_ref`` are the other tracker's positions at the trigger times ``s``.
 
-    Beyond the thesis: with ``A_hub`` (:func:`hub_design`) the spread is measured after the
-    turning-hub terms of eq. 5.25 are removed at every trial offset, i.e. offset and hub
-    eccentricity are estimated jointly. The eccentricity seen along the baseline follows the
-    hub azimuths, which follow the robot's motion; left in, it correlates with the speed and
-    pulls the thesis's estimate by tens of microseconds (``dt_without_hub`` keeps that one).
+    Beyond the thesis: with ``hub = (t_trigger, t_command, azimuth)`` (the trigger times and
+    the hub set points, on one clock) the spread is measured after the turning-hub terms of
+    eq. 5.25 are removed at every trial offset, i.e. offset and hub eccentricity are estimated
+    jointly. The eccentricity seen along the baseline follows the hub azimuths, which follow
+    the robot's motion; left in, it correlates with the speed and pulls the thesis's estimate
+    by tens of microseconds (``dt_without_hub`` keeps that one). The hubs follow their commands
+    late (thesis 5.2.3: transmission, PD controller); that delay is estimated first
+    (:func:`fit_hub_delay`) at the thesis's offset.
     """
     late_at = track_interpolator(s_late, xyz_late, max_gap_s)
     est = _fit_offset(s, p_ref, late_at, search_s, run, None)
-    if A_hub is None or not np.isfinite(A_hub).all(axis=1).any():
+    if hub is None or len(hub[1]) == 0:
         return est
-    joint = _fit_offset(s, p_ref, late_at, search_s, run, A_hub)
-    return replace(joint, dt_without_hub=est.dt)
+    joint, delay = est, 0.0
+    for _ in range(2):  # delay at the current offset, then the offset with that delay
+        delay = fit_hub_delay(s, p_ref, late_at, joint.dt, *hub)
+        A_hub = hub_design(hub[0] - delay, hub[1], hub[2])
+        if not np.isfinite(A_hub).all(axis=1).any():
+            return est
+        joint = _fit_offset(s, p_ref, late_at, search_s, run, A_hub)
+    return replace(joint, dt_without_hub=est.dt, hub_delay_s=delay)
+
+
+def fit_hub_delay(s: np.ndarray, p_ref: np.ndarray, late_at, dt: float, t_query: np.ndarray,
+                  t_cmd: np.ndarray, azimuth: np.ndarray,
+                  delays_s: np.ndarray = HUB_DELAYS_S) -> float:
+    """Return the delay (s) of the hubs behind their commands that best explains the baseline.
+
+    At the extra offset ``dt``, the baseline spread left by the eq. 5.25 hub terms is computed
+    with the azimuth commands delayed by each of ``delays_s`` (a zero-order hold, shifted);
+    the minimum is refined by a parabola through it and its neighbours.
+    """
+    # one full-length evaluation per trial delay (about twenty), not per sample
+    spread = np.array([_spread(np.array([dt]), s, p_ref, late_at,
+                               hub_design(t_query - d, t_cmd, azimuth))[0] for d in delays_s])
+    i = int(np.argmin(spread))
+    if 0 < i < len(delays_s) - 1:
+        y0, y1, y2 = spread[i - 1:i + 2]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            return float(delays_s[i] + 0.5 * (y0 - y2) / den * (delays_s[1] - delays_s[0]))
+    return float(delays_s[i])
 
 
 def _fit_offset(s, p_ref, late_at, search_s, run, A_hub) -> OffsetEstimate:
@@ -211,4 +244,5 @@ def _fit_offset(s, p_ref, late_at, search_s, run, A_hub) -> OffsetEstimate:
                           dt_std_jackknife=dt_jack,
                           dt_grid=fine, spread_grid=spread_f,
                           dt_fit=dt_fit, spread_fit=spread_fit, hub_terms=A_hub is not None,
+                          hub_delay_s=0.0,
                           dt_without_hub=float(dt))

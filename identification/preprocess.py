@@ -116,6 +116,7 @@ def run_json(r: RunResult) -> dict:
         "at960_extra_offset_without_hub_s": (s.offset.dt_without_hub if s.offset_tracker == "at960"
                                              else -s.offset.dt_without_hub),
         "offset_joint_with_hub": s.offset.hub_terms,
+        "hub_delay_s": s.offset.hub_delay_s,
         "extra_offset_tracker": s.offset_tracker,
         "baseline_rms_m": {"before": s.baseline_rms_m("before"), "after": s.baseline_rms_m("after")},
         "timing_error": {"r_baseline_speed_before": s.r_speed_before,
@@ -186,7 +187,8 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
     seen = np.isfinite(synced.p_front_local[:, 0]).astype(int) + np.isfinite(synced.p_rear_local[:, 0])
     hub = None
     if raw.t_hub_utc.size:
-        az = azimuth_at(synced.t_utc, raw.t_hub_utc, raw.hub_azimuth)
+        # the hubs' angles: their commands delayed as the offset estimate found (sync)
+        az = azimuth_at(synced.t_utc - synced.offset.hub_delay_s, raw.t_hub_utc, raw.hub_azimuth)
         ok = both & np.isfinite(az).all(axis=1)
         try:
             hub = fit_hub_model(synced.s_trigger[ok], synced.baseline_after_m[ok],

@@ -201,9 +201,10 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
     late_at = track_interpolator(mapped[late], xyz_local[late], max_interp_gap_s)
     p_ref = interpolate_at(s, mapped[ref], xyz_local[ref], max_interp_gap_s)
     p_late_0 = late_at(s)
-    A_hub = hub_design(raw.t_trigger_utc, raw.t_hub_utc, raw.hub_azimuth) if joint_hub else None
-    offset = fit_extra_offset(s, p_ref, mapped[late], xyz_local[late], run=raw.name, A_hub=A_hub,
+    hub = (raw.t_trigger_utc, raw.t_hub_utc, raw.hub_azimuth) if joint_hub else None
+    offset = fit_extra_offset(s, p_ref, mapped[late], xyz_local[late], run=raw.name, hub=hub,
                               max_gap_s=max_interp_gap_s)
+    A_hub = hub_design(raw.t_trigger_utc - offset.hub_delay_s, raw.t_hub_utc, raw.hub_azimuth)
     p_late = late_at(s - offset.dt)
     base_0 = np.linalg.norm(p_ref - p_late_0, axis=1)
     base_1 = np.linalg.norm(p_ref - p_late, axis=1)
