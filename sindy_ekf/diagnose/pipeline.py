@@ -233,7 +233,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     name = verdict(ranked)
     seconds["families"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res_before = multistep(model, test, test_names)
+    res_before, windows = multistep_errors_by_window(model, test, test_names)  # end states kept for the structure
     extended, res_after = None, res_before
     if name != "none":
         best = ranked[0].score
@@ -249,8 +249,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     t0 = time.perf_counter()
     structure = residual_structure(model, te)
     lag = lag_profile(model, te)
-    ev, windows = multistep_errors_by_window(model, test, test_names)
-    ms_structure = multistep_structure(ev, windows, list(test))
+    ms_structure = multistep_structure(res_before, windows, list(test))
     seconds["residuals"] = time.perf_counter() - t0
     outage = {}
     if ekf and extended is not None:
