@@ -236,7 +236,7 @@ def stage_diagnosis(chain: ChainResult) -> None:
 
 
 def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: str | Path | None = None,
-              grid=QUICK, stages=STAGES, n_jobs: int = 1) -> ChainResult:
+              grid=QUICK, stages=STAGES, n_jobs: int = 1, estimators=None) -> ChainResult:
     """Return the chain run on ``campaign``: each stage of ``stages`` in order, failures recorded.
 
     Parameters
@@ -246,6 +246,8 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     model : a model file of ``identify``; without it one is identified on the train runs.
     grid : search grid for the identification (see :func:`stage_identification`).
     stages : the stages to run, a subset of :data:`STAGES`.
+    estimators : the benchmark's estimators (default: :data:`QUICK_ESTIMATORS` with the quick
+        grid, else all).
 
     Raises
     ------
@@ -261,7 +263,8 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
         "synchronisation": lambda: stage_synchronisation(chain),
         "identification": lambda: stage_identification(chain, model, grid, out_dir, n_jobs),
         "evaluation": lambda: stage_evaluation(chain),
-        "estimation": lambda: stage_estimation(chain, estimators=QUICK_ESTIMATORS if grid == QUICK else None),
+        "estimation": lambda: stage_estimation(
+            chain, estimators=estimators or (QUICK_ESTIMATORS if grid == QUICK else None)),
         "diagnosis": lambda: stage_diagnosis(chain),
     }
     needs_model = {"evaluation", "estimation", "diagnosis"}
