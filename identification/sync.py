@@ -41,7 +41,7 @@ class TrackerCounts:
 
     samples: int  # messages on the topic
     matched: int  # samples matched one-to-one to a trigger
-    spurious: int  # samples within the trigger train matching no trigger (extra pulses)
+    spurious: int  # samples within the trigger train matching no trigger (extra pulses; unused)
     outside: int  # samples before the first or after the last trigger
     lost: int  # triggers without a sample inside short stretches (lost pulses)
     out_of_view: int  # triggers in long stretches without samples (prism lost, tracker silent)
@@ -186,10 +186,15 @@ def sync_run(raw: RawRun, R_at960_ltd800: np.ndarray, t_at960_ltd800: np.ndarray
         clock[tracker] = model
         counts[tracker] = count_samples(s, s_tr, i_trig, int((~finite).sum()))
         resid[tracker] = (s[i_trig], s_tr[j_tr] - s[i_trig], ps.t_tracker[j_tr] - model.t0_tracker)
-        xyz = ps.xyz[finite]
+        # positions from the samples matched to a trigger: a spurious pulse's sample is a true
+        # measurement, but a cubic spline through two noisy samples a few ms apart swings wide
+        use = np.zeros(finite.size, bool)
+        use[j_tr] = True
+        use &= finite
+        xyz = ps.xyz[use]
         if tracker == "ltd800":
             xyz = xyz @ np.asarray(R_at960_ltd800).T + np.asarray(t_at960_ltd800)
-        mapped[tracker], xyz_local[tracker] = s_tr[finite], xyz
+        mapped[tracker], xyz_local[tracker] = s_tr[use], xyz
         if counts[tracker].dropped_nan:
             log.warning("run %s: topic /%s/measurement: %d samples with NaN coordinates dropped",
                         raw.name, tracker, counts[tracker].dropped_nan)

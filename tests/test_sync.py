@@ -214,3 +214,19 @@ def test_dropout_does_not_pull_the_coarse_alignment():
     assert abs(r.clock["ltd800"].tau) < 2e-3  # both clocks start with the run here
     assert abs(r.clock["ltd800"].drift_ppm - truth["drift_ltd_ppm"]) < 0.05
     assert r.counts["ltd800"].out_of_view >= 100
+
+
+def test_spurious_sample_beside_a_true_one_does_not_bend_the_positions():
+    """A spurious pulse 0.5 ms after a true one: a spline through both would swing by mm."""
+    raw, truth = synth_run(seed=13, minutes=0.5, p_spur=0.0)
+    ps = raw.at960
+    i = 900
+    t_extra = ps.t_tracker[i] + 0.5e-3
+    xyz_extra = ps.xyz[i] + [30e-6, -30e-6, 0.0]  # its own noise
+    at = PointSeries(np.insert(ps.t_tracker, i + 1, t_extra), np.insert(ps.xyz, i + 1, xyz_extra, axis=0))
+    rx = {**raw.t_receive_utc, "at960": np.insert(raw.t_receive_utc["at960"], i + 1,
+                                                   raw.t_receive_utc["at960"][i] + 0.5e-3)}
+    r = sync.sync_run(replace(raw, at960=at, t_receive_utc=rx), R_LT, T_LT)
+    base = r.baseline_after_m - np.nanmedian(r.baseline_after_m)
+    assert r.counts["at960"].spurious == 1
+    assert np.nanmax(np.abs(base)) < 0.2e-3
