@@ -68,19 +68,22 @@ class SearchResult:
 
     ``table`` holds one array per column (``s``, ``tau``, ``alpha``, ``T``, ``library``,
     ``pos_err_5s_m``, ``yaw_err_5s_deg``, ``mae``, ``r2``, ``complexity``), rows sorted by
-    ``pos_err_5s_m`` (best first).
+    ``pos_err_5s_m`` (best first); ``selected`` is the row of the chosen model.
     """
 
     table: dict[str, np.ndarray]
-    model: SindyModel
-    top_models: list[SindyModel] = field(default_factory=list)
+    model: SindyModel  # the selected model (row ``selected``), refitted on all runs
+    top_models: list[SindyModel] = field(default_factory=list)  # best rows by CV error, refitted
     folds: list[list[str]] = field(default_factory=list)
+    selected: int = 0
+
+    def row(self, i: int) -> dict:
+        """Return row ``i`` of the table as a dict of plain Python values."""
+        return {k: (v[i].item() if hasattr(v[i], "item") else v[i]) for k, v in self.table.items()}
 
     def ranking(self, n: int = 10) -> list[dict]:
-        """Return the ``n`` best rows as dicts (as table 7.6)."""
-        keys = list(self.table)
-        return [{k: (self.table[k][i].item() if hasattr(self.table[k][i], "item") else self.table[k][i])
-                 for k in keys} for i in range(min(n, len(self.table["s"])))]
+        """Return the ``n`` best rows by CV error as dicts (as table 7.6)."""
+        return [self.row(i) for i in range(min(n, len(self.table["s"])))]
 
 
 class StackedSindy:
@@ -130,7 +133,8 @@ def fold_assignment(groups: np.ndarray, n_folds: int) -> np.ndarray:
 
 def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: SearchGrid = SearchGrid(),
            runs: Sequence[TrajectoryRun] | None = None, names: Sequence[str] | None = None,
-           groups: Sequence[int] | None = None, n_top: int = 14, n_jobs: int = 1) -> SearchResult:
+           groups: Sequence[int] | None = None, n_top: int = 14, n_jobs: int = 1,
+           rel_tol: float = 0.05) -> SearchResult:
     """Return the cross-validated full grid search and the best model refitted on all runs.
 
     Parameters
@@ -149,6 +153,9 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         How many of the best grid points to refit on all runs (``top_models``, for fig. 7.11).
     n_jobs : int
         Worker processes (one ``(s, tau, library)`` combination each at a time).
+    rel_tol : float
+        The selected model is the sparsest within ``1 + rel_tol`` of the best CV error
+        (:func:`select_parsimonious`); 0 selects the best.
     """
     if states_by_s is None:
         if runs is None:
@@ -180,10 +187,25 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         raise InputError(f"hyperparameter search: no grid point gave a finite prediction error on runs {', '.join(names)}")
     cache: dict = {}
     with threadpool_limits(limits=1, user_api="blas"):
-        top = [refit(states_by_s, names, {k: table[k][i] for k in ("s", "tau", "alpha", "T", "library")}, cache)
-               for i in range(min(n_top, len(order)))]
+        hp = [{k: table[k][i] for k in ("s", "tau", "alpha", "T", "library")} for i in range(len(order))]
+        top = [refit(states_by_s, names, hp[i], cache) for i in range(min(n_top, len(order)))]
+        chosen = select_parsimonious(table, rel_tol)
+        model = top[chosen] if chosen < len(top) else refit(states_by_s, names, hp[chosen], cache)
     folds = [[names[i] for i in np.flatnonzero(fold == f)] for f in range(n_folds)]
-    return SearchResult(table=table, model=top[0], top_models=top, folds=folds)
+    return SearchResult(table=table, model=model, top_models=top, folds=folds, selected=chosen)
+
+
+def select_parsimonious(table: dict[str, np.ndarray], rel_tol: float = 0.05) -> int:
+    """Return the row of the sparsest model whose CV 5 s position error is within ``rel_tol`` of the best.
+
+    The parsimony principle of SINDy applied as the "one-standard-error" rule of model
+    selection: with plenty of data every extra term lowers the error a little, so the best score
+    alone picks the full library (measured: all 168 terms at T = 0, 6 % better than 30 terms).
+    Ties in complexity go to the lower error. ``table`` is sorted best first.
+    """
+    err = table["pos_err_5s_m"]
+    ok = np.flatnonzero(err <= (1 + rel_tol) * err[0])
+    return int(ok[np.lexsort((err[ok], table["complexity"][ok]))[0]])
 
 
 def _score_combo(job) -> dict[str, np.ndarray]:
