@@ -197,6 +197,12 @@ def fit_clock_model(tracker: str, s_trigger: np.ndarray, t_tracker: np.ndarray, 
     if ratio > AMBIGUOUS_RATIO and s_receive is None:
         log.warning("run %s: topic %s: gap cross-correlation ambiguous (peaks 3 s apart, ratio "
                     "%.3f) and no bag receive times to decide", run, topic, ratio)
+    # The correlation peak of a few 20 ms wide gap triangles can sit some ms off (a lost pulse
+    # beside a skipped one widens a triangle); the median offset of the gap pairs within half
+    # a trigger period centres it before the thesis's 4 ms matching.
+    ig, jt = match_nearest(gaps_rpi, gaps_tr - tau, 0.5 * np.median(np.diff(s_trigger)))
+    if ig.size:
+        tau += float(np.median(gaps_tr[jt] - tau - gaps_rpi[ig]))
     k, d = 1.0, 0.0
     for _ in range(3):  # eq. 5.9 and matching; then again with the fitted drift
         mapped = k * (gaps_tr - tau) + d
