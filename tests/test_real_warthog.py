@@ -76,6 +76,11 @@ def test_identified_model_beats_the_unicycle_on_the_test_runs(ex, identified, da
     assert sindy.pos_err_5s_m < uni.pos_err_5s_m  # same states, same windows
     assert sindy.pos_err_5s_m < max_ratio * readme_uni  # issue 6 target for cmd: 0.6 x 0.51 m
     assert sindy.yaw_err_5s_deg < uni.yaw_err_5s_deg
+    # kept model not unstable at rest: eigenvalues of a central-difference Jacobian of f at x = u = 0
+    h = 1e-6
+    J = np.column_stack([(sc.model.f(h * e, np.zeros(2)) - sc.model.f(-h * e, np.zeros(2))) / (2 * h)
+                         for e in np.eye(3)])
+    assert np.max(np.linalg.eigvals(J).real) < 1e-6
     train_names = {r.name for r in read_trajectory_campaign(data / name).split("train")}
     assert {r for fold in sc.search.folds for r in fold} == train_names  # identified on train runs only
 
