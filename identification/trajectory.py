@@ -29,6 +29,7 @@ Validation policy (every repair is counted in :attr:`TrajectoryRun.repairs` and 
 
 from __future__ import annotations
 
+import io
 import logging
 import math
 import os
@@ -152,7 +153,6 @@ def _merge_duplicates(cols: dict[str, np.ndarray], how: str) -> tuple[dict, int]
     if how == "last":
         last = np.concatenate([np.flatnonzero(new)[1:] - 1, [t.size - 1]])
         return {c: v[last] for c, v in cols.items()}, n_dup
-    counts = np.bincount(group)
     merged = {}
     for c, v in cols.items():
         # nanmean per group: optional columns may be NaN in some duplicates only
@@ -162,7 +162,6 @@ def _merge_duplicates(cols: dict[str, np.ndarray], how: str) -> tuple[dict, int]
         with np.errstate(invalid="ignore", divide="ignore"):
             merged[c] = np.where(k > 0, s / np.maximum(k, 1), np.nan)
     merged["t"] = t[new]
-    assert merged["t"].size == counts.size
     return merged, n_dup
 
 
@@ -292,8 +291,6 @@ def _csv_text(columns: Sequence[str], arrays: Sequence[np.ndarray], t_fmt: str =
     body = np.column_stack([np.asarray(a, dtype=float) for a in arrays])
     lines = [",".join(columns)]
     if body.shape[0]:
-        import io
-
         buf = io.StringIO()
         np.savetxt(buf, body, delimiter=",", fmt=[t_fmt] + ["%.17g"] * (body.shape[1] - 1))
         lines.append(buf.getvalue().rstrip("\n"))
@@ -318,7 +315,11 @@ def write_trajectory_campaign(out_dir: str | os.PathLike, name: str,
     for r, s in runs:
         if r.split not in ("train", "test"):
             raise InputError(f"run {r.name}: split {r.split!r}, expected 'train' or 'test'")
-        if s is not None and s.t.size != s.vx.size:
+        if len({getattr(r.poses, c).size for c in POSE_COLUMNS}) != 1:
+            raise InputError(f"run {r.name}: pose arrays differ in length")
+        if len({getattr(r.inputs, c).size for c in INPUT_COLUMNS}) != 1:
+            raise InputError(f"run {r.name}: input arrays differ in length")
+        if s is not None and len({getattr(s, c).size for c in STATE_COLUMNS}) != 1:
             raise InputError(f"run {r.name}: BodyStates arrays differ in length")
     meta = {"name": name, "kind": "trajectory", **provenance,
             "runs": [{"name": r.name, "split": r.split} for r, _ in runs]}

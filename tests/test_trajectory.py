@@ -233,3 +233,13 @@ def test_missing_campaign_folder_or_inputs_file(tmp_path):
     (root / "runs" / "a" / "inputs.csv").unlink()
     with pytest.raises(InputError, match=r"runs/a/inputs\.csv: file missing"):
         read_trajectory_campaign(root)
+
+
+def test_writer_refuses_runs_with_arrays_of_different_lengths(tmp_path):
+    from dataclasses import replace
+
+    run = _make_run(np.random.default_rng(2))
+    bad = replace(run, inputs=replace(run.inputs, u1=run.inputs.u1[:-1]))
+    with pytest.raises(InputError, match="run r1: input arrays differ in length"):
+        write_trajectory_campaign(tmp_path / "c", "x", [(bad, None)])
+    assert not (tmp_path / "c").exists()
