@@ -212,3 +212,41 @@ def test_measurement_findings_in_cause_correction_gain_language():
     assert found["hub_eccentricity"].gain["baseline_rms_m"]["after"] == 2e-5
     with pytest.raises(InputError, match="p.json: key runs is missing"):
         findings_from_report({"transform": {}}, "p.json")
+
+
+@pytest.mark.parametrize("family, value", [("deadband", 0.2), ("asymmetry", 0.3), ("time_dependence", 0.5),
+                                           ("input_delay", 0.13)])
+def test_input_mechanisms_match_the_simulators_motor_inputs(family, value):
+    """The families' input transforms against a second implementation: the simulator's motor model."""
+    from simulation.robot import TrueDynamics
+    from sindy_ekf.diagnose.families import FAMILY_SPECS
+
+    rng = np.random.default_rng(5)
+    t_joy = np.cumsum(rng.uniform(0.02, 0.2, 400))
+    u_joy = rng.uniform(-1, 1, (400, 2))
+    t = np.arange(0.0, t_joy[-1], 0.02)
+    u_rec = TrueDynamics().motor_inputs(t, t_joy, u_joy)  # what a recording holds (ZOH, no effect)
+    truth = TrueDynamics(effect=Effect(family, value)).motor_inputs(t, t_joy, u_joy)
+    mine = FAMILY_SPECS[family].motor_inputs(t, u_rec, [slice(None)], np.array([[value]]))[0]
+    if family == "input_delay":  # sampled inputs interpolate the hold's steps: compare away from them
+        k = np.searchsorted(t_joy, t - value)
+        away = (np.abs(t - value - t_joy[np.minimum(k, len(t_joy) - 1)]) > 0.02) & (
+            np.abs(t - value - t_joy[np.maximum(k - 1, 0)]) > 0.02) & (t > value + 0.02)
+        np.testing.assert_allclose(mine[away], truth[away], atol=1e-12)
+    else:
+        np.testing.assert_allclose(mine, truth, atol=1e-12)
+
+
+def test_binned_effect_recovers_a_known_dependence():
+    """eta2 of a residual built from a known function of the regressor, and no signal in pure noise."""
+    from sindy_ekf.diagnose.residuals import binned_effect
+
+    rng = np.random.default_rng(11)
+    x = rng.uniform(-np.pi, np.pi, 4000)
+    noise = rng.normal(0, 0.5, 4000)
+    be = binned_effect(np.cos(x) + noise, x, "heading", n_bins=16, circular=True)
+    expected = 0.5 / (0.5 + 0.25)  # var(cos) / (var(cos) + var(noise)), less the binning loss
+    assert 0.9 * expected < be.eta2 < expected and be.p_value < 1e-10
+    np.testing.assert_allclose(be.mean, np.cos(be.centers), atol=0.1)
+    null = binned_effect(noise, x, "heading", n_bins=16, circular=True)
+    assert null.eta2 < 0.01 and null.p_value > 1e-3
