@@ -242,7 +242,11 @@ def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
             sq = np.sqrt(lam)
             for key in keys:  # every variable here (Pose2, Vector3) has 3 degrees of freedom
                 damped.add(gtsam.JacobianFactor(key, sq * np.eye(3), np.zeros(3), unit))
-            trial = values.retract(damped.optimize(ordering))
+            try:
+                trial = values.retract(damped.optimize(ordering))
+            except RuntimeError:  # indeterminate at this damping: damp more, as gtsam's LM does
+                lam *= 10.0
+                continue
             err_trial = graph.error(trial)
             if err_trial <= err:
                 improved = True
@@ -264,15 +268,19 @@ def smooth_batch(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
                  name: str = "sindy_graph") -> GraphResult:
     """Return the batch Levenberg-Marquardt smoothing of one run.
 
-    ``x_init`` (n, 6) is the starting trajectory (the EKF's estimate is a good one; default
-    dead reckoning). Marginal covariances are computed at every ``marginal_stride``-th step and
-    at the last (None: only the last); the rest are NaN.
+    ``x_init`` (n, 6) is the starting trajectory (default: the EKF's estimate with the same
+    model). Marginal covariances are computed at every ``marginal_stride``-th step and at the
+    last (None: only the last); the rest are NaN.
     """
     start = time.perf_counter()
     t = np.asarray(t, float)
     graph, dyn = build_graph(model, t, u, x0, P0, gnss, robust, name)
-    if x_init is None:
-        x_init = model.propagate(np.asarray(x0, float), np.asarray(u, float), t)
+    if x_init is None:  # the filter's estimate: close to the optimum, unlike dead reckoning
+        from sindy_ekf.ekf import run_ekf
+
+        x_init = run_ekf(model, t, u, x0, P0, gnss, name=name).x
+    if not np.all(np.isfinite(x_init)):
+        raise InputError(f"{name}: initial trajectory for the graph is not finite")
     values = _initial_values(np.asarray(x_init, float))
     result, iterations, err0, err1 = levenberg_marquardt(graph, values, max_iterations, rel_tol)
     x = _values_to_states(result, len(t))
