@@ -77,6 +77,41 @@ def score(result, truth) -> dict:
                              truth.hubs["rear"]["radius_eq525_m"] * 1e3)}
 
 
+def stress(work: Path, seeds: list[int], minutes: float) -> list[str]:
+    """Return markdown lines: the criteria checked on campaigns of other seeds, run by run."""
+    from simulation.campaign import simulate_campaign
+    from simulation.truth import read_truth
+
+    rows, n_runs, worst = [], 0, {"ltd": 0.0, "z_at": 0.0, "off": 0.0}
+    for seed in seeds:
+        camp = work / f"stress_{minutes:g}min_seed{seed}"
+        if not (camp / "campaign.yaml").is_file():
+            simulate_campaign(camp, seed=seed, minutes=minutes, force=True)
+        out = work / f"stress_{minutes:g}min_seed{seed}_out"
+        shutil.rmtree(out, ignore_errors=True)
+        res = preprocess_campaign(camp, out, jobs=2)
+        truth = read_truth(camp, states=False)
+        bad = []
+        for name, r in res.runs.items():
+            t, s = truth.run(name), r.synced
+            e_l = s.clock["ltd800"].drift_ppm - t.clocks["ltd800"]["drift_ppm"]
+            z_a = (s.clock["at960"].drift_ppm - t.clocks["at960"]["drift_ppm"]) / s.clock["at960"].drift_std_ppm
+            e_o = (s.offset.dt - t.at960["offset_s"]) * 1e6
+            worst = {"ltd": max(worst["ltd"], abs(e_l)), "z_at": max(worst["z_at"], abs(z_a)),
+                     "off": max(worst["off"], abs(e_o))}
+            if abs(e_l) > 0.05 or abs(z_a) > 3 or abs(e_o) > 20:
+                bad.append(f"{name} ({e_l:+.3f} ppm, {z_a:+.1f} sigma, {e_o:+.1f} us)")
+        n_runs += len(res.runs)
+        rows.append(f"| {seed} | {len(res.runs)} | {len(res.skipped)} | {'; '.join(bad) or 'none'} |")
+        print(rows[-1], flush=True)
+    return ["", f"### Robustness over seeds ({minutes:g} min campaigns, 9 runs each)", "",
+            f"`--stress {','.join(map(str, seeds))} --stress-minutes {minutes:g}`: {n_runs} runs; "
+            f"worst LTD800 drift error {worst['ltd']:.4f} ppm (criterion 0.05), worst AT960 drift "
+            f"error {worst['z_at']:.2f} of its own sigma (criterion 3), worst offset error "
+            f"{worst['off']:.1f} us (criterion 20).", "",
+            "| seed | runs | skipped | runs missing a criterion |", "|---:|---:|---:|---|", *rows, ""]
+
+
 def _cpu_s() -> float:
     """Return the CPU seconds (user + system) of this process and its finished children."""
     import resource
@@ -90,6 +125,9 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=None, help="driving minutes (default 45.4)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--stress", default="", help="comma-separated seeds of extra campaigns "
+                    "(``--stress-minutes`` long) checked against the criteria")
+    ap.add_argument("--stress-minutes", type=float, default=2.25)
     args = ap.parse_args()
     from simulation.campaign import simulate_campaign
     from simulation.truth import read_truth
@@ -161,6 +199,8 @@ def main() -> int:
           f"{r['base_after_mm']:.3f} |" for r in sc["rows"]],
         "",
     ]
+    if args.stress:
+        lines += stress(work, [int(x) for x in args.stress.split(",")], args.stress_minutes)
     path = ROOT / "bench" / "results" / "preprocess.md"
     atomic_write_text(path, "\n".join(lines))
     print(json.dumps({"wall_s": wall, "pos_rms_mm": sc["pos_rms_mm"], "yaw_rms_deg": sc["yaw_rms_deg"]}))
