@@ -71,6 +71,16 @@ def main() -> int:
         lines += ["| model (test runs) | pos. error 5 s cm | heading error 5 s deg |", "|---|---:|---:|"]
         lines += [f"| {k} | {100 * v:.2f} | {info['yaw_err_5s_deg'][k]:.2f} |" for k, v in info["pos_err_5s_m"].items()]
         lines.append("")
+    est = (info.get("benchmark") or {}).get("estimators") or {}
+    if est:
+        lines += [f"Estimators on the test runs, GNSS profile `{info['benchmark'].get('profile')}`:", "",
+                  "| estimator | ATE pos m | ATE yaw deg | error at end of outage m | NEES mean |", "|---|---:|---:|---|---:|"]
+        for name, e in est.items():
+            ends = ", ".join(f"{k} s: {v:.2f}" for k, v in (e.get("outage_pos_err_m") or {}).items() if v is not None)
+            nees = e.get("nees_mean")
+            lines.append(f"| {name} | {e['ate_pos_m']:.3f} | {e['ate_yaw_deg']:.2f} | {ends} | "
+                         f"{'-' if nees is None else f'{nees:.1f}'} |")
+        lines.append("")
     if info.get("diagnosis"):
         d = info["diagnosis"]
         lines.append(f"Diagnosis verdict on the effect-free demo campaign: `{d['verdict']}` "

@@ -42,8 +42,9 @@ SECTION_MARKERS = {"overview": (230, 25, 75), "calibration": (60, 180, 75), "syn
 MARKER_WIDTH_PX = 14
 FIGURE_WIDTH_PX = 660  # displayed width of every figure; two side by side in a 1400 px window
 FIGURE_GAP_PX = 12
+WIDE_ASPECT = 2.2  # figures wider than this (width / height) span both columns
+WIDE_FIGURE_WIDTH_PX = 2 * FIGURE_WIDTH_PX + FIGURE_GAP_PX
 CONTENT_LEFT_PX = MARKER_WIDTH_PX + 24  # left edge of a section's content
-FIGURE_DPI = 80
 
 CSS = f"""
 body {{ font-family: DejaVu Sans, Helvetica, Arial, sans-serif; margin: 0; color: #222; background: #fff; }}
@@ -57,6 +58,7 @@ h2 {{ margin: 8px 0; font-size: 20px; }}
 .fail {{ color: #a00; }}
 .figs {{ display: flex; flex-wrap: wrap; gap: {FIGURE_GAP_PX}px; align-items: flex-start; }}
 figure {{ margin: 0; width: {FIGURE_WIDTH_PX}px; }}
+figure.wide {{ width: {WIDE_FIGURE_WIDTH_PX}px; }}
 figure img {{ width: 100%; height: auto; display: block; }}
 figcaption {{ font-size: 12px; color: #444; margin-top: 2px; }}
 table {{ border-collapse: collapse; font-size: 13px; margin: 6px 0 10px 0; }}
@@ -97,9 +99,12 @@ class Section:
                            f'{html.escape(type(exc).__name__)}: {html.escape(str(exc).splitlines()[0] if str(exc) else "")}</p>')
                 continue
             for k, fig in enumerate(figs if isinstance(figs, (list, tuple)) else [figs]):
-                b64 = png_base64_from_figure(fig, dpi=FIGURE_DPI)
+                w, h = fig.get_size_inches()
+                wide = ' class="wide"' if w / h > WIDE_ASPECT else ""
+                # drawn at exactly its displayed width: the browser shows it pixel for pixel, unscaled
+                b64 = png_base64_from_figure(fig, dpi=(WIDE_FIGURE_WIDTH_PX if wide else FIGURE_WIDTH_PX) / w)
                 cap = caption if k == 0 else f"{caption} ({k + 1})"
-                out.append(f'<figure><img alt="{html.escape(cap)}" src="data:image/png;base64,{b64}">'
+                out.append(f'<figure{wide}><img alt="{html.escape(cap)}" src="data:image/png;base64,{b64}">'
                            f"<figcaption>{html.escape(cap)}</figcaption></figure>")
                 self.n_figures += 1
         self.parts.append('<div class="figs">' + "".join(out) + "</div>")
@@ -348,7 +353,17 @@ def section_diagnosis(chain: ChainResult) -> Section:
              ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
                        for k, v in (c.score.estimate or {}).items())] for c in d.ranked]
     sec.add(table_html(["family", "test gain %", "threshold %", "significant", "estimate"], rows))
-    sec.figures([(lambda: plot_family_gains(d.ranked), "out-of-sample gain of each family against its threshold")])
+    for f in getattr(d, "measurement", []) or []:
+        sec.note(f"measurement finding '{f.name}' ({f.runs} runs): {f.cause}; correction: {f.correction}")
+    items = [(lambda: plot_family_gains(d.ranked), "out-of-sample gain of each family against its threshold")]
+    from sindy_ekf.diagnose import residuals
+
+    if getattr(d, "structure", None):
+        items.insert(0, (lambda: residuals.plot_residual_structure(d.structure, title="test runs"),
+                         "residual structure: binned window residuals (eq. 5.56) against each regressor"))
+    if getattr(d, "lag", None):
+        items.insert(1, (lambda: residuals.plot_lag_profile(d.lag), "residual-input lag correlation"))
+    sec.figures(items)
     return sec
 
 

@@ -268,6 +268,9 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
         "diagnosis": lambda: stage_diagnosis(chain),
     }
     needs_model = {"evaluation", "estimation", "diagnosis"}
+    for name in STAGES:
+        if name not in stages:
+            chain.skipped[name] = "stage not requested"
     for name in progress([s for s in STAGES if s in stages], desc="chain"):
         if name in ("calibration", "synchronisation") and chain.kind != "tracker":
             chain.skipped[name] = "a trajectory campaign holds no raw tracker data"

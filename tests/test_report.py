@@ -25,7 +25,7 @@ import pytest
 from identification.search import SearchGrid
 from sindy_ekf.errors import InputError
 from sindy_ekf.report import (CONTENT_LEFT_PX, FIGURE_GAP_PX, FIGURE_WIDTH_PX, MARKER_WIDTH_PX, SECTION_MARKERS,
-                              SECTIONS, build_report, render_report)
+                              SECTIONS, WIDE_ASPECT, WIDE_FIGURE_WIDTH_PX, build_report, render_report)
 from sindy_ekf.report_chain import run_chain
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -149,15 +149,16 @@ def find_figure(img: np.ndarray, png: bytes, rows: tuple[int, int]) -> tuple[flo
     from PIL import Image
 
     fig = Image.open(io.BytesIO(png)).convert("RGB")
-    h = round(fig.height * FIGURE_WIDTH_PX / fig.width)
-    ref = np.asarray(fig.resize((FIGURE_WIDTH_PX, h), Image.BILINEAR)).astype(np.int16)
+    width = WIDE_FIGURE_WIDTH_PX if fig.width / fig.height > WIDE_ASPECT else FIGURE_WIDTH_PX
+    h = round(fig.height * width / fig.width)
+    ref = np.asarray(fig.resize((width, h), Image.BILINEAR)).astype(np.int16)
     prof = (255 - ref).mean(axis=(1, 2))
     ref_blocks = blocks(ref)
     blank = np.abs(255 - ref_blocks).mean()
     best = (np.inf, -1, -1)
     for x in (CONTENT_LEFT_PX, CONTENT_LEFT_PX + FIGURE_WIDTH_PX + FIGURE_GAP_PX):
-        strip = img[rows[0]:rows[1] + 1, x:x + FIGURE_WIDTH_PX]
-        if strip.shape[0] < h or strip.shape[1] < FIGURE_WIDTH_PX:
+        strip = img[rows[0]:rows[1] + 1, x:x + width]
+        if strip.shape[0] < h or strip.shape[1] < width:
             continue
         s_prof = (255 - strip).mean(axis=(1, 2))
         cost = np.abs(sliding_window_view(s_prof, h) - prof).sum(axis=1)
@@ -183,7 +184,7 @@ def test_rendered_report_shows_every_section_and_figure(report, tmp_path):
     for sid, sec in secs.items():
         for k, png in enumerate(sec["pngs"]):
             mism, x, y = find_figure(img, png, rows[sid])
-            assert mism < 0.35, f"section {sid}: figure {k + 1} not visible in the screenshot (mismatch {mism:.2f})"
+            assert mism < 0.15, f"section {sid}: figure {k + 1} not visible in the screenshot (mismatch {mism:.2f})"
     if os.environ.get("SINDY_EKF_UPDATE_DOCS") == "1":
         from PIL import Image
 
