@@ -253,3 +253,12 @@ def test_report_bad_output_folder_named(report, tmp_path):
         build_report(report["chain"].campaign_path, blocker / "out")
     with pytest.raises(InputError, match=r"a_file: output exists and is not a folder"):
         build_report(report["chain"].campaign_path, blocker)
+
+
+def test_simulator_prints_nothing(tmp_path, capsys):
+    # the other library entry points ran in the report fixture; the simulator was run by conftest
+    from simulation.campaign import MIN_RUN_S, simulate_campaign
+
+    truth = simulate_campaign(tmp_path / "c", seed=4, minutes=9 * MIN_RUN_S / 60.0)
+    assert len(truth.runs) == 9
+    assert capsys.readouterr().out == ""
