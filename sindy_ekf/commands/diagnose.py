@@ -48,7 +48,8 @@ def run(args) -> int:
               f"{1e6 * g['before']:.0f} -> {1e6 * g['after']:.0f} um ({f.runs} runs)")
     if args.plots:
         from identification.evaluate import plot_error_curves
-        from sindy_ekf.diagnose.residuals import plot_family_profiles, plot_lag_profile, plot_residual_structure
+        from sindy_ekf.diagnose.residuals import (plot_family_profiles, plot_lag_profile, plot_residual_map,
+                                                  plot_residual_structure)
 
         args.plots.mkdir(parents=True, exist_ok=True)
         plot_residual_structure(d.structure, args.plots / "residual_structure.png")
@@ -57,6 +58,8 @@ def run(args) -> int:
         delay = next((c.score.theta[0] for c in d.ranked if c.name == "input_delay"), None)
         plot_lag_profile(d.lag, args.plots / "lag_profile.png", delay)
         plot_family_profiles([c.score for c in d.ranked], args.plots / "family_profiles.png")
+        patch = next((c.score.estimate for c in d.ranked if c.name == "position_dependence" and c.significant), None)
+        plot_residual_map(d.residual_map, args.plots / "residual_map.png", patch)
         from dataclasses import replace
 
         ev = [replace(d.evaluations["before"], name="model")]

@@ -24,7 +24,7 @@ from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import ExtendedModel, multistep, outage_errors, reidentify
 from sindy_ekf.diagnose.families import FAMILIES, equation_weights, null_prediction, score_family
 from sindy_ekf.diagnose.residuals import (lag_profile, multistep_errors_by_window, multistep_structure,
-                                          residual_structure)
+                                          residual_map, residual_structure)
 from sindy_ekf.diagnose.rank import THRESHOLD_PROVENANCE, RankedCause, rank_families, verdict
 from sindy_ekf.errors import InputError
 from sindy_ekf.progress import progress
@@ -52,6 +52,7 @@ class Diagnosis:
     evaluations: dict = field(default_factory=dict)  # "before"/"after" EvaluationResult (plots)
     measurement: list = field(default_factory=list)  # measurement.Finding of the preprocessing
     others: dict = field(default_factory=dict)  # other significant family -> 5 s errors with its mechanism
+    residual_map: dict = field(default_factory=dict)  # window residuals over the floor (residuals.residual_map)
 
     def to_json_dict(self) -> dict:
         """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
@@ -249,6 +250,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     t0 = time.perf_counter()
     structure = residual_structure(model, te)
     lag = lag_profile(model, te)
+    rmap = residual_map(model, te)
     ms_structure = multistep_structure(res_before, windows, list(test))
     seconds["residuals"] = time.perf_counter() - t0
     outage = {}
@@ -263,7 +265,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
             log.info("test runs too short for a %g s GNSS outage after %g s of GNSS", res.outage_s, 10.0)
         seconds["ekf"] = time.perf_counter() - t0
     return Diagnosis(name, ranked, before, after, extended, outage, seconds, structure, ms_structure, lag,
-                     {"before": res_before, "after": res_after}, others=others)
+                     {"before": res_before, "after": res_after}, others=others, residual_map=rmap)
 
 
 def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:

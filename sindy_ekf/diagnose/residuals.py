@@ -45,8 +45,10 @@ def regressors_of_windows(split: Split) -> dict[str, np.ndarray]:
     """Return ``{name: (p,)}`` regressors of every window (means over the window, pose at its middle)."""
     mean = split.integrate(np.concatenate([split.v_body, split.u], axis=-1)) / split.tau
     mid = (split.start + split.end) // 2
-    du = np.gradient(split.u, axis=0) / np.maximum(np.gradient(split.t_run), 1e-9)[:, None]
-    du[split.dt_next == 0] = 0.0
+    # forward differences inside each run (dt_next is 0 at a run's last sample)
+    step = split.dt_next > 0
+    du = np.zeros_like(split.u)
+    du[:-1][step[:-1]] = (np.diff(split.u, axis=0)[step[:-1]] / split.dt_next[:-1][step[:-1], None])
     du_mean = split.integrate(du) / split.tau
     return {"vx": mean[:, 0], "vy": mean[:, 1], "omega": mean[:, 2], "u1": mean[:, 3], "u2": mean[:, 4],
             "heading": np.angle(np.exp(1j * split.pose_local[split.start, 2])),
@@ -237,4 +239,34 @@ def plot_family_profiles(scores, path=None):
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=120)
+    return fig
+
+
+def residual_map(model, split: Split) -> dict[str, np.ndarray]:
+    """Return window-middle positions and mean acceleration residuals ``{"x", "y", "vx", "vy", "omega"}``."""
+    r = window_residuals(model, split)
+    mid = (split.start + split.end) // 2
+    return {"x": split.pose_local[mid, 0], "y": split.pose_local[mid, 1],
+            **{eq: r[:, i] for i, eq in enumerate(EQUATIONS)}}
+
+
+def plot_residual_map(rmap: dict[str, np.ndarray], path=None, patch: dict | None = None):
+    """Return (and save) the vx and omega window residuals over the lab floor, a found patch circled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    for ax, eq in zip(axes, ("vx", "omega")):
+        lim = np.percentile(np.abs(rmap[eq]), 98) or 1.0
+        hb = ax.hexbin(rmap["x"], rmap["y"], C=rmap[eq], gridsize=25, cmap="RdBu_r", vmin=-lim, vmax=lim)
+        fig.colorbar(hb, ax=ax, label=f"{eq} residual [{'m/s^2' if eq == 'vx' else 'rad/s^2'}]")
+        if patch:
+            (cx, cy), r = patch["patch_center_local_m"], patch["patch_radius_m"]
+            ax.add_patch(plt.Circle((cx, cy), r, fill=False, color="k", lw=1.5, ls="--"))
+        ax.set(xlabel="x local [m]", ylabel="y local [m]", aspect="equal", title=f"mean {eq} residual per window")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
     return fig
