@@ -38,6 +38,29 @@ from identification.search import states_of_runs  # noqa: E402
 from identification.trajectory import read_trajectory_campaign  # noqa: E402
 
 
+NOTES = """### Notes on these data
+
+- The README's unicycle baselines are reproduced by the package's evaluation within 0.01 m when
+  the body velocities come from differences over 0.4 s. The constant-velocity figure depends on
+  how the initial velocity is estimated from 10 Hz poses with late stamps (1.1 to 1.8 m for
+  differences over 0.1 to 0.4 s or a spline); it is quoted, not matched.
+- ICP poses are stamped on a 20 Hz logger grid, so intervals of 50 and 150 ms stand beside the
+  nominal 100 ms. A smoothing spline with a knot at every pose follows that jitter; its yaw rate
+  is 10 to 15 % larger than the differences' on the August runs, and the unicycle fitted on it is worse (table
+  above). Smoothing (s = 10 to 30 with data-estimated noise) and short integral windows
+  (tau = 0.5 to 1 s) are what the search selects here, not the thesis's s = 0.0005 for 50 Hz
+  laser-tracker poses; the package's quick grid, made for those, loses to the unicycle.
+- cmd campaign: the inputs are speed set-points, and the identified model is a first-order lag
+  (time constants of about 1 s for vx, 2 s for omega). Its steady forward gain is close to the
+  command's own scale (2 m/s) while the yaw rate reaches well under half of the commanded
+  one (skid on grass): the unicycle, with one instantaneous gain, cannot have both.
+- wheels campaign: the inputs are wheel speeds, so the unicycle is already good; the identified
+  model adds a fast lag (about 0.2 s for vx, 0.5 s for omega) between wheel speeds and ICP
+  motion, which is what a 0.2 s input delay does for the unicycle (delay table above), and a
+  yaw-rate gain of about 60 % of the ideal differential drive's (the wheels skid).
+"""
+
+
 def _example():
     spec = importlib.util.spec_from_file_location("real_warthog", ROOT / "examples" / "real_warthog.py")
     module = importlib.util.module_from_spec(spec)
@@ -65,16 +88,21 @@ def delay_from_train(train, delays=np.arange(0.0, 1.01, 0.05)) -> float:
 
 
 def linearised_at_rest(model) -> tuple[np.ndarray, np.ndarray]:
-    """Return the time constants (s) and steady-state gains ``-A^-1 B`` of ``model`` linearised at rest.
+    """Return the time constants (s) at rest and the steady gains of vx to u1 and omega to u2.
 
-    ``A = J_f_x(0, 0)``, ``B = J_f_u(0, 0)``; time constants ``-1 / Re(eig A)`` (negative means
-    unstable at rest). The gains map ``[u1, u2]`` to the steady ``[vx, vy, omega]``.
+    ``A = J_f_x(0, 0)``, ``B = J_f_u(0, 0)``; time constants ``-1 / Re(eig A)`` (negative:
+    unstable at rest, inf: a mode the regression removed, e.g. ``dvy/dt = 0``). The steady gains
+    ``-A_s^-1 B_s`` are those of the (vx, omega) subsystem, which stays solvable when the
+    lateral equation is empty.
     """
     x0, u0 = np.zeros(3), np.zeros(2)
     A, B = model.J_f_x(x0, u0), model.J_f_u(x0, u0)
-    with np.errstate(divide="ignore"):  # a zero eigenvalue (a mode the regression removed) is inf
-        time_constants = -1.0 / np.real(np.linalg.eigvals(A))
-    return np.sort(time_constants), -np.linalg.solve(A, B)
+    re = np.real(np.linalg.eigvals(A))
+    with np.errstate(divide="ignore"):  # a zero eigenvalue is an infinite time constant
+        time_constants = np.where(re == 0.0, np.inf, -1.0 / re)
+    k = [0, 2]
+    gains = -np.linalg.lstsq(A[np.ix_(k, k)], B[k], rcond=None)[0]
+    return np.sort(time_constants), np.array([gains[0, 0], gains[1, 1]])
 
 
 def pose_interval_counts(camp) -> dict[str, int]:
@@ -145,10 +173,17 @@ def main() -> int:
                 scores[name].model.to_json(saved)
         seconds[name] = time.perf_counter() - t0
         readme_uni = ex.README_BASELINES[name]["unicycle"][0]
-        for label, pos, yaw, n in scores[name].rows():
+        rows = scores[name].rows()
+        sr = scores[name].search
+        if sr is not None and scores[name].model.training.get("search_rank", 0) > 0:
+            camp = read_trajectory_campaign(ex.DATA / name)
+            best = ex.score(sr.model, camp, camp).results["sindy"]
+            rows.append(("sindy, search rank 1 (unstable at rest)", best.pos_err_5s_m, best.yaw_err_5s_deg,
+                         best.n_windows))
+        for label, pos, yaw, n in rows:
             ratio = pos / readme_uni
             target = f"<= {ex.TARGET_RATIO[name]:.1f}: {'met' if ratio <= ex.TARGET_RATIO[name] else 'NOT met'}" \
-                if label == "sindy" else ""
+                if label.startswith("sindy") else ""
             md.append(f"| {name} | {label} | {pos:.3f} | {yaw:.1f} | {n} | {ratio:.2f} | {target} |")
         print(name, scores[name].rows(), f"{seconds[name]:.1f} s", flush=True)
     md.append("")
@@ -167,7 +202,7 @@ def main() -> int:
            "| campaign | time constants [s] | vx / u1 [m/s] | omega / u2 [rad/s] |", "|---|---|---|---|"]
     for name, sc in scores.items():
         tc, gain = linearised_at_rest(sc.model)
-        md.append(f"| {name} | {', '.join(f'{t:.2f}' for t in tc)} | {gain[0, 0]:.2f} | {gain[2, 1]:.2f} |")
+        md.append(f"| {name} | {', '.join(f'{t:.2f}' for t in tc)} | {gain[0]:.2f} | {gain[1]:.2f} |")
     md.append("")
     if not args.quick:
         from identification.search import QUICK_GRID
@@ -275,6 +310,7 @@ def main() -> int:
                           f"{sco.runtime_s:.2f} |")
             print(name, "benchmark", f"{time.perf_counter() - t0:.0f} s", flush=True)
         md.append("")
+    md.append(NOTES)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(md) + "\n")
     print(args.out)
