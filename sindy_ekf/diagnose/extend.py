@@ -15,7 +15,7 @@ the inverse residual variance, as in the scoring).
 
 Gains: the 5 s multi-step position and heading errors on the test runs (thesis 5.3.8, as
 ``evaluate``) before (the given model) and after (the extended model); and the dead-reckoning
-error at the end of 10 s GNSS outages in the EKF (``sindy_ekf.ekf.run_ekf``) with each model.
+error at the end of 10 s GNSS outages in the EKF (``sindy_ekf.ekf.run_ekf_batch``) with each model.
 """
 
 from __future__ import annotations
@@ -252,22 +252,27 @@ class OutageResult:
 
     def rms(self) -> dict[str, float]:
         """Return the RMS error over outages per model, m."""
-        return {k: float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan") for k, v in self.errors_m.items()}
+        return {k: float(np.sqrt(np.mean(np.square(v[np.isfinite(v)])))) if np.isfinite(v).any() else float("nan")
+                for k, v in self.errors_m.items()}
+
+    def n_diverged(self) -> dict[str, int]:
+        """Return per model how many outages the filter diverged in (left out of the RMS)."""
+        return {k: int(np.count_nonzero(~np.isfinite(v))) for k, v in self.errors_m.items()}
 
 
 def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[BodyStates],
                   outage_s: float = 10.0, lead_s: float = 10.0, profile: str = "rtk", seed: int = 0,
                   max_outages: int = 12) -> OutageResult:
-    """Return each model's EKF position error at the end of ``outage_s`` GNSS outages on the test runs.
+    """Return each model's EKF position error at the end of ``outage_s`` GNSS outages on the test runs (inf: diverged).
 
     For every outage (scheduled after ``lead_s`` of GNSS, then every ``lead_s + outage_s``) the
-    EKF (``sindy_ekf.ekf.run_ekf``, process noise from the model's one-step residuals on the train
+    EKF (``sindy_ekf.ekf.run_ekf_batch``, all outages in lockstep, process noise from the model's one-step residuals on the train
     runs) runs from ``lead_s`` before the outage to its end; the error is the distance between
     the estimate and the recorded pose there. ``models`` maps a name to a ``SindyModel`` or an
     :class:`ExtendedModel` (driven by its motor inputs).
     """
     from simulation.gnss import simulate_gnss
-    from sindy_ekf.ekf import estimation_grid, run_ekf
+    from sindy_ekf.ekf import EkfRun, estimation_grid, run_ekf_batch
     from sindy_ekf.process_models import (BodyModelProcess, TrueDynamicsProcess, fit_process_noise,
                                           state_series_from_body_states)
 
@@ -281,25 +286,38 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
         proc = TrueDynamicsProcess(model, name) if isinstance(model, ExtendedModel) else BodyModelProcess(model, name)
         fit_process_noise(proc, [state_series_from_body_states(st, f"train{i}")
                                  for i, st in enumerate(prepared(model, train))])
-        errs = []
+        runs, ends = [], []
         for i, st in enumerate(prepared(model, test)):
             t = np.asarray(st.t)
-            starts = np.arange(t[0] + lead_s, t[-1] - outage_s, lead_s + outage_s)
-            for k, t_out in enumerate(starts):
-                if len(errs) >= max_outages:
+            for k, t_out in enumerate(np.arange(t[0] + lead_s, t[-1] - outage_s, lead_s + outage_s)):
+                if len(runs) >= max_outages:
                     break
                 sel = (t >= t_out - lead_s) & (t <= t_out + outage_s + 1e-9)
                 ts = t[sel]
-                gnss = simulate_gnss(ts, st.x[sel], st.y[sel], st.yaw[sel], profile=profile,
-                                     seed=seed + 100 * i + k,
+                gnss = simulate_gnss(ts, st.x[sel], st.y[sel], st.yaw[sel], profile=profile, seed=seed + 100 * i + k,
                                      outages=np.array([[t_out, t_out + outage_s + 1.0]]))
                 grid = estimation_grid(ts, gnss.t_valid)
                 u = np.column_stack([np.interp(grid, ts, st.u1[sel]), np.interp(grid, ts, st.u2[sel])])
                 x0 = np.array([st.x[sel][0], st.y[sel][0], st.yaw[sel][0], st.vx[sel][0], st.vy[sel][0],
                                st.omega[sel][0]])
                 P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.05, 0.05]) ** 2
-                res = run_ekf(proc, grid, u, x0, P0, gnss=gnss, name=name)
-                j = int(np.argmin(np.abs(grid - ts[-1])))
-                errs.append(float(np.hypot(res.x[j, 0] - st.x[sel][-1], res.x[j, 1] - st.y[sel][-1])))
+                runs.append(EkfRun(f"{name} outage {len(runs)}", grid, u, x0, P0, gnss))
+                ends.append((ts[-1], st.x[sel][-1], st.y[sel][-1]))
+        try:  # all outages in lockstep: one vectorised model call per step
+            results = run_ekf_batch(proc, runs)
+        except InputError:  # a model diverged somewhere: run them apart, a diverged one counts as inf
+            results = []
+            for r in runs:
+                try:
+                    results.append(run_ekf_batch(proc, [r])[0])
+                except InputError:
+                    results.append(None)
+        errs = []
+        for res, (t_end, x_end, y_end) in zip(results, ends):
+            if res is None:
+                errs.append(np.inf)
+                continue
+            j = int(np.argmin(np.abs(res.t - t_end)))
+            errs.append(float(np.hypot(res.x[j, 0] - x_end, res.x[j, 1] - y_end)))
         errors[name] = np.array(errs)
     return OutageResult(outage_s, errors)

@@ -260,7 +260,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         rms = res.rms()
         if len(res.errors_m["before"]):
             outage = {"outage_s": res.outage_s, "before_m": rms["before"], "after_m": rms["after"],
-                      "n": int(len(res.errors_m["before"]))}
+                      "n": int(len(res.errors_m["before"])), "n_diverged": res.n_diverged()}
         else:
             log.info("test runs too short for a %g s GNSS outage after %g s of GNSS", res.outage_s, 10.0)
         seconds["ekf"] = time.perf_counter() - t0
