@@ -4,15 +4,17 @@ Simulates a short campaign (seed 0, 4 minutes of driving in the 9 runs of thesis
 preprocesses it (synchronisation, hub model, poses, body states), identifies a SINDy model with
 a reduced but real grid search (2 tau x 3 alpha x 3 T, 3-fold CV by run), evaluates it against
 the baselines and the simulator's true dynamics, benchmarks the estimators and diagnoses the
-model, and writes ``OUT/report/report.html``. Prints where the report is and the headline
-figures. The default output folder ``./demo-out`` is replaced on every run; any other non-empty
-folder needs ``--force``.
+model, and writes ``OUT/report/report.html``. ``OUT`` itself is the simulated tracker campaign
+(with ``truth/``; readers ignore the ``report/`` folder beside ``runs/``), so every other command
+can be pointed at it. Prints what the campaign holds, the headline figures and where the report
+is; stages that failed are named on stderr. The default output folder ``./demo-out`` is
+replaced on every run; any other non-empty folder needs ``--force``.
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -37,44 +39,48 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     return p
 
 
-def prepare_out(out: Path, force: bool) -> Path:
-    """Return ``out`` emptied when the demo wrote it before (or ``force``), else raise InputError."""
+def check_out(out: Path, force: bool) -> Path:
+    """Return ``out`` if the demo may (re)write it, else raise InputError naming it.
+
+    A missing or empty folder, one the demo wrote before (it holds the marker file) or any
+    folder with ``force`` is fine; the parent must be writable.
+    """
     from sindy_ekf.report import check_report_dir
 
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: output exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not (force or (out / MARKER).is_file()):
-            raise InputError(f"{out}: output folder is not empty and not a demo folder (use --force to replace it)")
-        shutil.rmtree(out)
-    check_report_dir(out)
-    (out / MARKER).write_text("written by sindy-ekf demo; rerunning the demo replaces this folder\n")
+    if out.is_dir() and any(out.iterdir()) and not (force or (out / MARKER).is_file()):
+        raise InputError(f"{out}: output folder is not empty and not a demo folder (use --force to replace it)")
+    check_report_dir(out.parent if out.parent != Path("") else Path("."))
     return out
 
 
 def run(args) -> int:
     """Simulate, run the chain, write the report; print where it is and the headline figures."""
     from simulation.campaign import simulate_campaign
-    from sindy_ekf.commands.report import format_headline
+    from sindy_ekf.commands.report import format_headline, format_problems
+    from sindy_ekf.commands.simulate import format_table
     from sindy_ekf.io_utils import atomic_write_json
     from sindy_ekf.report import render_report
     from sindy_ekf.report_chain import QUICK, run_chain
 
     tic = time.perf_counter()
-    out = prepare_out(args.out, args.force)
-    campaign = out / "campaign"
-    truth = simulate_campaign(campaign, seed=args.seed, minutes=args.minutes, effects=args.effect)
+    campaign = check_out(args.out, args.force)
+    # the simulator writes the campaign atomically (a temporary sibling renamed into place)
+    truth = simulate_campaign(campaign, seed=args.seed, minutes=args.minutes, effects=args.effect, force=True)
+    (campaign / MARKER).write_text("written by sindy-ekf demo; rerunning the demo replaces this folder\n")
     t_simulate = time.perf_counter() - tic
     effect = ", ".join(f"{n}={v:g}" for n, v in truth.effects) or "none"
-    if not args.quiet:
-        print(f"simulated {campaign}: {len(truth.runs)} runs, {sum(r.duration_s for r in truth.runs) / 60:.1f} min, "
-              f"seed {truth.seed}, hidden effect: {effect} ({time.perf_counter() - tic:.0f} s)")
-    chain = run_chain(campaign, out / "report", grid=QUICK)
+    print(f"simulated campaign {campaign}: {len(truth.runs)} runs, {sum(r.duration_s for r in truth.runs) / 60:.1f} "
+          f"min, seed {truth.seed}, hidden effect: {effect}")
+    print(format_table(truth))
+    chain = run_chain(campaign, campaign / "report", grid=QUICK)
     tic_render = time.perf_counter()
-    path = render_report(chain, out / "report")
+    path = render_report(chain, campaign / "report")
     chain.seconds = {"simulate": t_simulate, **chain.seconds, "render": time.perf_counter() - tic_render}
-    if not args.quiet:
-        print(format_headline(chain))
+    print(format_headline(chain))
+    if format_problems(chain):
+        print(format_problems(chain), file=sys.stderr)
     print(f"report written to {path} ({time.perf_counter() - tic:.0f} s in all)")
     if args.json is not None:
         atomic_write_json(args.json, {"report": str(path), "seed": truth.seed, "minutes": truth.minutes,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -42,11 +43,14 @@ def format_headline(chain) -> str:
         d = chain.diagnosis
         lines.append(f"diagnosis: {d.verdict}; 5 s position error {100 * d.before['pos_err_5s_m']:.2f} cm -> "
                      f"{100 * d.after['pos_err_5s_m']:.2f} cm")
-    for stage, why in chain.errors.items():
-        lines.append(f"stage {stage} failed: {why}")
-    for stage, why in chain.skipped.items():
-        lines.append(f"stage {stage} not run: {why}")
     return "\n".join(lines)
+
+
+def format_problems(chain) -> str:
+    """Return one line per stage that failed or did not run (printed on stderr), or ''."""
+    return "\n".join([f"stage {stage} failed: {why}" for stage, why in chain.errors.items()]
+                     + [f"stage {stage} not run: {why}" for stage, why in chain.skipped.items()
+                        if why != "stage not requested"])
 
 
 def run(args) -> int:
@@ -60,6 +64,8 @@ def run(args) -> int:
     path = render_report(chain, args.out)
     if not args.quiet:
         print(format_headline(chain))
+    if format_problems(chain):
+        print(format_problems(chain), file=sys.stderr)
     print(f"report written to {path}")
     if args.json:
         atomic_write_json(args.json, {"report": str(path), **chain.headline()})
