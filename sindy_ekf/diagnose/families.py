@@ -41,6 +41,8 @@ FAMILIES = ("input_delay", "heading_dependence", "position_dependence", "time_de
             "deadband", "lateral_slip")
 G_M_S2 = 9.81
 PATCH_EDGE_M = 0.2  # 10-90 % width of the patch's logistic edge (assumed, not estimated)
+PATCH_GRID_SPACING_M = 0.4  # candidate patch centres over the driven area, before Nelder-Mead
+PATCH_RADII_M = (0.5, 0.8, 1.2, 1.8)  # candidate radii of the grid
 RIGID_BODY_COUPLING = -1.0  # vy_dot = -vx omega + F_y/m: the coupling of a rigid body without slip
 _MAX_CHUNK_ELEMENTS = 6_000_000  # candidates x samples x features per chunk (memory bound)
 
@@ -122,11 +124,9 @@ class Family:
         if self.name == "position_dependence":
             lo = np.percentile(split.pose_local[:, :2], 2, axis=0)
             hi = np.percentile(split.pose_local[:, :2], 98, axis=0)
-            cx = np.arange(lo[0], hi[0] + 1e-9, 0.4)
-            cy = np.arange(lo[1], hi[1] + 1e-9, 0.4)
-            radii = np.array([0.5, 0.8, 1.2, 1.8])
-            g = np.stack(np.meshgrid(cx, cy, radii, indexing="ij"), -1).reshape(-1, 3)
-            return g
+            cx = np.arange(lo[0], hi[0] + 1e-9, PATCH_GRID_SPACING_M)
+            cy = np.arange(lo[1], hi[1] + 1e-9, PATCH_GRID_SPACING_M)
+            return np.stack(np.meshgrid(cx, cy, PATCH_RADII_M, indexing="ij"), -1).reshape(-1, 3)
         if not self.theta_names:
             return np.zeros((1, 0))
         lo, hi = self.bounds[0]
