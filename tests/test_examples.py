@@ -59,7 +59,14 @@ def check_benchmark_estimators(result: dict) -> None:
     assert all(np.isfinite(v["runtime_s"]) for v in result["estimators"].values())
 
 
-CHECKS = {"identify_your_campaign": check_identify_your_campaign,
+def check_diagnose_hidden_effect(result: dict) -> None:
+    # the simulator hid the effect: the diagnosis must name it, and the extension must not hurt
+    assert result["verdict"] == result["hidden"], result
+    assert result["after"]["pos_err_5s_m"] <= result["before"]["pos_err_5s_m"], result
+
+
+CHECKS = {"diagnose_hidden_effect": check_diagnose_hidden_effect,
+          "identify_your_campaign": check_identify_your_campaign,
           "dead_reckoning_through_outage": check_dead_reckoning_through_outage,
           "benchmark_estimators": check_benchmark_estimators}
 
