@@ -43,7 +43,6 @@ G_M_S2 = 9.81
 PATCH_EDGE_M = 0.2  # 10-90 % width of the patch's logistic edge (assumed, not estimated)
 PATCH_GRID_SPACING_M = 0.4  # candidate patch centres over the driven area, before Nelder-Mead
 PATCH_RADII_M = (0.5, 0.8, 1.2, 1.8)  # candidate radii of the grid
-RIGID_BODY_COUPLING = -1.0  # vy_dot = -vx omega + F_y/m: the coupling of a rigid body without slip
 _MAX_CHUNK_ELEMENTS = 6_000_000  # candidates x samples x features per chunk (memory bound)
 
 
@@ -199,21 +198,23 @@ class Family:
             c_vx = model_coefficient(model, "vx", "vx")
             c_om = model_coefficient(model, "omega", "omega")
             ref = np.array([c_vx, c_om])
-            # the patch adds damping -v d s vx, -v d s omega with d the model's linear damping
-            frac = float(-(beta @ -ref) / (ref @ ref)) if ref @ ref > 0 else float("nan")
+            # the patch multiplies the model's linear damping terms by (1 + v s): beta = v ref
+            frac = float(beta @ ref / (ref @ ref)) if ref @ ref > 0 else float("nan")
             return {"patch_center_local_m": [float(theta[0]), float(theta[1])],
                     "patch_radius_m": float(theta[2]), "damping_fraction": frac}
         if self.name == "lateral_slip":
             # In turns vy settles at (c / k) vx omega within 1/k (about 0.1 s): the integral
             # regression sees the drift ratio c / k well, c and k apart poorly. The slip gain is
-            # the drift relative to the model's own (or the coupling relative to a rigid body's).
+            # the drift relative to the model's own.
             c = model_coefficient(model, "vy", "vx omega")
             k = model_coefficient(model, "vy", "vy")
+            # A model without a lateral law (eq. 7.8, vy_dot = 0) has no drift to compare with: then
+            # the drift itself is the finding and the gain is left undefined (None).
             c_new, k_new = c + beta[0], k + beta[1]
             drift = float(c_new / k_new) if k_new != 0 else float("nan")
-            gain = drift / (c / k) if c != 0 and k != 0 else float(c_new / RIGID_BODY_COUPLING)
+            has_law = c != 0 and k != 0
             return {"coupling": float(c_new), "damping_1_s": float(-k_new), "drift_s": drift,
-                    "slip_gain": float(gain)}
+                    "slip_gain": float(drift / (c / k)) if has_law else None, "model_has_lateral_law": has_law}
         return {}
 
 
@@ -439,7 +440,9 @@ def _jackknife(values: list[dict]) -> dict:
     R = len(values)
     out = {}
     for key in values[0]:
-        arr = np.array([v[key] for v in values], dtype=float)
+        if isinstance(values[0][key], (bool, str)):
+            continue
+        arr = np.array([np.nan if v[key] is None else v[key] for v in values], dtype=float)
         if key == "psi_down_rad":  # circular: deviations wrapped to (-pi, pi]
             dev = np.angle(np.exp(1j * (arr - np.angle(np.exp(1j * arr).mean()))))
         else:
