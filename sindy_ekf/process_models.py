@@ -310,7 +310,7 @@ def one_step_residuals(model: ProcessModel, series: list[StateSeries]) -> tuple[
 
 
 def fit_process_noise(model: ProcessModel, series: list[StateSeries],
-                      floor_std: float = 1e-4) -> ProcessModel:
+                      floor_std: float = 1e-3) -> ProcessModel:
     """Return ``model`` with ``Q_rate_`` fitted from its one-step residuals on the train runs.
 
     The residual of a step of length ``dt`` is treated as white process noise integrated over
