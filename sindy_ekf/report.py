@@ -95,8 +95,8 @@ class Section:
                 figs = draw()
             except Exception as exc:  # noqa: BLE001 - one broken figure must not lose the section
                 log.warning("report: figure '%s' failed: %s: %s", caption, type(exc).__name__, exc)
-                out.append(f'<p class="fail">figure "{html.escape(caption)}" could not be drawn: '
-                           f'{html.escape(type(exc).__name__)}: {html.escape(str(exc).splitlines()[0] if str(exc) else "")}</p>')
+                why = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+                out.append(f'<p class="fail">figure "{html.escape(caption)}" could not be drawn: {html.escape(why)}</p>')
                 continue
             for k, fig in enumerate(figs if isinstance(figs, (list, tuple)) else [figs]):
                 w, h = fig.get_size_inches()

@@ -196,8 +196,6 @@ def test_rendered_report_shows_every_section_and_figure(report, tmp_path):
 
 def test_figure_search_rejects_a_missing_figure(report, tmp_path):
     # the check above can fail: a figure blanked out of the page is not found
-    from PIL import Image
-
     sec = sections_of(report["html"])["overview"]
     html_blank = report["html"].replace(base64.b64encode(sec["pngs"][0]).decode(), base64.b64encode(
         _white_png(sec["pngs"][0])).decode())
@@ -206,7 +204,6 @@ def test_figure_search_rejects_a_missing_figure(report, tmp_path):
     img = screenshot(page, tmp_path / "blank.png", tmp_path / "chromium", 4000)
     mism, _, _ = find_figure(img, sec["pngs"][0], section_rows(img)["overview"])
     assert mism > 0.5
-    assert Image  # PIL is a matplotlib dependency: present wherever the report renders
 
 
 def _white_png(png: bytes) -> bytes:
@@ -262,3 +259,21 @@ def test_simulator_prints_nothing(tmp_path, capsys):
     truth = simulate_campaign(tmp_path / "c", seed=4, minutes=9 * MIN_RUN_S / 60.0)
     assert len(truth.runs) == 9
     assert capsys.readouterr().out == ""
+
+
+def test_a_broken_figure_is_named_and_the_rest_kept():
+    from matplotlib.figure import Figure
+
+    from sindy_ekf.report import Section
+
+    def good():
+        fig = Figure(figsize=(4, 3))
+        fig.subplots().plot([0, 1], [1, 0])
+        return fig
+
+    sec = Section("overview", "Campaign overview")
+    sec.figures([(lambda: 1 / 0, "broken plot"), (good, "good plot")])
+    text = sec.to_html()
+    assert 'figure "broken plot" could not be drawn: ZeroDivisionError' in text
+    assert sec.n_figures == 1 and text.count("data:image/png;base64,") == 1
+    assert 'data-figures="1"' in text
