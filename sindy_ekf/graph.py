@@ -87,28 +87,36 @@ class DynamicsFactors:
 
     def factor(self, k: int, noise) -> gtsam.CustomFactor:
         """Return the dynamics factor between steps ``k`` and ``k + 1``."""
+        kx0, kv0, kx1, kv1 = X(k), V(k), X(k + 1), V(k + 1)
+        n_full = 2 * len(self.t)
+        H_v1 = np.vstack([np.zeros((3, 3)), np.eye(3)])  # d e / d V(k+1), constant
+
         def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
-            p0, p1 = values.atPose2(X(k)), values.atPose2(X(k + 1))
-            x0 = np.array([p0.x(), p0.y(), p0.theta(), *values.atVector(V(k))])
-            if not np.array_equal(x0, self._x[k]):
-                if values.size() >= 2 * len(self.t) - 2:  # a full set: predict all steps at once
+            p0, p1 = values.atPose2(kx0), values.atPose2(kx1)
+            v0 = values.atVector(kv0)
+            x0 = np.array([p0.x(), p0.y(), p0.theta(), v0[0], v0[1], v0[2]])
+            if not (x0 == self._x[k]).all():
+                if values.size() >= n_full:  # a full set: predict all steps at once
                     self._fill(values, len(self.dt))
-                if not np.array_equal(x0, self._x[k]):
+                if not (x0 == self._x[k]).all():
                     self._x[k] = x0
                     self._pred[k], self._F[k], _ = self.model.step_and_jac(
                         x0, self.u[k], self.t_rel[k], self.dt[k])
                     self.n_single += 1
             pred, F = self._pred[k], self._F[k]
-            v1 = values.atVector(V(k + 1))
-            e = np.array([p1.x() - pred[0], p1.y() - pred[1], _wrap(p1.theta() - pred[2]),
+            v1 = values.atVector(kv1)
+            e = np.array([p1.x() - pred[0], p1.y() - pred[1],
+                          (p1.theta() - pred[2] + np.pi) % (2.0 * np.pi) - np.pi,
                           v1[0] - pred[3], v1[1] - pred[4], v1[2] - pred[5]])
             if H is not None:
-                H[0] = -F[:, :3] @ _J_world_xi(x0[2])
+                c0, s0 = np.cos(x0[2]), np.sin(x0[2])
+                c1, s1 = np.cos(p1.theta()), np.sin(p1.theta())
+                # d[x, y, psi]/d xi = diag(R(psi), 1) at both poses
+                H[0] = -np.column_stack([F[:, 0] * c0 + F[:, 1] * s0, -F[:, 0] * s0 + F[:, 1] * c0, F[:, 2]])
                 H[1] = -F[:, 3:]
-                H1 = np.zeros((N_X, 3))
-                H1[:3] = _J_world_xi(p1.theta())
-                H[2] = H1
-                H[3] = np.vstack([np.zeros((3, 3)), np.eye(3)])
+                H[2] = np.array([[c1, -s1, 0.0], [s1, c1, 0.0], [0.0, 0.0, 1.0],
+                                 [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+                H[3] = H_v1
             return e
 
         return gtsam.CustomFactor(noise, [X(k), V(k), X(k + 1), V(k + 1)], error)
