@@ -46,9 +46,9 @@ NOTES = """### Notes on these data
   differences over 0.1 to 0.4 s or a spline); it is quoted, not matched.
 - ICP poses are stamped on a 20 Hz logger grid, so intervals of 50 and 150 ms stand beside the
   nominal 100 ms. A smoothing spline with a knot at every pose follows that jitter; its yaw rate
-  is 10 to 15 % larger than the differences' on the August runs, and the unicycle fitted on it is worse (table
-  above). Smoothing (s = 10 to 30 with data-estimated noise) and short integral windows
-  (tau = 0.5 to 1 s) are what the search selects here, not the thesis's s = 0.0005 for 50 Hz
+  is 10 to 15 % larger than the differences' on the August runs, and the unicycle fitted on
+  it is worse (table above). Smoothing (s = 10 to 30 with data-estimated noise) and integral
+  windows of 1 to 2 s are what the search selects here, not the thesis's s = 0.0005 for 50 Hz
   laser-tracker poses; the package's quick grid, made for those, loses to the unicycle.
 - cmd campaign: the inputs are speed set-points, and the identified model is a first-order lag
   (time constants of about 1 s for vx, 2 s for omega). Its steady forward gain is close to the
