@@ -19,8 +19,8 @@ body velocities from smoothing splines of the poses (eqs. 5.64 to 5.68). The hyp
 ``s, tau, alpha, T`` and the library are chosen by the package's cross-validated search
 (folds by run), ranked by the 5 s local-frame position error (sections 5.3.6, 5.3.8); 10 Hz
 poses with late stamps need spline smoothing (``s`` of 1 to 100, not the thesis's 0.0005 for
-50 Hz laser-tracker poses) and short integration windows (``tau`` under 2 s: a speed set-point
-is followed within about a second). Of the best-ranked models the first that is not unstable
+50 Hz laser-tracker poses) and short integration windows (``tau`` of 0.5 to 2 s: a speed
+set-point is followed within one to two seconds). Of the best-ranked models the first that is not unstable
 at rest is kept (:func:`select_stable`): 5 s windows do not see a slowly growing lateral mode,
 an EKF coasting through a GNSS outage does. Predictions integrate the model with the pose kinematics
 (eq. 5.75) from the data's pose and velocity at the start of each 5 s window (50 % overlap,
