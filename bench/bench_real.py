@@ -227,6 +227,22 @@ def main() -> int:
         md.append(f"| {a} | {b} | {' | '.join(cells)} | {env} |")
     md.append("")
 
+    # 3b. one day against the other ------------------------------------------------------------
+    md += ["### Trained on one day only (terrain or condition difference between days?)", "",
+           "The quick grid (`QUICK_REAL_GRID`) on the train runs of one recording day, scored on the test run "
+           "(29 July 2024 in both campaigns); the unicycle fitted on the same runs.", "",
+           "| campaign | train runs | n | sindy pos 5 s [m] | unicycle pos 5 s [m] | envelope |", "|---|---|---|---|---|---|"]
+    for name, camp in campaigns.items():
+        for label, day in (("all days", ""), ("8 Aug 2024 only", "2024_8_8"), ("29 Jul 2024 only", "2024_7_29")):
+            sub = replace(camp, runs=tuple(r for r in camp.runs if r.split == "test" or day in r.name))
+            if len(sub.split("train")) < 2:
+                continue
+            model, _ = ex.select_stable(ex.identify(sub, ex.QUICK_REAL_GRID))
+            sc_d = ex.score(model, sub, sub)
+            md.append(f"| {name} | {label} | {len(sub.split('train'))} | {sc_d.results['sindy'].pos_err_5s_m:.3f} | "
+                      f"{sc_d.results['unicycle'].pos_err_5s_m:.3f} | {'; '.join(sc_d.envelope_warnings) or 'inside'} |")
+    md.append("")
+
     # 4. diagnosis -----------------------------------------------------------------------------
     if not args.no_diagnose:
         from sindy_ekf.diagnose import diagnose_states
@@ -309,6 +325,28 @@ def main() -> int:
                 md.append(f"| {name} | {est} | {sco.ate_pos_m:.3f} | {sco.ate_yaw_deg:.2f} | {out10:.3f} | "
                           f"{sco.runtime_s:.2f} |")
             print(name, "benchmark", f"{time.perf_counter() - t0:.0f} s", flush=True)
+        md.append("")
+        md += ["Check of a vy-driven yaw rate: the same models with the `vy` coefficient of the yaw equation set "
+               "to 0 (vy is seen by the EKF only through GNSS positions), same benchmark call.", "",
+               "| campaign | omega coefficient on vy | estimator | ATE pos [m] | ATE yaw [deg] | 10 s outage end [m] |",
+               "|---|---|---|---|---|---|"]
+        for name, sc in scores.items():
+            names = list(sc.model.library.feature_names)
+            if "vy" not in names or sc.model.coef[2, names.index("vy")] == 0.0:
+                md.append(f"| {name} | 0 | - | | | |")
+                continue
+            coef = sc.model.coef.copy()
+            c_vy = coef[2, names.index("vy")]
+            coef[2, names.index("vy")] = 0.0
+            cut = replace(sc.model, coef=coef)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                res = benchmark_campaign(campaigns[name], cut, profile=args.gnss, seed=0,
+                                         smoothing=float(sc.model.hyperparameters["s"]),
+                                         estimators=("unicycle_ekf", "sindy_ekf", "dead_reckoning"))
+            for est, sco in res.scores.items():
+                out10 = sco.outage_pos_err_m.get("10", sco.outage_pos_err_m.get("10.0", np.nan))
+                md.append(f"| {name} | {c_vy:.3f} -> 0 | {est} | {sco.ate_pos_m:.3f} | {sco.ate_yaw_deg:.2f} | {out10:.3f} |")
         md.append("")
     md.append(NOTES)
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -67,14 +67,14 @@ def test_evaluation_reproduces_the_readme_baselines(ex, data, name, pos_m, yaw_d
     assert cv.n_windows == uni.n_windows == {"warthog-drive-cmd": 47, "warthog-drive-wheels": 76}[name]
 
 
-@pytest.mark.parametrize("name, max_ratio", [("warthog-drive-cmd", 0.6), ("warthog-drive-wheels", 1.0)])
+@pytest.mark.parametrize("name, max_ratio", [("warthog-drive-cmd", 0.6), ("warthog-drive-wheels", 0.8)])
 def test_identified_model_beats_the_unicycle_on_the_test_runs(ex, identified, data, name, max_ratio):
     sc = identified[name]
     sindy, uni = sc.results["sindy"], sc.results["unicycle"]
     readme_uni = ex.README_BASELINES[name]["unicycle"][0]
     assert sindy.n_windows == uni.n_windows > 40
     assert sindy.pos_err_5s_m < uni.pos_err_5s_m  # same states, same windows
-    assert sindy.pos_err_5s_m < max_ratio * readme_uni  # issue 6 target for cmd: 0.6 x 0.51 m
+    assert sindy.pos_err_5s_m < max_ratio * readme_uni  # issue 6 targets: 0.6 x 0.51 m, 0.8 x 0.13 m
     assert sindy.yaw_err_5s_deg < uni.yaw_err_5s_deg
     # kept model not unstable at rest: eigenvalues of a central-difference Jacobian of f at x = u = 0
     h = 1e-6
