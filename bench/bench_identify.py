@@ -158,7 +158,8 @@ def main() -> None:
     lines = [
         "# Identification (issue 4)",
         "",
-        f"Command: `OMP_NUM_THREADS=1 .venv/bin/python {cmd.strip()}` (2 worker processes; the machine's 2 cores were shared "
+        f"Command: `OMP_NUM_THREADS=1 .venv/bin/python {cmd.strip()}` (2 worker processes; the machine's "
+        "2 cores were shared "
         "with other jobs during the run, so times are upper bounds).",
         "",
         f"Data: {minutes:.1f} min simulated with `simulation.robot.simulate_run` in the run lengths and splits "
@@ -212,7 +213,8 @@ def main() -> None:
         "",
         f"- best sparse alternative (CV rank {i_sparse + 1}, <= 40 terms): s = {sparse.hyperparameters['s']:g}, "
         f"tau = {sparse.hyperparameters['tau']:g} s, alpha = {sparse.hyperparameters['alpha']:g}, "
-        f"T = {sparse.hyperparameters['T']:g}, {sparse.complexity} terms: test {100 * res_sparse.pos_err_5s_m:.2f} cm / "
+        f"T = {sparse.hyperparameters['T']:g}, {sparse.complexity} terms: test "
+        f"{100 * res_sparse.pos_err_5s_m:.2f} cm / "
         f"{res_sparse.yaw_err_5s_deg:.2f} deg ({res_sparse.pos_err_5s_m / orc.pos_err_5s_m:.2f}x / "
         f"{res_sparse.yaw_err_5s_deg / orc.yaw_err_5s_deg:.2f}x the oracle), precision {prec_s:.2f}, recall "
         f"{rec_s:.2f} ({n_found_s} terms). Its d vy/dt is "

@@ -184,7 +184,8 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     order = np.lexsort((table["complexity"], score))
     table = {k: v[order] for k, v in table.items()}
     if not np.isfinite(table["pos_err_5s_m"][0]):
-        raise InputError(f"hyperparameter search: no grid point gave a finite prediction error on runs {', '.join(names)}")
+        raise InputError("hyperparameter search: no grid point gave a finite prediction error on runs "
+                         f"{', '.join(names)}")
     cache: dict = {}
     with threadpool_limits(limits=1, user_api="blas"):
         hp = [{k: table[k][i] for k in ("s", "tau", "alpha", "T", "library")} for i in range(len(order))]
