@@ -34,6 +34,8 @@ def run(args) -> int:
         est = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.score.estimate.items())
         flag = "*" if c.significant else " "
         print(f"{c.name:20} {100 * c.gain:11.2f} {100 * c.threshold:11.2f} {flag} {est}")
+        if c.note:
+            print(f"{'':20} note: {c.note}")
     b, a = d.before, d.after
     print(f"5 s error on the test runs ({b['n_windows']} windows): position {100 * b['pos_err_5s_m']:.2f} -> "
           f"{100 * a['pos_err_5s_m']:.2f} cm, heading {b['yaw_err_5s_deg']:.2f} -> {a['yaw_err_5s_deg']:.2f} deg")

@@ -60,6 +60,8 @@ class Diagnosis:
         for c in self.ranked:
             entry = {"name": c.name, "estimate": c.score.estimate, "estimate_std": c.score.estimate_std,
                      "gain": c.gain, "threshold": c.threshold, "significant": bool(c.significant)}
+            if c.note:
+                entry["note"] = c.note
             if c.name in self.others:  # another significant family: its mechanism added to the model
                 o = self.others[c.name]
                 entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": o["pos_err_5s_m"]}
