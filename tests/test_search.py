@@ -104,3 +104,22 @@ def test_identify_and_evaluate_commands_end_to_end(small_trajectory, tmp_path):
     ev = json.loads(ev_json.read_text())
     assert ev["n_windows"] > 0 and 0 < ev["pos_err_5s_m"] < ev["baselines"]["constant_velocity"]["pos_err_5s_m"]
     assert main(["evaluate", str(small_trajectory), "--model", str(tmp_path / "none.json"), "--quiet"]) == 2
+
+
+@pytest.mark.slow
+def test_identify_names_a_campaign_without_train_runs(small_trajectory, tmp_path, capsys):
+    import shutil
+
+    import yaml
+
+    from sindy_ekf.cli import main
+
+    camp = tmp_path / "all_test"
+    shutil.copytree(small_trajectory, camp)
+    meta = yaml.safe_load((camp / "campaign.yaml").read_text())
+    for run in meta["runs"]:
+        run["split"] = "test"
+    (camp / "campaign.yaml").write_text(yaml.safe_dump(meta))
+    assert main(["identify", str(camp), "--out", str(tmp_path / "m.json"), "--quick", "--quiet"]) == 2
+    assert "all_test: campaign.yaml marks no run as train" in capsys.readouterr().err
+    assert not (tmp_path / "m.json").exists()
