@@ -4,7 +4,7 @@ Each test draws the magnitude of the hidden effect at random within [0.75, 1.25]
 family's moderate value (simulation.effects), from a seed printed in every failure message, and
 hands the diagnosis only the body states and the reference model (identified on an effect-free
 campaign): nothing says which effect is in the data. Campaigns go from the simulator's true
-trajectory to 25 Hz body states with measurement noise (no bags), 4 x 45 s train and 2 x 45 s
+trajectory to 25 Hz body states with measurement noise (no bags), 4 x 60 s train and 2 x 60 s
 test runs, so that all eight campaigns fit the time budget.
 """
 
@@ -27,7 +27,7 @@ from sindy_ekf.diagnose import diagnose_states  # noqa: E402
 from sindy_ekf.errors import InputError  # noqa: E402
 
 MASTER_SEED = int(os.environ.get("SINDY_EKF_TEST_SEED", np.random.SeedSequence().entropy % 2**31))
-RUN_S, RATE_HZ = 45.0, 25.0
+RUN_S, RATE_HZ = 60.0, 25.0
 
 # the physical parameter of each family (simulation.effects) and how to read it from an estimate
 TRUE_PARAMETER = {
