@@ -27,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
+from identification.trajectory import gap_threshold_s
 from identification.types import BodyStates
 from sindy_ekf.errors import InputError
 
@@ -113,11 +114,13 @@ class PoseDependentDynamics:
 
 
 def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: float = 0.5, dt: float = 0.02,
-                 names: Sequence[str] | None = None, max_gap_s: float = 0.5) -> Windows:
+                 names: Sequence[str] | None = None, max_gap_s: float | None = None) -> Windows:
     """Return the windows of ``window_s`` with ``overlap`` over all runs (thesis 5.3.8).
 
     Windows start at the data sample nearest to every ``window_s * (1 - overlap)``; windows
-    that cross the end of a run or a data gap longer than ``max_gap_s`` are left out.
+    that cross the end of a run or a data gap longer than ``max_gap_s`` are left out. The
+    default gap is the data's own, per run: :func:`identification.trajectory.gap_threshold_s`
+    (``max(0.5 s, 10 x`` the median interval), so 10 Hz poses with a 0.5 s hole keep their windows).
 
     Raises
     ------
@@ -138,7 +141,8 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
         nominal = np.arange(t[0], t[-1] - window_s + 1e-9, window_s * (1 - overlap))
         k = np.clip(np.searchsorted(t, nominal), 0, len(t) - 1)
         k = np.unique(k[t[k] + window_s <= t[-1] + 1e-9])
-        big_gap = np.concatenate([[0], np.cumsum(np.diff(t) > max_gap_s)])
+        gap_s = gap_threshold_s(t) if max_gap_s is None else max_gap_s
+        big_gap = np.concatenate([[0], np.cumsum(np.diff(t) > gap_s)])
         k_end = np.searchsorted(t, t[k] + window_s)
         k = k[big_gap[np.minimum(k_end, len(t) - 1)] == big_gap[k]]
         if not len(k):

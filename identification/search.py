@@ -34,6 +34,9 @@ from sindy_ekf.progress import progress
 
 log = logging.getLogger(__name__)
 
+STABILITY_TOL = 1e-9  # largest real part of an eigenvalue of J_f_x at rest still counted as stable
+SELECTION_NOTE = "sparsest admissible model within one standard error (over folds) of the best CV error"
+
 # Table 5.1 of the thesis, plus tau in {1, 2, 3, 5} s (the thesis fixed tau = 3 s).
 TABLE_5_1 = {"s": (0.0, 0.0005, 0.005, 0.01), "tau": (1.0, 2.0, 3.0, 5.0),
              "alpha": (0.0, 1.0, 5.0, 10.0, 30.0, 50.0), "T": (0.0, 0.25, 0.5, 1.0, 3.0)}
@@ -41,7 +44,11 @@ TABLE_5_1 = {"s": (0.0, 0.0005, 0.005, 0.01), "tau": (1.0, 2.0, 3.0, 5.0),
 
 @dataclass(frozen=True)
 class SearchGrid:
-    """Hyperparameter values to search (defaults: table 5.1 plus tau in {1, 2, 3, 5} s)."""
+    """Hyperparameter values to search (field defaults: table 5.1 plus tau in {1, 2, 3, 5} s, raw T).
+
+    The package searches :data:`DEFAULT_GRID` (normalised regression) unless told otherwise;
+    the field defaults keep the thesis's raw-unit grid for comparison.
+    """
 
     s: tuple[float, ...] = TABLE_5_1["s"]
     tau: tuple[float, ...] = TABLE_5_1["tau"]
@@ -52,6 +59,8 @@ class SearchGrid:
     window_s: float = 5.0
     overlap: float = 0.5
     dt_eval: float = 0.05  # RK4 step of the search's rollouts (the final evaluation uses 0.02 s)
+    normalize: bool = False  # dimensionless alpha and T (unit-norm columns and targets, see fit_stlsq)
+    blowup_factor: float = 3.0  # a rollout with |v| above this times the training envelope diverged
 
     @property
     def size(self) -> int:
@@ -59,7 +68,13 @@ class SearchGrid:
         return len(self.s) * len(self.tau) * len(self.alpha) * len(self.T) * len(self.library)
 
 
-QUICK_GRID = SearchGrid(s=(0.0005,), tau=(2.0, 3.0), alpha=(1.0, 10.0, 30.0), T=(0.25, 0.5, 1.0), n_folds=3)
+# The package's default: dimensionless alpha and T on unit-norm columns and targets
+# (fit_stlsq(normalize=True)), and windows down to 0.2 s so that a fast lateral law (vy relaxing
+# in ~70 ms) is not quasi-static over every window and thresholded away.
+DEFAULT_GRID = SearchGrid(s=(0.0, 0.0005, 0.005, 0.01), tau=(0.2, 0.5, 1.0, 2.0), alpha=(0.0, 1e-4, 1e-3, 1e-2),
+                          T=(0.0, 0.01, 0.03, 0.05, 0.1, 0.2), normalize=True)
+QUICK_GRID = SearchGrid(s=(0.0005,), tau=(0.5, 1.0), alpha=(1e-4, 1e-3), T=(0.03, 0.1, 0.2), n_folds=3,
+                        normalize=True)
 
 
 @dataclass
@@ -131,10 +146,10 @@ def fold_assignment(groups: np.ndarray, n_folds: int) -> np.ndarray:
     return (np.arange(len(uniq)) % min(n_folds, len(uniq)))[inverse]
 
 
-def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: SearchGrid = SearchGrid(),
+def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: SearchGrid = DEFAULT_GRID,
            runs: Sequence[TrajectoryRun] | None = None, names: Sequence[str] | None = None,
            groups: Sequence[int] | None = None, n_top: int = 14, n_jobs: int = 1,
-           rel_tol: float = 0.05) -> SearchResult:
+           rel_tol: float | None = None) -> SearchResult:
     """Return the cross-validated full grid search and the best model refitted on all runs.
 
     Parameters
@@ -153,9 +168,13 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         How many of the best grid points to refit on all runs (``top_models``, for fig. 7.11).
     n_jobs : int
         Worker processes (one ``(s, tau, library)`` combination each at a time).
-    rel_tol : float
-        The selected model is the sparsest within ``1 + rel_tol`` of the best CV error
-        (:func:`select_parsimonious`); 0 selects the best.
+    rel_tol : float, optional
+        None (default): the one-standard-error rule (:func:`select_one_se`). A number: the
+        sparsest model within ``1 + rel_tol`` of the best CV error (:func:`select_parsimonious`);
+        0 selects the best admissible model.
+
+    The table is ranked admissible rows first (stable at rest, no diverged held-out rollout;
+    columns ``stable_at_rest``, ``max_re_eig_rest``, ``diverged_frac``), then by CV error.
     """
     if states_by_s is None:
         if runs is None:
@@ -181,32 +200,73 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         parts = [_score_combo(job) for job in progress(jobs, "grid (s, tau, library)")]
     table = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     score = np.where(np.isfinite(table["pos_err_5s_m"]), table["pos_err_5s_m"], np.inf)
-    order = np.lexsort((table["complexity"], score))
+    # models unstable at rest or blowing up on a held-out window are ranked after all others
+    order = np.lexsort((table["complexity"], score, ~admissible(table)))
     table = {k: v[order] for k, v in table.items()}
     if not np.isfinite(table["pos_err_5s_m"][0]):
         raise InputError("hyperparameter search: no grid point gave a finite prediction error on runs "
                          f"{', '.join(names)}")
+    if not admissible(table)[0]:
+        log.warning("hyperparameter search: every model is unstable at rest or diverges on a held-out run")
     cache: dict = {}
     with threadpool_limits(limits=1, user_api="blas"):
-        hp = [{k: table[k][i] for k in ("s", "tau", "alpha", "T", "library")} for i in range(len(order))]
+        hp = [{k: table[k][i] for k in ("s", "tau", "alpha", "T", "library")} | {"normalize": grid.normalize}
+              for i in range(len(order))]
         top = [refit(states_by_s, names, hp[i], cache) for i in range(min(n_top, len(order)))]
-        chosen = select_parsimonious(table, rel_tol)
+        chosen = select_one_se(table) if rel_tol is None else select_parsimonious(table, rel_tol)
         model = top[chosen] if chosen < len(top) else refit(states_by_s, names, hp[chosen], cache)
+    model.training["selection"] = SELECTION_NOTE if rel_tol is None else f"sparsest within {rel_tol:.0%} of the best"
     folds = [[names[i] for i in np.flatnonzero(fold == f)] for f in range(n_folds)]
     return SearchResult(table=table, model=model, top_models=top, folds=folds, selected=chosen)
+
+
+def admissible(table: dict[str, np.ndarray]) -> np.ndarray:
+    """Return, per row, whether the model is stable at rest and never diverged on a held-out window.
+
+    Stable at rest: every eigenvalue of ``J_f_x(0, 0)`` of every fold's model has a real part
+    <= :data:`STABILITY_TOL` (a robot left alone must come to rest, not run away). Diverged: a
+    rollout went non-finite or beyond ``blowup_factor`` times the training velocities.
+    """
+    ok = np.asarray(table["stable_at_rest"], bool) & (np.asarray(table["diverged_frac"]) == 0)
+    return ok & np.isfinite(np.asarray(table["pos_err_5s_m"], float))
+
+
+def select_one_se(table: dict[str, np.ndarray]) -> int:
+    """Return the row of the sparsest admissible model within one standard error of the best.
+
+    The "one-standard-error rule" of cross-validated model selection (Breiman et al. 1984;
+    Hastie, Tibshirani and Friedman, *Elements of Statistical Learning*, 7.10): the best
+    admissible CV score ``e*`` is uncertain by its standard error over the folds ``se*``
+    (std of the per-fold RMS 5 s errors / sqrt(n_folds)); every model scoring
+    ``<= e* + se*`` is statistically as good, and the sparsest of them is taken (ties in
+    complexity go to the lower error). Inadmissible rows (:func:`admissible`) are never
+    selected unless no row is admissible, then the best row is returned. ``table`` is sorted
+    by :func:`search` (admissible first, best first).
+    """
+    ok = admissible(table)
+    if not ok.any():
+        return 0
+    err = np.asarray(table["pos_err_5s_m"], float)
+    best = int(np.flatnonzero(ok)[np.argmin(err[ok])])
+    se = float(table["pos_err_5s_se_m"][best])
+    limit = err[best] + (se if np.isfinite(se) else 0.0)
+    cand = np.flatnonzero(ok & (err <= limit))
+    return int(cand[np.lexsort((err[cand], np.asarray(table["complexity"])[cand]))[0]])
 
 
 def select_parsimonious(table: dict[str, np.ndarray], rel_tol: float = 0.05) -> int:
     """Return the row of the sparsest model whose CV 5 s position error is within ``rel_tol`` of the best.
 
-    The parsimony principle of SINDy applied as the "one-standard-error" rule of model
-    selection: with plenty of data every extra term lowers the error a little, so the best score
-    alone picks the full library (measured: all 168 terms at T = 0, 6 % better than 30 terms).
-    Ties in complexity go to the lower error. ``table`` is sorted best first.
+    The earlier fixed-tolerance rule, kept for comparison (:func:`select_one_se` is the
+    default). Only admissible rows (:func:`admissible`) count when there are any. Ties in
+    complexity go to the lower error. ``table`` is sorted best first.
     """
-    err = table["pos_err_5s_m"]
-    ok = np.flatnonzero(err <= (1 + rel_tol) * err[0])
-    return int(ok[np.lexsort((err[ok], table["complexity"][ok]))[0]])
+    err = np.asarray(table["pos_err_5s_m"], float)
+    okay = admissible(table)
+    pool = okay if okay.any() else np.ones(len(err), bool)
+    best = err[pool].min()
+    ok = np.flatnonzero(pool & (err <= (1 + rel_tol) * best))
+    return int(ok[np.lexsort((err[ok], np.asarray(table["complexity"])[ok]))[0]])
 
 
 def _score_combo(job) -> dict[str, np.ndarray]:
@@ -224,14 +284,23 @@ def _score_combo_serial(job) -> dict[str, np.ndarray]:
     problem = integral_problem(states, library, tau, names)
     at = list(itertools.product(grid.alpha, grid.T))
     n_folds = int(fold.max()) + 1
-    sq_p, sq_h, abs_err, ss_res, complexity = (np.zeros(len(at)) for _ in range(5))
-    n_win = n_rows = 0
+    m = len(at)
+    abs_err, ss_res, complexity, sq_h = (np.zeros(m) for _ in range(4))
+    sq_fold, n_fold = np.zeros((n_folds, m)), np.zeros(n_folds)
+    max_re_eig = np.full(m, -np.inf)
+    diverged = np.zeros(m)
+    v_limit = grid.blowup_factor * np.max(np.abs(np.vstack([st.state for st in states])), axis=0)
+    # features and their derivatives at rest (x = 0, u = 0): J_f_x of every model is coef @ d_theta
+    _, d_theta0 = library.transform_with_jacobian(np.zeros(5))
+    n_rows = 0
     dx_all = []
     for f in range(n_folds):
         train, held = np.flatnonzero(fold != f), np.flatnonzero(fold == f)
         r, c = problem.compressed(train)
-        coef = np.stack([fit_stlsq(r, c, threshold=T, alpha=a) for a, T in at])  # (M, 3, k)
+        coef = np.stack([fit_stlsq(r, c, threshold=T, alpha=a, normalize=grid.normalize) for a, T in at])
         complexity += np.count_nonzero(coef, axis=(1, 2)) / n_folds
+        J_f_x_rest = np.einsum("mek,vk->mev", coef, d_theta0[:3])
+        max_re_eig = np.maximum(max_re_eig, np.linalg.eigvals(J_f_x_rest).real.max(axis=-1))
         rows_h = np.isin(problem.run_index, held)
         dx_h = problem.delta_x[rows_h]
         pred = np.einsum("pk,mek->mpe", problem.theta_int[rows_h], coef)
@@ -245,25 +314,36 @@ def _score_combo_serial(job) -> dict[str, np.ndarray]:
         except InputError:
             continue  # held-out runs shorter than one window still count in the body-frame scores
         # Different (alpha, T) often select the same model: integrate each distinct one once.
-        uniq, inverse = np.unique(coef.reshape(len(at), -1), axis=0, return_inverse=True)
+        uniq, inverse = np.unique(coef.reshape(m, -1), axis=0, return_inverse=True)
+        inverse = inverse.ravel()
         traj = rollout(StackedSindy(library, uniq.reshape((-1,) + coef.shape[1:])), windows, "rk4",
                        batch_shape=(len(uniq),))
+        with np.errstate(invalid="ignore"):
+            blown = ~np.all(np.abs(traj[..., 3:]) <= v_limit, axis=(-2, -1))  # NaN/inf fail too
+        diverged += blown.sum(axis=-1)[inverse]
         eps_p, eps_h = errors_from_rollout(traj[..., -1:, :], _last(windows))
         with np.errstate(over="ignore"):
-            sq_p += np.sum(eps_p[..., 0] ** 2, axis=-1)[inverse.ravel()]
-            sq_h += np.sum(eps_h[..., 0] ** 2, axis=-1)[inverse.ravel()]
-        n_win += windows.n_windows
+            sq_fold[f] = np.sum(eps_p[..., 0] ** 2, axis=-1)[inverse]
+            sq_h += np.sum(eps_h[..., 0] ** 2, axis=-1)[inverse]
+        n_fold[f] = windows.n_windows
     dx_all = np.vstack(dx_all)
     ss_tot = ((dx_all - dx_all.mean(axis=0)) ** 2).sum()
-    m = len(at)
-    with np.errstate(invalid="ignore"):
+    n_win = n_fold.sum()
+    scored = n_fold > 0
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        rms_fold = np.sqrt(sq_fold[scored] / n_fold[scored, None])  # (folds scored, m)
+        se = (np.std(rms_fold, axis=0, ddof=1) / np.sqrt(scored.sum()) if scored.sum() > 1
+              else np.full(m, np.nan))
         return {
             "s": np.full(m, float(s_val)), "tau": np.full(m, float(tau)),
             "alpha": np.array([a for a, _ in at], float), "T": np.array([T for _, T in at], float),
             "library": np.full(m, lib_name, dtype=object),
-            "pos_err_5s_m": np.sqrt(sq_p / n_win) if n_win else np.full(m, np.nan),
+            "pos_err_5s_m": np.sqrt(sq_fold.sum(axis=0) / n_win) if n_win else np.full(m, np.nan),
             "yaw_err_5s_deg": np.degrees(np.sqrt(sq_h / n_win)) if n_win else np.full(m, np.nan),
+            "pos_err_5s_se_m": se,
             "mae": abs_err / n_rows, "r2": 1 - ss_res / ss_tot, "complexity": complexity,
+            "max_re_eig_rest": max_re_eig, "stable_at_rest": max_re_eig <= STABILITY_TOL,
+            "diverged_frac": diverged / n_win if n_win else np.zeros(m),
         }
 
 
@@ -288,12 +368,13 @@ def refit(states_by_s: dict, names: Sequence[str], hp: dict, cache: dict | None 
         cond = check_conditioning(r, f"runs {', '.join(names)}, s={key[0]:g}, tau={key[1]:g} s")
         cache[key] = (problem, r, c, cond)
     problem, r, c, cond = cache[key]
-    coef = fit_stlsq(r, c, threshold=float(hp["T"]), alpha=float(hp["alpha"]))
+    normalize = bool(hp.get("normalize", False))
+    coef = fit_stlsq(r, c, threshold=float(hp["T"]), alpha=float(hp["alpha"]), normalize=normalize)
     x = np.vstack([st.state for st in states])
     u = np.vstack([st.inputs for st in states])
     return SindyModel(library=problem.library, coef=coef,
                       hyperparameters={"s": float(hp["s"]), "tau": float(hp["tau"]), "alpha": float(hp["alpha"]),
-                                       "T": float(hp["T"])},
+                                       "T": float(hp["T"]), "normalize": normalize},
                       envelope=envelope_from_data(x, u),
                       training={"condition_number": cond, "n_windows": problem.n_windows, "runs": list(names)})
 

@@ -183,38 +183,60 @@ def check_conditioning(r: np.ndarray, what: str) -> float:
 
 
 def fit_stlsq(theta: np.ndarray, target: np.ndarray, threshold: float, alpha: float,
-              max_iter: int = 20) -> np.ndarray:
+              max_iter: int = 20, normalize: bool = False) -> np.ndarray:
     """Return STLSQ coefficients ``(n_targets, k)`` of ``target ~ theta @ coef.T`` (eqs. 5.58, 5.59).
 
     A thin wrapper on ``pysindy.optimizers.STLSQ``: pysindy's warnings about thresholds that
     remove every term are silenced (they are expected during a grid search).
+
+    With ``normalize`` the regression is solved on unit-norm columns of ``theta`` and a
+    unit-norm target per equation, so ``threshold`` and ``alpha`` are dimensionless:
+    a term is dropped when ``|xi_ej| ||theta_j|| / ||target_e|| < threshold``, i.e. when at
+    its typical size it carries less than that fraction of its equation's signal, whatever
+    the units, the window length ``tau`` or the number of windows (pysindy's own
+    ``normalize_columns`` scales the columns only, so one threshold would still compare a
+    lateral-velocity equation with a forward one). Both norms are unchanged by the QR
+    compression of :class:`IntegralProblem` (``||R e_j|| = ||Theta' e_j||``, ``Q^T Delta X``
+    is the projection of the targets), so the compressed and the full problem still agree.
     """
     from pysindy.optimizers import STLSQ
 
+    theta = np.asarray(theta, dtype=float)
+    target = np.asarray(target, dtype=float)
+    if normalize:
+        col = np.linalg.norm(theta, axis=0)
+        col = np.where(col > 0, col, 1.0)
+        tgt = np.linalg.norm(target, axis=0)
+        tgt = np.where(tgt > 0, tgt, 1.0)
+        theta, target = theta / col, target / tgt
     opt = STLSQ(threshold=threshold, alpha=alpha, max_iter=max_iter)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         opt.fit(theta, target)
-    return np.asarray(opt.coef_, dtype=float).reshape(target.shape[1], theta.shape[1])
+    coef = np.asarray(opt.coef_, dtype=float).reshape(target.shape[1], theta.shape[1])
+    return coef * tgt[:, None] / col[None, :] if normalize else coef
 
 
 def fit_sindy(states: Sequence[BodyStates], library: FeatureLibrary | str = "poly3", tau: float = 3.0,
               alpha: float = 10.0, threshold: float = 0.25, smoothing: float | None = None,
-              names: Sequence[str] | None = None, problem: IntegralProblem | None = None) -> SindyModel:
+              names: Sequence[str] | None = None, problem: IntegralProblem | None = None,
+              normalize: bool = False) -> SindyModel:
     """Return the SINDy model fitted on all windows of ``states`` (eqs. 5.53 to 5.59).
 
     ``problem`` may pass a precomputed :func:`integral_problem` of the same states. The model's
     ``training`` records the condition number, the number of windows and the runs.
+    ``normalize`` makes ``threshold`` and ``alpha`` dimensionless (see :func:`fit_stlsq`).
     """
     problem = problem or integral_problem(states, library, tau, names)
     r, c = problem.compressed()
     cond = check_conditioning(r, f"runs {', '.join(problem.run_names)}, tau={problem.tau:g} s")
-    coef = fit_stlsq(r, c, threshold=threshold, alpha=alpha)
+    coef = fit_stlsq(r, c, threshold=threshold, alpha=alpha, normalize=normalize)
     x = np.vstack([st.state for st in states])
     u = np.vstack([st.inputs for st in states])
     return SindyModel(
         library=problem.library, coef=coef,
-        hyperparameters={"s": smoothing, "tau": problem.tau, "alpha": float(alpha), "T": float(threshold)},
+        hyperparameters={"s": smoothing, "tau": problem.tau, "alpha": float(alpha), "T": float(threshold),
+                         "normalize": bool(normalize)},
         envelope=envelope_from_data(x, u),
         training={"condition_number": cond, "n_windows": problem.n_windows, "runs": list(problem.run_names)},
     )

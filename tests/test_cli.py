@@ -128,8 +128,6 @@ OUTPUT_CASES = {  # command -> argv with the output below a regular file ``block
 
 
 KNOWN_BAD = {  # command -> what it does wrong today (the test flips to XPASS, and fails, once fixed)
-    "identify": "identify checks --out only when writing, after the search, and a parent that is a file "
-                "ends as 'internal error: FileExistsError' (exit 1)",
 }
 
 

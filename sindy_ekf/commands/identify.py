@@ -15,9 +15,19 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     p.add_argument("campaign", type=Path, help="trajectory or tracker campaign")
     p.add_argument("--out", type=Path, required=True, metavar="MODEL.json", help="model file to write")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
-    p.add_argument("--quick", action="store_true", help="a small grid (s=0.0005, 2 tau, 3 alpha, 3 T, 3 folds)")
+    p.add_argument("--quick", action="store_true", help="a small grid (s=0.0005, 2 tau, 2 alpha, 3 T, 3 folds)")
     p.add_argument("--library", nargs="+", default=["poly3"], metavar="NAME",
-                   help="candidate libraries to search (poly3, poly3_absu, poly3_signsq, ...)")
+                   help="candidate libraries to search (poly1, poly2, poly3, poly3_absu, poly3_signsq)")
+    p.add_argument("--smoothing", nargs="+", type=float, default=None, metavar="S",
+                   help="spline smoothing values s to search (default 0 0.0005 0.005 0.01 for 50 Hz tracker "
+                        "poses; noisier or slower poses need larger s, e.g. 1 10 30 for 10 Hz lidar poses)")
+    p.add_argument("--tau", nargs="+", type=float, default=None, metavar="SECONDS",
+                   help="integration window lengths (default 0.2 0.5 1 2; keep several samples per window)")
+    p.add_argument("--alpha", nargs="+", type=float, default=None, metavar="A",
+                   help="ridge weights, dimensionless on unit-norm columns (default 0 1e-4 1e-3 1e-2)")
+    p.add_argument("--threshold", nargs="+", type=float, default=None, metavar="T",
+                   help="STLSQ thresholds: smallest share of an equation's signal a term must carry "
+                        "(default 0 0.01 0.03 0.05 0.1 0.2)")
     p.add_argument("--jobs", type=int, default=1, help="worker processes for the grid")
     p.add_argument("--plots", type=Path, default=None, metavar="DIR",
                    help="write figs. 7.4-7.7, 7.10, 7.11, 7.12 as PNG into DIR")
@@ -29,15 +39,30 @@ def run(args) -> int:
     import dataclasses
 
     from identification.campaigns import open_campaign
-    from identification.search import QUICK_GRID, SearchGrid, search
+    from identification.library import make_library
+    from identification.search import DEFAULT_GRID, QUICK_GRID, search
     from sindy_ekf.io_utils import atomic_write_json
 
+    check_output_file(args.out, "--out")
+    if args.json:
+        check_output_file(args.json, "--json")
+    for name in args.library:
+        make_library(name)  # an unknown library name fails now, not after the search
+    grid = QUICK_GRID if args.quick else DEFAULT_GRID
+    changes = {"library": tuple(args.library)}
+    for opt, field in (("smoothing", "s"), ("tau", "tau"), ("alpha", "alpha"), ("threshold", "T")):
+        values = getattr(args, opt)
+        if values is not None:
+            bad = [v for v in values if not (v >= 0 if opt != "tau" else v > 0)]
+            if bad:
+                raise InputError(f"--{opt}: {bad[0]:g} is not a valid value "
+                                 f"({'positive' if opt == 'tau' else 'non-negative'} numbers expected)")
+            changes[field] = tuple(sorted(set(values)))
+    grid = dataclasses.replace(grid, **changes)
     campaign = open_campaign(args.campaign)
     train = campaign.split("train")
     if not train:
         raise InputError(f"{args.campaign}: campaign.yaml marks no run as train")
-    grid = QUICK_GRID if args.quick else SearchGrid()
-    grid = dataclasses.replace(grid, library=tuple(args.library))
     result = search(runs=train, grid=grid, n_jobs=args.jobs)
     model = result.model
     best = result.row(result.selected)
@@ -47,11 +72,19 @@ def run(args) -> int:
     print(f"identified on {len(train)} train runs of {campaign.name}; grid of {grid.size} points, "
           f"{len(result.folds)}-fold CV by run")
     print(model.equations())
-    print(f"\nselected: rank {result.selected + 1}, the sparsest within 5 % of the best CV error")
-    print(f"{'rank':>4} {'s':>7} {'tau':>4} {'alpha':>5} {'T':>5} {'terms':>5} {'pos 5s cm':>9} {'yaw 5s deg':>10}")
-    for i, r in enumerate(result.ranking(10), 1):
-        print(f"{i:4d} {r['s']:7g} {r['tau']:4g} {r['alpha']:5g} {r['T']:5g} {r['complexity']:5.0f} "
-              f"{100 * r['pos_err_5s_m']:9.2f} {r['yaw_err_5s_deg']:10.2f}")
+    print(f"\nselected: rank {result.selected + 1}, the {model.training['selection']}")
+    print(f"{'rank':>4} {'s':>7} {'tau':>4} {'alpha':>6} {'T':>5} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} "
+          f"{'yaw 5s deg':>10}  note")
+    rows = list(range(min(10, len(result.table["s"]))))
+    rows += [result.selected] if result.selected >= 10 else []
+    for i in rows:
+        r = result.row(i)
+        note = "" if r["stable_at_rest"] else "unstable at rest"
+        if r["diverged_frac"] > 0:
+            note += ("; " if note else "") + f"diverged on {100 * r['diverged_frac']:.0f} % of windows"
+        note += ("; " if note else "") + "selected" if i == result.selected else ""
+        print(f"{i + 1:4d} {r['s']:7g} {r['tau']:4g} {r['alpha']:6g} {r['T']:5g} {r['complexity']:5.0f} "
+              f"{100 * r['pos_err_5s_m']:9.2f} {100 * r['pos_err_5s_se_m']:5.2f} {r['yaw_err_5s_deg']:10.2f}  {note}")
     print(f"model written to {args.out}")
     if args.plots:
         _plots(result, args.plots, train, model)
@@ -64,6 +97,27 @@ def run(args) -> int:
             "selected_rank": result.selected + 1, "ranking": result.ranking(14),
         })
     return 0
+
+
+def check_output_file(path: Path, option: str) -> Path:
+    """Return ``path`` if a file can be written there, else raise InputError naming the culprit.
+
+    Checked before any work: the path must not be a folder, its nearest existing ancestor must
+    be a writable folder (not a regular file).
+    """
+    import os
+
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder, expected a file name")
+    probe = path.parent if str(path.parent) else Path(".")
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{option} {path}: cannot be written, {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK):
+        raise InputError(f"{option} {path}: folder {probe} is not writable")
+    return path
 
 
 def _plots(result, out_dir: Path, train, model) -> None:
