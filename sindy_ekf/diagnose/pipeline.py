@@ -165,6 +165,8 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
     """
     added = ExtendedModel(model, name, best.theta, best.beta, {**best.estimate, "extension": "added"})
     full = reidentify(model, name, best.theta, tr, weights, {**best.estimate, "extension": "reidentified"})
+    if best.estimate.get("scored_with") == "refit":  # the scored model is the re-identified one
+        return full
     if len(tr.names) < 2:
         return added
     sq = np.zeros(2)
@@ -246,7 +248,9 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     others = {}
     for c in ranked[1:]:
         if c.significant:  # what each other significant mechanism alone would buy
-            ext = ExtendedModel(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate))
+            ext = (reidentify(model, c.name, c.score.theta, tr, weights)
+                   if c.score.estimate.get("scored_with") == "refit"
+                   else ExtendedModel(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate)))
             others[c.name] = errors_5s(res_before, multistep(ext, test, test_names))[1]
     seconds["multistep"] = time.perf_counter() - t0
     t0 = time.perf_counter()
