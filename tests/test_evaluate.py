@@ -109,3 +109,19 @@ def test_diverging_model_scores_infinite_not_nan(clean_runs):
     unstable = model_from_terms({"vx": {"vx^3": 50.0}, "omega": {"omega": 40.0}})
     res = evaluate_model(unstable, clean_runs)
     assert res.pos_err_5s_m == np.inf
+
+
+def test_windows_keep_a_short_hole_of_10_hz_data_and_drop_a_long_one():
+    """10 Hz stamps: a 0.6 s hole is below gap_threshold_s (1 s) and is bridged, a 1.5 s hole is not."""
+    t = np.arange(0, 30, 0.1)
+    t = t[(t < 6.0) | (t > 6.55)]  # 0.6 s hole
+    t = t[(t < 20.0) | (t > 21.45)]  # 1.5 s hole
+    n = len(t)
+    st = BodyStates(t=t, vx=np.ones(n), vy=np.zeros(n), omega=np.zeros(n), u1=np.zeros(n), u2=np.zeros(n),
+                    x=t, y=np.zeros(n), yaw=np.zeros(n))
+    w = make_windows([st])
+    t0 = w.t0
+    assert np.any((t0 < 6.0) & (t0 + 5 > 6.6))  # a window across the short hole
+    assert not np.any((t0 < 20.0) & (t0 + 5 > 21.4))  # none across the long one
+    w_old = make_windows([st], max_gap_s=0.5)
+    assert not np.any((w_old.t0 < 6.0) & (w_old.t0 + 5 > 6.6))
