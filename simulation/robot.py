@@ -267,6 +267,16 @@ class TrueDynamics:
         terms = self.params.terms()
         self._eqs = [[(c, np.array(exponents_from_name(n))) for n, c in terms[k].items()]
                      for k in ("vx", "vy", "omega")]
+        # one entry per (equation, monomial, variable it contains): the derivative's coefficient
+        # c * e_v, its exponents e - 1_v and the Jacobian cell row * 5 + v it adds to
+        entries = [(row, v, c * ex[v], ex - np.eye(5, dtype=int)[v])
+                   for row, eq in enumerate(self._eqs) for c, ex in eq for v in np.flatnonzero(ex)]
+        self._dexp = np.array([e[3] for e in entries], dtype=np.intp).reshape(-1, 5)  # (K, 5)
+        self._dcoef = np.array([e[2] for e in entries], float)                       # (K,)
+        self._dscatter = np.zeros((len(entries), 15))                                # (K, 15)
+        self._dscatter[np.arange(len(entries)), [5 * e[0] + e[1] for e in entries]] = 1.0
+        if self._dexp.size and self._dexp.max() > 3:
+            raise ValueError("TrueDynamics: monomials of degree > 4 in one variable are not supported")
 
     # -- dynamics --------------------------------------------------------------------------
     def f(self, x6, u, t=0.0) -> np.ndarray:
@@ -282,17 +292,15 @@ class TrueDynamics:
         return np.stack(np.broadcast_arrays(*a), axis=-1)
 
     def _poly_jacobian(self, z: np.ndarray) -> np.ndarray:
-        """Return d(poly)/d[vx, vy, omega, u1, u2], shape ``(..., 3, 5)``, from the exponents."""
+        """Return d(poly)/d[vx, vy, omega, u1, u2], shape ``(..., 3, 5)``, from the exponents.
+
+        One numpy pass: the powers 0..3 of the five variables are gathered with the precomputed
+        derivative exponents ``(K, 5)``, multiplied, scaled by ``c * e_v`` and summed into the
+        15 Jacobian cells by a ``(K, 15)`` scatter matrix.
+        """
         powers = np.stack([np.ones_like(z), z, z * z, z * z * z], axis=-1)  # (..., 5, 4)
-        J = np.zeros(z.shape[:-1] + (3, 5))
-        for row, eq in enumerate(self._eqs):
-            for c, ex in eq:
-                for v in np.flatnonzero(ex):
-                    e = ex.copy()
-                    e[v] -= 1
-                    mono = np.prod(powers[..., np.arange(5), e], axis=-1)
-                    J[..., row, v] += c * ex[v] * mono
-        return J
+        mono = np.prod(powers[..., np.arange(5), self._dexp], axis=-1)      # (..., K)
+        return ((mono * self._dcoef) @ self._dscatter).reshape(z.shape[:-1] + (3, 5))
 
     def J_f_x(self, x6, u, t=0.0) -> np.ndarray:
         """Return the analytic Jacobian of :meth:`f` with respect to ``x6``, shape ``(..., 3, 6)``."""
