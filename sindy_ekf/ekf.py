@@ -15,6 +15,13 @@ Joseph form on the stacked state ``[x_a, x_v]`` with ``H = [0, H_v]``, of which 
 next one is valid (the profiles of :mod:`simulation.gnss` are built so); otherwise the earlier
 delayed update's correlation is neglected (first order). It costs a few 6x6 products per fix,
 where re-propagating from the time of validity would cost ``latency / dt`` model steps.
+
+Optional lateral non-holonomic pseudo-measurement (:class:`LateralConstraint`, off by default): a
+skid-steered robot barely slides sideways, so ``v_y = 0`` is applied as a measurement with a
+standard deviation fitted from the train runs' ``v_y`` (:func:`fit_lateral_constraint`, 2 x its RMS)
+every ``every`` steps. It is a current-time update, folded into the step's error transition
+``M_k`` like a fix without latency. On real data a model with a spurious ``v_y`` term in the yaw
+equation diverges without it (``bench/results/real.md``).
 """
 
 from __future__ import annotations
@@ -37,6 +44,65 @@ GATE_DOF = 2  # horizontal GNSS position
 GATE_PROB = 0.999
 GRID_TOL_S = 1e-6  # stamps closer than this are the same instant
 DT_MAX_S = 0.025  # longest step of the estimation grid (50 Hz poses with a skipped pulse: split)
+
+
+@dataclass(frozen=True)
+class LateralConstraint:
+    """The ``v_y = 0`` pseudo-measurement: its standard deviation and rate.
+
+    Attributes
+    ----------
+    vy_std_m_s : standard deviation of the body lateral velocity about zero, m/s (> 0).
+    every : applied after every ``every``-th prediction step (1 = every step).
+    """
+
+    vy_std_m_s: float
+    every: int = 1
+
+    def __post_init__(self):
+        if not (np.isfinite(self.vy_std_m_s) and self.vy_std_m_s > 0):
+            raise InputError(f"lateral constraint: vy_std_m_s must be finite and > 0, got {self.vy_std_m_s}")
+        if int(self.every) != self.every or self.every < 1:
+            raise InputError(f"lateral constraint: every must be an integer >= 1, got {self.every}")
+
+
+def fit_lateral_constraint(vy_body_m_s, every: int = 1, inflation: float = 2.0,
+                           min_std_m_s: float = 1e-3) -> LateralConstraint:
+    """Return a :class:`LateralConstraint` whose std is ``inflation`` x the RMS of the train ``v_y``.
+
+    ``vy_body_m_s``: one array of body lateral velocities (m/s) or a list of them (one per run
+    or segment; non-finite samples ignored). The RMS about zero (not the std about the mean)
+    since the constraint says ``v_y = 0``; floored at ``min_std_m_s``. ``inflation`` (default 2)
+    because the error of ``v_y = 0`` is not white: it is mostly the slowly varying deterministic
+    lateral motion (e.g. ``v_x omega`` coupling), so repeated applications treated as independent
+    are over-confident; with the plain RMS the oracle's ``v_y`` NEES is about 1.8 instead of 1 at
+    5 Hz on simulated data, with 2 x RMS about 1.1 (``tests/test_ekf_lateral.py``).
+    """
+    if not (np.isfinite(inflation) and inflation > 0):
+        raise InputError(f"lateral constraint: inflation must be finite and > 0, got {inflation}")
+    parts = [np.ravel(np.asarray(v, float)) for v in
+             (vy_body_m_s if isinstance(vy_body_m_s, (list, tuple)) else [vy_body_m_s])]
+    vy = np.concatenate(parts) if parts else np.empty(0)
+    vy = vy[np.isfinite(vy)]
+    if vy.size == 0:
+        raise InputError("lateral constraint: no finite train v_y sample to fit the std on")
+    return LateralConstraint(max(inflation * float(np.sqrt(np.mean(vy * vy))), min_std_m_s), every)
+
+
+def lateral_update(x: np.ndarray, P: np.ndarray, vy_std_m_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return ``(x, P, I - K H)`` after the ``v_y = 0`` pseudo-measurement, batched over ``(m,)``.
+
+    Joseph-form Kalman update with ``H = e_vy`` (state index 4) and
+    ``R = vy_std_m_s^2``, vectorised over the leading axis of ``x (m, 6)``, ``P (m, 6, 6)``.
+    """
+    r = vy_std_m_s ** 2
+    S = P[:, 4, 4] + r                                  # (m,)
+    K = P[:, :, 4] / S[:, None]                         # (m, 6)
+    x = x - K * x[:, 4:5]
+    IKH = np.broadcast_to(np.eye(N_X), P.shape).copy()
+    IKH[:, :, 4] -= K
+    P = IKH @ P @ np.swapaxes(IKH, -1, -2) + r * K[:, :, None] * K[:, None, :]
+    return x, 0.5 * (P + np.swapaxes(P, -1, -2)), IKH
 
 
 def estimation_grid(t_poses: np.ndarray, t_gnss: np.ndarray | None = None,
@@ -259,13 +325,14 @@ class _RunState:
         self.X[k1], self.P[k1] = ekf.x, ekf.P
 
 
-def run_ekf_batch(model: ProcessModel, runs: list[EkfRun],
-                  gate_prob: float = GATE_PROB) -> list[EkfResult]:
+def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GATE_PROB,
+                  lateral: LateralConstraint | None = None) -> list[EkfResult]:
     """Return the EKF (or, without GNSS, dead-reckoning) estimates of several runs.
 
     The runs are filtered independently but in lockstep over the step index, so that one
     vectorised model call predicts all of them (the model step dominates the cost; a loop over
     time is inherent to a filter). Each run keeps its own :class:`ModelEKF` for its updates.
+    ``lateral``: optional ``v_y = 0`` pseudo-measurement (module docstring), off by default.
     """
     start = time.perf_counter()
     states = [_RunState(r, model, gate_prob) for r in runs]
@@ -281,6 +348,9 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun],
         P = np.stack([s.ekf.P for s in active])
         x_next, F, _ = model.step_and_jac(x, u, t_k, dt)
         P_next = F @ P @ np.swapaxes(F, -1, -2) + model.Q(dt)
+        if lateral is not None and (k + 1) % lateral.every == 0:
+            x_next, P_next, IKH = lateral_update(x_next, P_next, lateral.vy_std_m_s)
+            F = IKH @ F  # error transition of the step with the pseudo-measurement folded in
         for i, s in enumerate(active):
             Pi, repaired = repair_covariance(P_next[i])
             if repaired:
@@ -308,7 +378,8 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun],
 
 
 def run_ekf(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P0: np.ndarray,
-            gnss=None, name: str | None = None, gate_prob: float = GATE_PROB) -> EkfResult:
+            gnss=None, name: str | None = None, gate_prob: float = GATE_PROB,
+            lateral: LateralConstraint | None = None) -> EkfResult:
     """Return the EKF (or, with ``gnss=None``, dead-reckoning) estimates of one run.
 
     Parameters
@@ -320,6 +391,8 @@ def run_ekf(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P
     x0, P0 : initial state (6,) and covariance (6, 6) at ``t[0]``.
     gnss : ``simulation.gnss.GnssSeries`` or None. Fixes are applied when they arrive, at their
         time of validity (module docstring).
+    lateral : optional ``v_y = 0`` pseudo-measurement (:class:`LateralConstraint`, e.g. from
+        :func:`fit_lateral_constraint` on the train runs' ``v_y``); None (default) = off.
     """
     run = EkfRun(name or f"{model.name}_ekf", t, u, np.asarray(x0, float), P0, gnss)
-    return run_ekf_batch(model, [run], gate_prob)[0]
+    return run_ekf_batch(model, [run], gate_prob, lateral)[0]
