@@ -101,7 +101,8 @@ def main() -> int:
                      f"{i2.runtime_s:.1f} | {d_long / i2.runtime_s:.1f} | > 1 |")
 
     # 3. the benchmark on the test runs
-    names = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "oracle_ekf", "sindy_graph") + \
+    names = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "sindy_ekf_lateral", "oracle_ekf",
+             "sindy_graph") + \
         (() if args.skip_isam2 else ("sindy_isam2",))
     if oracle is None:
         names = tuple(n for n in names if n != "oracle_ekf")

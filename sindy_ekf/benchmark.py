@@ -28,12 +28,13 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from sindy_ekf.ekf import EkfRun, GRID_TOL_S, estimation_grid, run_ekf_batch
+from sindy_ekf.ekf import EkfRun, GRID_TOL_S, estimation_grid, fit_lateral_constraint, run_ekf_batch
 from sindy_ekf.errors import InputError
 from sindy_ekf.process_models import (
     BodyModelProcess,
     ConstantVelocityProcess,
     ProcessModel,
+    StateSeries,
     TrueDynamicsProcess,
     fit_process_noise,
     fit_unicycle,
@@ -47,6 +48,9 @@ P0_STD = np.array([0.05, 0.05, np.radians(1.0), 0.05, 0.02, 0.05])
 OUTAGE_TAU_STEP_S = 0.1
 ESTIMATORS = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "oracle_ekf", "sindy_graph",
               "sindy_isam2")
+# accepted in ``estimators`` but not run by default: sindy_ekf with the v_y = 0 pseudo-measurement
+OPTIONAL_ESTIMATORS = ("sindy_ekf_lateral",)
+LATERAL_EVERY = 10  # steps between v_y = 0 pseudo-measurements (5 Hz on the 50 Hz grid)
 
 
 @dataclass(frozen=True)
@@ -107,9 +111,8 @@ def _zoh(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
     return v_src[idx]
 
 
-def fit_models(train_runs, sindy_body, oracle_dynamics=None, smoothing: float | None = None
-               ) -> dict[str, ProcessModel]:
-    """Return the process models of the EKFs, each with ``Q`` fitted on the train runs' states."""
+def train_series(train_runs, smoothing: float | None = None) -> list[StateSeries]:
+    """Return the train runs' six-state series (finite segments of more than 10 samples)."""
     from identification.preprocess import DEFAULT_SMOOTHING
     from identification.search import body_states
 
@@ -119,6 +122,14 @@ def fit_models(train_runs, sindy_body, oracle_dynamics=None, smoothing: float | 
     series = [x for x in series if np.all(np.isfinite(x.x6)) and len(x.t) > 10]
     if not series:
         raise InputError("campaign: no train run with usable poses to fit process noise on")
+    return series
+
+
+def fit_models(train_runs, sindy_body, oracle_dynamics=None, smoothing: float | None = None,
+               series: list[StateSeries] | None = None) -> dict[str, ProcessModel]:
+    """Return the process models of the EKFs, each with ``Q`` fitted on the train runs' states
+    (``series``: those states if already computed by :func:`train_series`)."""
+    series = train_series(train_runs, smoothing) if series is None else series
     models = {"cv_ekf": ConstantVelocityProcess(), "unicycle_ekf": fit_unicycle(series),
               "sindy_ekf": BodyModelProcess(sindy_body, name="sindy")}
     if oracle_dynamics is not None:
@@ -232,16 +243,20 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     sindy_body : the identified body model (``identification.model.SindyModel``).
     profile : GNSS profile of :mod:`simulation.gnss`; ``seed`` seeds it (run ``i`` uses seed + i).
     oracle_dynamics : ``simulation.robot.TrueDynamics`` for ``oracle_ekf`` (simulated campaigns).
-    estimators : names to run, a subset of :data:`ESTIMATORS`.
+    estimators : names to run, a subset of :data:`ESTIMATORS` and :data:`OPTIONAL_ESTIMATORS`
+        (``sindy_ekf_lateral``: sindy_ekf with the ``v_y = 0`` pseudo-measurement of
+        :func:`sindy_ekf.ekf.fit_lateral_constraint` on the train runs, every
+        :data:`LATERAL_EVERY` steps).
     train_campaign : where to fit Q and the unicycle gains (default ``campaign``'s train runs).
     outage_warmup_s, outage_recovery_s : GNSS before the first outage and between outages
         (:func:`simulation.gnss.schedule_outages`: 5, 10, 30, 60 s outages in turn).
     """
     from identification.preprocess import DEFAULT_SMOOTHING
 
-    unknown = set(estimators) - set(ESTIMATORS)
+    known = ESTIMATORS + OPTIONAL_ESTIMATORS
+    unknown = set(estimators) - set(known)
     if unknown:
-        raise InputError(f"benchmark: unknown estimator(s) {sorted(unknown)} (known: {', '.join(ESTIMATORS)})")
+        raise InputError(f"benchmark: unknown estimator(s) {sorted(unknown)} (known: {', '.join(known)})")
     s = DEFAULT_SMOOTHING if smoothing is None else smoothing
     test = campaign.split("test")
     train = (train_campaign or campaign).split("train")
@@ -249,7 +264,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         raise InputError(f"{campaign.root}: no run marked test to benchmark on")
     if not train:
         raise InputError(f"{campaign.root}: no run marked train to fit process noise on")
-    models = fit_models(train, sindy_body, oracle_dynamics, s)
+    series = train_series(train, s)
+    models = fit_models(train, sindy_body, oracle_dynamics, s, series)
     runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s)
             for i, r in enumerate(test)]
     P0 = np.diag(P0_STD ** 2)
@@ -269,6 +285,15 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         start = time.perf_counter()
         keep(name, run_ekf_batch(models[name], batch))
         runtimes[name] = time.perf_counter() - start
+    if "sindy_ekf_lateral" in estimators:
+        lateral = fit_lateral_constraint([x.x6[:, 4] for x in series], every=LATERAL_EVERY)
+        log.info("sindy_ekf_lateral: v_y = 0 with std %.4f m/s every %d steps", lateral.vy_std_m_s,
+                 lateral.every)
+        start = time.perf_counter()
+        keep("sindy_ekf_lateral", run_ekf_batch(models["sindy_ekf"], [
+            EkfRun(f"{r.name} sindy_ekf_lateral", r.grid, r.u, r.x0, P0, r.gnss) for r in runs],
+            lateral=lateral))
+        runtimes["sindy_ekf_lateral"] = time.perf_counter() - start
     if "dead_reckoning" in estimators:
         start = time.perf_counter()
         keep("dead_reckoning", run_ekf_batch(models["sindy_ekf"], [

@@ -34,7 +34,7 @@ def mini(tmp_path_factory):
     campaign = read_trajectory_campaign(root)
     result = benchmark_campaign(campaign, model, "dgnss", seed=3, oracle_dynamics=TrueDynamics(),
                                 estimators=("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf",
-                                            "oracle_ekf", "sindy_graph"),
+                                            "oracle_ekf", "sindy_graph", "sindy_ekf_lateral"),
                                 outage_warmup_s=10.0, outage_recovery_s=12.0)
     out = write_benchmark(result, root.parent / "out", plots=True)
     return root, model, result, out
@@ -75,6 +75,18 @@ def test_scores_follow_the_information_each_estimator_has(mini):
     assert s["sindy_graph"].ate_pos_m <= s["sindy_ekf"].ate_pos_m
     assert 0.5 < s["sindy_ekf"].nis_mean < 4.0  # 2 dof
     assert np.isnan(s["dead_reckoning"].nis_mean)
+
+
+def test_lateral_pseudo_measurement_is_optional_and_keeps_the_true_model_accurate(mini):
+    from sindy_ekf.benchmark import ESTIMATORS, OPTIONAL_ESTIMATORS
+
+    _, _, result, _ = mini
+    s = result.scores
+    assert "sindy_ekf_lateral" in OPTIONAL_ESTIMATORS and "sindy_ekf_lateral" not in ESTIMATORS
+    # the simulator's vy is small but not zero: the fitted constraint must not spoil the true model
+    assert s["sindy_ekf_lateral"].ate_pos_m < 1.3 * s["sindy_ekf"].ate_pos_m
+    assert s["sindy_ekf_lateral"].outage_pos_err_m["10"] < s["unicycle_ekf"].outage_pos_err_m["10"]
+    assert 0.5 < s["sindy_ekf_lateral"].nis_mean < 4.0
 
 
 def test_outputs_hold_tum_files_json_and_plots(mini):

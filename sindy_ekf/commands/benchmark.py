@@ -21,7 +21,8 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     p.add_argument("--gnss", default="dgnss", choices=sorted(PROFILES), help="GNSS profile (default dgnss)")
     p.add_argument("--seed", type=int, default=0, help="seed of the GNSS errors (default 0)")
     p.add_argument("--estimators", default=None, metavar="A,B,...",
-                   help="comma-separated subset (default: all available)")
+                   help="comma-separated subset (default: all available; sindy_ekf_lateral, sindy_ekf with the "
+                        "v_y = 0 pseudo-measurement, only on request)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write TUM files of every estimate, the JSON and the plots into DIR")
