@@ -310,6 +310,10 @@ class TrueDynamics:
         """Return the analytic Jacobian of :meth:`f` with respect to ``u``, shape ``(..., 3, 2)``."""
         return self._jac(x6, u)[1]
 
+    def jacobians(self, x6, u, t=0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``(J_f_x, J_f_u)``, shapes ``(..., 3, 6)`` and ``(..., 3, 2)``, in one pass."""
+        return self._jac(x6, u)
+
     def _jac(self, x6, u):
         x6, u = np.asarray(x6, float), np.asarray(u, float)
         shape = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1])

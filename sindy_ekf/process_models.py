@@ -205,8 +205,11 @@ class TrueDynamicsProcess(ProcessModel):
         """Return the true accelerations and Jacobians (pose and time dependence included)."""
         u = np.broadcast_to(u, x6.shape[:-1] + (N_U,))
         d = self.dynamics
-        return (np.asarray(d.f(x6, u, t)), np.asarray(d.J_f_x(x6, u, t)),
-                np.asarray(d.J_f_u(x6, u, t)))
+        if hasattr(d, "jacobians"):  # TrueDynamics: both Jacobians from one pass
+            J_x, J_u = d.jacobians(x6, u, t)
+        else:
+            J_x, J_u = d.J_f_x(x6, u, t), d.J_f_u(x6, u, t)
+        return np.asarray(d.f(x6, u, t)), np.asarray(J_x), np.asarray(J_u)
 
 
 class ConstantVelocityProcess(ProcessModel):

@@ -39,3 +39,14 @@ def test_vectorised_jacobian_equals_the_loop(effect):
     # leading axes and broadcasting of one input against many states
     np.testing.assert_allclose(dyn._poly_jacobian(z.reshape(4, 50, 5)), J_ref.reshape(4, 50, 3, 5),
                                rtol=1e-13, atol=1e-13)
+
+
+def test_jacobians_in_one_pass_equal_the_separate_methods():
+    from simulation.effects import Effect
+
+    rng = np.random.default_rng(8)
+    dyn = TrueDynamics(effect=Effect("heading_dependence", EFFECTS["heading_dependence"].moderate))
+    x6, u = rng.uniform(-1, 1, (30, 6)), rng.uniform(-1, 1, (30, 2))
+    J_x, J_u = dyn.jacobians(x6, u, 1.0)
+    np.testing.assert_array_equal(J_x, dyn.J_f_x(x6, u, 1.0))
+    np.testing.assert_array_equal(J_u, dyn.J_f_u(x6, u, 1.0))

@@ -1,0 +1,39 @@
+"""Time ``TrueDynamics``' polynomial Jacobian: the vectorised pass against the former per-monomial loop.
+
+Usage: ``python bench/bench_robot_jacobian.py`` (prints a markdown table).
+"""
+from __future__ import annotations
+
+import sys
+import timeit
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+from simulation.robot import TrueDynamics  # noqa: E402
+from test_robot_jacobian import _loop_poly_jacobian  # noqa: E402
+
+
+def main() -> int:
+    dyn = TrueDynamics()
+    rng = np.random.default_rng(0)
+    print("| batch (states) | loop us | vectorised us | speed-up | jacobians() us (both, limiters, effect) |")
+    print("|---|---|---|---|---|")
+    for n in (1, 9, 100, 1000):
+        z = rng.uniform(-1, 1, (n, 5))
+        x6 = np.zeros((n, 6))
+        x6[:, 3:] = z[:, :3]
+        u = z[:, 3:]
+        t = {}
+        for name, fn in (("loop", lambda: _loop_poly_jacobian(dyn, z)), ("vec", lambda: dyn._poly_jacobian(z)),
+                         ("full", lambda: dyn.jacobians(x6, u))):
+            t[name] = min(timeit.repeat(fn, number=200, repeat=5)) / 200 * 1e6
+        print(f"| {n} | {t['loop']:.0f} | {t['vec']:.0f} | {t['loop'] / t['vec']:.1f} | {t['full']:.0f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
