@@ -145,12 +145,12 @@ def stage_identification(chain: ChainResult, model: str | Path | None = None, gr
     ``out_dir/model.json``.
     """
     from identification.model import SindyModel
-    from identification.search import QUICK_GRID, SearchGrid, search
+    from identification.search import DEFAULT_GRID, QUICK_GRID, search
 
     if model is not None:
         chain.model, chain.model_path = SindyModel.load(model), Path(model)
         return
-    grid = QUICK_GRID if grid == QUICK else (SearchGrid() if grid is None else grid)
+    grid = QUICK_GRID if grid == QUICK else (DEFAULT_GRID if grid is None else grid)
     result = search(runs=chain.trajectory.split("train"), grid=grid, n_jobs=n_jobs)
     best = result.ranking(1)[0]
     result.model.training.update({"cv_pos_err_5s_m": best["pos_err_5s_m"], "grid_size": grid.size,
