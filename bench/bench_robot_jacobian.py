@@ -28,7 +28,8 @@ def main() -> int:
         x6[:, 3:] = z[:, :3]
         u = z[:, 3:]
         t = {}
-        for name, fn in (("loop", lambda: _loop_poly_jacobian(dyn, z)), ("vec", lambda: dyn._poly_jacobian(z)),
+        for name, fn in (("loop", lambda: _loop_poly_jacobian(dyn, z)),
+                         ("vec", lambda: dyn._poly_jacobian(z)),
                          ("full", lambda: dyn.jacobians(x6, u))):
             t[name] = min(timeit.repeat(fn, number=200, repeat=5)) / 200 * 1e6
         print(f"| {n} | {t['loop']:.0f} | {t['vec']:.0f} | {t['loop'] / t['vec']:.1f} | {t['full']:.0f} |")

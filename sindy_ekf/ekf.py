@@ -89,7 +89,8 @@ def fit_lateral_constraint(vy_body_m_s, every: int = 1, inflation: float = 2.0,
     return LateralConstraint(max(inflation * float(np.sqrt(np.mean(vy * vy))), min_std_m_s), every)
 
 
-def lateral_update(x: np.ndarray, P: np.ndarray, vy_std_m_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def lateral_update(x: np.ndarray, P: np.ndarray,
+                   vy_std_m_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return ``(x, P, I - K H)`` after the ``v_y = 0`` pseudo-measurement, batched over ``(m,)``.
 
     Joseph-form Kalman update with ``H = e_vy`` (state index 4) and

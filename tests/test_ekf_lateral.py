@@ -91,7 +91,8 @@ def test_ekf_with_the_constraint_stays_consistent_with_the_oracle(trained):
         x0 = truth.x6[0] + rng.multivariate_normal(np.zeros(6), P0)
         runs.append(EkfRun(f"run_{i}", t, _inputs(truth, t), x0, P0, gnss))
     nees, err_on, err_off = [], [], []
-    for truth, on, off in zip(truths, run_ekf_batch(model, runs, lateral=lateral), run_ekf_batch(model, runs)):
+    with_lateral = run_ekf_batch(model, runs, lateral=lateral)
+    for truth, on, off in zip(truths, with_lateral, run_ekf_batch(model, runs)):
         ref = _truth_on(truth, on.t)
         for te in (1010.0, 1016.0, 1024.0):
             k = np.searchsorted(on.t, te)
