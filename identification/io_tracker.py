@@ -224,9 +224,19 @@ def _points(topic: _Topic, run: str, name: str) -> tuple[PointSeries, np.ndarray
         cols = np.array([(_stamp(m.header.stamp), m.point.x, m.point.y, m.point.z) for m in msgs],
                         dtype=float).reshape(-1, 4)
     t, xyz = cols[:, 0].copy(), cols[:, 1:].copy()
+    t_bag = np.asarray(topic.t_bag_ns, dtype=np.int64) * 1e-9
     # not sorted: stamps going backwards mean a clock reset, which no linear clock model fits
-    _check_stamps(t, run, name, strict=True)
-    return PointSeries(t_tracker=t, xyz=xyz), np.asarray(topic.t_bag_ns, dtype=np.int64) * 1e-9
+    _check_stamps(t, run, name, strict=False)
+    # Two measurements on one clock tick (a spurious pulse on the tick of a real one): a tracker
+    # registers one instant once, so the later message is dropped, and said so.
+    repeat = np.flatnonzero(np.diff(t) == 0) + 1
+    if repeat.size:
+        log.warning("run %s: topic %s: %d message(s) repeat the previous stamp; dropped",
+                       run, name, repeat.size)
+        keep = np.ones(t.size, dtype=bool)
+        keep[repeat] = False
+        t, xyz, t_bag = t[keep], xyz[keep], t_bag[keep]
+    return PointSeries(t_tracker=t, xyz=xyz), t_bag
 
 
 def _fast(topic: _Topic) -> np.ndarray | None:

@@ -74,6 +74,21 @@ def test_non_monotonic_stamps_name_run_topic_and_message(tmp_path, raw):
         read_tracker_run(tmp_path / "run_01")
 
 
+def test_a_repeated_stamp_is_dropped_and_said(tmp_path, raw, caplog):
+    t, xyz = raw.at960.t_tracker, raw.at960.xyz
+    # a spurious measurement on the very clock tick of a real one (seen in simulated campaigns)
+    t2, xyz2 = np.insert(t, 51, t[50]), np.insert(xyz, 51, xyz[50] + 1e-3, axis=0)
+    receive = dict(raw.t_receive_utc)
+    if "at960" in receive:
+        receive["at960"] = np.insert(receive["at960"], 51, receive["at960"][50])
+    write_run_bags(tmp_path / "run_01", replace(raw, at960=PointSeries(t2, xyz2), t_receive_utc=receive))
+    with caplog.at_level(logging.WARNING):
+        back = read_tracker_run(tmp_path / "run_01")
+    np.testing.assert_allclose(back.at960.t_tracker, t, rtol=0, atol=2e-9)
+    np.testing.assert_array_equal(back.at960.xyz, xyz)
+    assert "run run_01: topic /at960/measurement: 1 message(s) repeat the previous stamp" in caplog.text
+
+
 def test_nan_coordinates_are_kept_for_the_clock(tmp_path, raw):
     xyz = raw.at960.xyz.copy()
     xyz[10] = np.nan
