@@ -27,6 +27,8 @@ from simulation.measurement import (
 )
 from simulation.truth import RunTruth, TrueStates
 
+TRIGGER_DEAD_TIME_S = 1e-3  # a tracker's trigger input registers no second edge within 1 ms
+
 TAIL_S = 0.5
 HUB_RATE_HZ = 15.0
 HUB_DELAY_S = 0.03
@@ -141,7 +143,11 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
     t_ltd = trig.t_rise_rel[~in_drop_ltd]  # LTD800: rising edge
     t_fall = trig.t_rise_rel + duty  # AT960: falling edge
     in_drop_at = in_intervals(t_fall, drop["at960"])
-    spur_ok = ~in_intervals(t_spur, drop["at960"])
+    # a trigger input has a dead time: a spurious pulse on top of a real one is not a second
+    # measurement (and stamp noise could otherwise put the two out of order)
+    k = np.clip(np.searchsorted(t_fall, t_spur), 1, t_fall.size - 1)
+    near = np.minimum(np.abs(t_spur - t_fall[k - 1]), np.abs(t_spur - t_fall[k])) < TRIGGER_DEAD_TIME_S
+    spur_ok = ~in_intervals(t_spur, drop["at960"]) & ~near
     t_at = np.concatenate([t_fall[~lost & ~in_drop_at], t_spur[spur_ok]])
     is_spur = np.concatenate([np.zeros((~lost & ~in_drop_at).sum(), bool), np.ones(spur_ok.sum(), bool)])
     order = np.argsort(t_at, kind="stable")
