@@ -206,14 +206,7 @@ class SindyModel:
             If the file is missing, not JSON, not a model file, of another format version, of an
             unknown library, or its feature names differ from that library's.
         """
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError(f"{path}: model file not found") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path}: not a JSON model file ({exc})") from None
-        return cls.from_dict(d, source=str(path))
+        return cls.from_dict(read_model_json(path), source=str(path))
 
 
 def _stack_xu(x, u) -> tuple[np.ndarray, np.ndarray]:
@@ -280,3 +273,14 @@ def plot_term_prevalence(models: list[SindyModel], path: str | Path | None = Non
     if path is not None:
         fig.savefig(path, dpi=120)
     return fig
+
+
+def read_model_json(path: str | Path):
+    """Return the parsed JSON of the model file ``path``; InputError if missing or not JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: model file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a JSON model file ({exc})") from None

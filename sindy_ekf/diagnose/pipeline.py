@@ -8,7 +8,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -124,13 +123,10 @@ def check_model_inputs(model, source: str = "model") -> None:
 
 def load_model(path) -> SindyModel:
     """Return the SINDy model in ``path``, checking first that it was trained on inputs ``u1, u2``."""
+    from identification.model import read_model_json
+
     path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"{path}: model file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a JSON model file ({exc})") from None
+    d = read_model_json(path)
     if isinstance(d, dict):
         ins, sts = d.get("input_names"), d.get("state_names")
         if ins is not None and list(ins) != list(INPUT_NAMES):
