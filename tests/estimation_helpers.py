@@ -69,3 +69,14 @@ def simulate_truths(process, duration_s: float, rng, n_runs: int = 1, dt: float 
 def simulate_truth(process, duration_s: float, rng, **kw) -> StateSeries:
     """Return one truth run (:func:`simulate_truths`)."""
     return simulate_truths(process, duration_s, rng, 1, **kw)[0]
+
+
+def inputs_at(truth: StateSeries, t: np.ndarray) -> np.ndarray:
+    """Return the truth's inputs held (zero-order) at the times ``t``."""
+    idx = np.searchsorted(truth.t, t, side="right") - 1
+    return truth.u[np.clip(idx, 0, len(truth.t) - 1)]
+
+
+def truth_on(truth: StateSeries, t: np.ndarray) -> np.ndarray:
+    """Return the truth's 6-state linearly interpolated at the times ``t``, (n, 6)."""
+    return np.column_stack([np.interp(t, truth.t, truth.x6[:, i]) for i in range(6)])

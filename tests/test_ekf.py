@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimation_helpers import PolyBody, simulate_truth, simulate_truths
+from estimation_helpers import PolyBody, inputs_at, simulate_truth, simulate_truths, truth_on
 from simulation.gnss import FLAG_OUTLIER, PROFILES, simulate_gnss
 from sindy_ekf.ekf import EkfRun, estimation_grid, run_ekf, run_ekf_batch
 from sindy_ekf.errors import InputError
@@ -21,15 +21,6 @@ P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
 
 def _grid(truth, gnss):
     return estimation_grid(truth.t, gnss.t_valid if gnss is not None else None)
-
-
-def _inputs(truth, t):
-    idx = np.searchsorted(truth.t, t, side="right") - 1
-    return truth.u[np.clip(idx, 0, len(truth.t) - 1)]
-
-
-def _truth_on(truth, t):
-    return np.column_stack([np.interp(t, truth.t, truth.x6[:, i]) for i in range(6)])
 
 
 @pytest.fixture(scope="module")
@@ -50,10 +41,10 @@ def test_ekf_is_consistent_with_the_oracle_model(oracle):
                              seed=i, outages=np.array([[1012.0, 1020.0]]))
         t = _grid(truth, gnss)
         x0 = truth.x6[0] + rng.multivariate_normal(np.zeros(6), P0)
-        runs.append(EkfRun(f"run_{i}", t, _inputs(truth, t), x0, P0, gnss))
+        runs.append(EkfRun(f"run_{i}", t, inputs_at(truth, t), x0, P0, gnss))
     nees = []
     for truth, res in zip(truths, run_ekf_batch(oracle, runs)):
-        ref = _truth_on(truth, res.t)
+        ref = truth_on(truth, res.t)
         # epochs 6 s apart (errors decorrelated), one in the outage
         for te in (1010.0, 1016.0, 1024.0):
             k = np.searchsorted(res.t, te)
@@ -71,10 +62,10 @@ def test_gnss_makes_the_estimate_better_than_dead_reckoning_and_gates_outliers(o
     gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2], prof, seed=4,
                          outages=np.empty((0, 2)))
     t = _grid(truth, gnss)
-    u = _inputs(truth, t)
+    u = inputs_at(truth, t)
     ekf, dr = run_ekf_batch(oracle, [EkfRun("ekf", t, u, truth.x6[0], P0, gnss),
                                      EkfRun("dr", t, u, truth.x6[0], P0, None)])
-    ref = _truth_on(truth, t)
+    ref = truth_on(truth, t)
     err_ekf = np.hypot(*(ekf.x[:, :2] - ref[:, :2]).T)
     err_dr = np.hypot(*(dr.x[:, :2] - ref[:, :2]).T)
     assert np.sqrt(np.mean(err_ekf ** 2)) < 0.25  # below the 0.3 m GNSS noise
@@ -105,7 +96,7 @@ def test_latency_at_time_of_validity_equals_the_filter_without_latency():
     gnss = replace(gnss, t_valid=gnss.t_valid[:-1], t_arrival=gnss.t_arrival[:-1],
                    p_local=gnss.p_local[:-1], std=gnss.std[:-1], flags=gnss.flags[:-1])
     t = _grid(truth, gnss)
-    u = _inputs(truth, t)
+    u = inputs_at(truth, t)
     late = run_ekf(model, t, u, truth.x6[0], P0, gnss, gate_prob=1.0)
     now = run_ekf(model, t, u, truth.x6[0], P0, replace(gnss, t_arrival=gnss.t_valid), gate_prob=1.0)
     delay = gnss.t_arrival - gnss.t_valid

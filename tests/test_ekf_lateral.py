@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimation_helpers import PolyBody, simulate_truths
+from estimation_helpers import PolyBody, inputs_at, simulate_truths, truth_on
 from simulation.gnss import PROFILES, simulate_gnss
 from sindy_ekf.ekf import (EkfRun, LateralConstraint, estimation_grid, fit_lateral_constraint,
                            lateral_update, run_ekf_batch)
@@ -28,15 +28,6 @@ class SpuriousVyBody(PolyBody):
         f[..., 1] = 0.15
         J_x[..., 1, :] = 0.0
         return f, J_x, J_u
-
-
-def _inputs(truth, t):
-    idx = np.searchsorted(truth.t, t, side="right") - 1
-    return truth.u[np.clip(idx, 0, len(truth.t) - 1)]
-
-
-def _truth_on(truth, t):
-    return np.column_stack([np.interp(t, truth.t, truth.x6[:, i]) for i in range(6)])
 
 
 @pytest.fixture(scope="module")
@@ -89,11 +80,11 @@ def test_ekf_with_the_constraint_stays_consistent_with_the_oracle(trained):
                              seed=i, outages=np.array([[1012.0, 1020.0]]))
         t = estimation_grid(truth.t, gnss.t_valid)
         x0 = truth.x6[0] + rng.multivariate_normal(np.zeros(6), P0)
-        runs.append(EkfRun(f"run_{i}", t, _inputs(truth, t), x0, P0, gnss))
+        runs.append(EkfRun(f"run_{i}", t, inputs_at(truth, t), x0, P0, gnss))
     nees, err_on, err_off = [], [], []
     with_lateral = run_ekf_batch(model, runs, lateral=lateral)
     for truth, on, off in zip(truths, with_lateral, run_ekf_batch(model, runs)):
-        ref = _truth_on(truth, on.t)
+        ref = truth_on(truth, on.t)
         for te in (1010.0, 1016.0, 1024.0):
             k = np.searchsorted(on.t, te)
             e = on.x[k] - ref[k]
@@ -115,10 +106,10 @@ def test_constraint_bounds_vy_drift_in_dead_reckoning(trained):
     bad.Q_rate_ = copy.deepcopy(model.Q_rate_)
     truth = simulate_truths(model, 30.0, np.random.default_rng(7), n_runs=1)[0]
     t = estimation_grid(truth.t, None)
-    run = EkfRun("dr", t, _inputs(truth, t), truth.x6[0], P0, None)
+    run = EkfRun("dr", t, inputs_at(truth, t), truth.x6[0], P0, None)
     off = run_ekf_batch(bad, [run])[0]
     on = run_ekf_batch(bad, [run], lateral=LateralConstraint(lateral.vy_std_m_s, every=1))[0]
-    ref = _truth_on(truth, t)
+    ref = truth_on(truth, t)
     assert abs(off.x[-1, 4] - ref[-1, 4]) > 3.0  # 0.15 m/s^2 over 30 s
     assert np.max(np.abs(on.x[:, 4] - ref[:, 4])) < 3 * lateral.vy_std_m_s + 0.05
     assert on.P[-1, 4, 4] < lateral.vy_std_m_s ** 2
