@@ -27,9 +27,9 @@ import numpy as np
 from identification.campaigns import open_campaign
 from identification.search import states_of_runs
 from identification.sindy import fit_sindy
-from simulation.gnss import simulate_gnss
 from simulation.robot import TrueDynamics
-from sindy_ekf.ekf import EkfRun, estimation_grid, run_ekf_batch
+from sindy_ekf.benchmark import outage_ekf_run
+from sindy_ekf.ekf import run_ekf_batch
 from sindy_ekf.process_models import (BodyModelProcess, ConstantVelocityProcess, TrueDynamicsProcess,
                                       fit_process_noise, fit_unicycle, state_series_from_body_states)
 
@@ -72,15 +72,8 @@ def main(campaign: str | Path | None = None) -> dict:
     runs, truth_end = [], []
     for i, st in enumerate(test):
         for k, (sel, t_out) in enumerate(outage_windows(st)):
-            ts = st.t[sel]
-            gnss = simulate_gnss(ts, st.x[sel], st.y[sel], st.yaw[sel], profile="rtk", seed=10 * i + k,
-                                 outages=np.array([[t_out, ts[-1] + 1.0]]))
-            grid = estimation_grid(ts, gnss.t_valid)
-            u = np.column_stack([np.interp(grid, ts, st.u1[sel]), np.interp(grid, ts, st.u2[sel])])
-            x0 = np.array([st.x[sel][0], st.y[sel][0], st.yaw[sel][0], st.vx[sel][0], st.vy[sel][0],
-                           st.omega[sel][0]])
-            P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.05, 0.05]) ** 2
-            runs.append(EkfRun(f"test{i}_outage{k}", grid, u, x0, P0, gnss))
+            runs.append(outage_ekf_run(st, sel, t_out, st.t[sel][-1] + 1.0, "rtk", 10 * i + k,
+                                       f"test{i}_outage{k}"))
             truth_end.append([st.x[sel][-1], st.y[sel][-1]])
     truth_end = np.asarray(truth_end)
 

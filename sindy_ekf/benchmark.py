@@ -53,6 +53,28 @@ OPTIONAL_ESTIMATORS = ("sindy_ekf_lateral",)
 LATERAL_EVERY = 10  # steps between v_y = 0 pseudo-measurements (5 Hz on the 50 Hz grid)
 
 
+OUTAGE_P0_STD = np.array([0.05, 0.05, 0.02, 0.05, 0.05, 0.05])  # x, y [m], psi [rad], v [m/s, rad/s]
+
+
+def outage_ekf_run(states, sel, t_out: float, t_resume: float, profile: str, seed: int,
+                   name: str) -> EkfRun:
+    """Return an EKF run over ``states[sel]`` with GNSS degraded from it and no fix in [t_out, t_resume].
+
+    The filter starts from the true state at the first selected sample (std ``OUTAGE_P0_STD``)
+    with the inputs interpolated on the estimation grid: the set-up for the error at the end of a
+    scheduled GNSS outage.
+    """
+    from simulation.gnss import simulate_gnss
+
+    ts = states.t[sel]
+    gnss = simulate_gnss(ts, states.x[sel], states.y[sel], states.yaw[sel], profile=profile, seed=seed,
+                         outages=np.array([[t_out, t_resume]]))
+    grid = estimation_grid(ts, gnss.t_valid)
+    u = np.column_stack([np.interp(grid, ts, states.u1[sel]), np.interp(grid, ts, states.u2[sel])])
+    x0 = np.array([getattr(states, k)[sel][0] for k in ("x", "y", "yaw", "vx", "vy", "omega")])
+    return EkfRun(name, grid, u, x0, np.diag(OUTAGE_P0_STD ** 2), gnss)
+
+
 @dataclass(frozen=True)
 class Estimate:
     """One estimator's estimate of one run at the pose times."""

@@ -271,8 +271,8 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
     the estimate and the recorded pose there. ``models`` maps a name to a ``SindyModel`` or an
     :class:`ExtendedModel` (driven by its motor inputs).
     """
-    from simulation.gnss import simulate_gnss
-    from sindy_ekf.ekf import EkfRun, estimation_grid, run_ekf_batch
+    from sindy_ekf.benchmark import outage_ekf_run
+    from sindy_ekf.ekf import run_ekf_batch
     from sindy_ekf.process_models import (BodyModelProcess, TrueDynamicsProcess, fit_process_noise,
                                           state_series_from_body_states)
 
@@ -293,16 +293,9 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
                 if len(runs) >= max_outages:
                     break
                 sel = (t >= t_out - lead_s) & (t <= t_out + outage_s + 1e-9)
-                ts = t[sel]
-                gnss = simulate_gnss(ts, st.x[sel], st.y[sel], st.yaw[sel], profile=profile, seed=seed + 100 * i + k,
-                                     outages=np.array([[t_out, t_out + outage_s + 1.0]]))
-                grid = estimation_grid(ts, gnss.t_valid)
-                u = np.column_stack([np.interp(grid, ts, st.u1[sel]), np.interp(grid, ts, st.u2[sel])])
-                x0 = np.array([st.x[sel][0], st.y[sel][0], st.yaw[sel][0], st.vx[sel][0], st.vy[sel][0],
-                               st.omega[sel][0]])
-                P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.05, 0.05]) ** 2
-                runs.append(EkfRun(f"{name} outage {len(runs)}", grid, u, x0, P0, gnss))
-                ends.append((ts[-1], st.x[sel][-1], st.y[sel][-1]))
+                runs.append(outage_ekf_run(st, sel, t_out, t_out + outage_s + 1.0, profile,
+                                           seed + 100 * i + k, f"{name} outage {len(runs)}"))
+                ends.append((t[sel][-1], st.x[sel][-1], st.y[sel][-1]))
         try:  # all outages in lockstep: one vectorised model call per step
             results = run_ekf_batch(proc, runs)
         except InputError:  # a model diverged somewhere: run them apart, a diverged one counts as inf
