@@ -120,7 +120,9 @@ def test_extended_model_jacobians_match_numerical_derivatives(reference_model, t
     for family, theta, beta in (("position_dependence", [3.5, 3.0, 1.0], [-3.0, -2.5]),
                                 ("heading_dependence", [], [0.2, -0.1, 0.05, 0.1]),
                                 ("lateral_slip", [], [-2.0, 3.0])):
-        ext = ExtendedModel(reference_model, family, theta, beta)
+        ext = ExtendedModel.added(reference_model, family, theta, beta)
+        # lateral_slip keeps the forward and yaw equations at the base's drift: vy / slip gain there
+        assert (ext.vy_scale != 1.0) == (family == "lateral_slip"), family
         J = ext.J_f_x(x6, u)
         h = 1e-6
         num = np.stack([(ext.f(x6 + h * np.eye(6)[k], u) - ext.f(x6 - h * np.eye(6)[k], u)) / (2 * h)

@@ -48,12 +48,41 @@ class ExtendedModel:
     theta: np.ndarray
     beta: np.ndarray
     estimate: dict = field(default_factory=dict)
+    vy_scale: float = 1.0  # the vx and omega equations see vy / vy_scale (see :meth:`added`)
     uses_pose = True
     kinematic = False
 
     def __post_init__(self):
         self.theta = np.asarray(self.theta, float).reshape(-1)
         self.beta = np.asarray(self.beta, float).reshape(-1)
+        self.vy_scale = float(self.vy_scale)
+        if not (np.isfinite(self.vy_scale) and self.vy_scale > 0):
+            raise InputError(f"extended model {self.family!r}: vy_scale {self.vy_scale!r} is not a positive number")
+
+    @classmethod
+    def added(cls, base: SindyModel, family: str, theta, beta, estimate: dict | None = None) -> "ExtendedModel":
+        """Return ``base`` plus the mechanism as scored (its coefficients kept).
+
+        For ``lateral_slip`` the mechanism changes the lateral law only: the drift in turns becomes
+        ``slip_gain`` times the base model's. The base model's forward and yaw equations were
+        identified where vy followed the base's drift; whatever they learned as a function of vy
+        is a function of the turn (vy is nearly collinear with ``vx omega`` there), so they keep
+        seeing the lateral velocity at the base's drift, ``vy / slip_gain`` (``vy_scale``).
+        Feeding them the larger drift instead adds a yaw error the mechanism does not have
+        (measured on the hidden-effect campaigns: heading 2.8 -> 5.1 deg, and no position gain).
+        A base without a lateral law (eq. 7.8) has no drift to keep: ``vy_scale`` stays 1.
+        """
+        vy_scale = 1.0
+        if family == "lateral_slip":
+            from sindy_ekf.diagnose.families import model_coefficient
+
+            c, k = model_coefficient(base, "vy", "vx omega"), model_coefficient(base, "vy", "vy")
+            beta_ = np.asarray(beta, float).reshape(-1)
+            c_new, k_new = c + beta_[0], k + beta_[1]
+            if c != 0 and k != 0 and k_new != 0 and c_new * k != 0:
+                gain = (c_new / k_new) / (c / k)
+                vy_scale = gain if np.isfinite(gain) and gain > 0 else 1.0
+        return cls(base, family, theta, beta, dict(estimate or {}), vy_scale)
 
     @property
     def spec(self) -> Family:
@@ -88,10 +117,20 @@ class ExtendedModel:
             return cols[0].reshape(lead + (3, -1)), J[0].reshape(lead + (3, -1, 6))
         return out[0].reshape(lead + (3, -1)), None
 
+    def _base_f(self, v: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return the base model's accelerations, the vx and omega rows at ``vy / vy_scale``."""
+        a = self.base.f(v, u)
+        if self.vy_scale != 1.0:
+            v_other = np.array(v, float, copy=True)
+            v_other[..., 1] /= self.vy_scale
+            a_other = self.base.f(v_other, u)
+            a = np.concatenate([a_other[..., :1], a[..., 1:2], a_other[..., 2:]], axis=-1)
+        return a
+
     def f(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
         """Return body accelerations ``(..., 3)`` at full states ``x6 (..., 6)`` and motor inputs ``u``."""
         x6 = np.asarray(x6, float)
-        a = self.base.f(x6[..., 3:], u)
+        a = self._base_f(x6[..., 3:], u)
         if self.spec.n_columns:
             cols, _ = self._columns(x6, u, False)
             a = a + cols @ self.beta
@@ -105,6 +144,16 @@ class ExtendedModel:
         """Return ``f (..., 3)``, ``J_f_x (..., 3, 6)`` and ``J_f_u (..., 3, 2)``."""
         x6 = np.asarray(x6, float)
         a, J3, J_u = self.base.f_and_jacobians(x6[..., 3:], u)
+        if self.vy_scale != 1.0:  # vx and omega rows at vy / vy_scale (chain rule on the vy column)
+            v_other = np.array(x6[..., 3:], float, copy=True)
+            v_other[..., 1] /= self.vy_scale
+            a_o, J3_o, J_u_o = self.base.f_and_jacobians(v_other, u)
+            J3_o = J3_o.copy()
+            J3_o[..., :, 1] /= self.vy_scale
+            rows = np.array([True, False, True])
+            a = np.where(rows, a_o, a)
+            J3 = np.where(rows[:, None], J3_o, J3)
+            J_u = np.where(rows[:, None], J_u_o, J_u)
         J_x = np.zeros(a.shape[:-1] + (3, 6))
         J_x[..., 3:] = J3
         if self.spec.n_columns:
@@ -129,6 +178,9 @@ class ExtendedModel:
         """
         if self.family != "lateral_slip":
             raise InputError(f"extended model {self.family!r}: not expressible in the SINDy library")
+        if self.vy_scale != 1.0:
+            raise InputError(f"extended model {self.family!r}: its vx and omega equations see vy / "
+                             f"{self.vy_scale:.3g}, not expressible in the SINDy library")
         from identification.library import parse_term
 
         coef = self.base.coef.copy()
@@ -144,7 +196,8 @@ class ExtendedModel:
         return {"format": FORMAT, "format_version": 1, "family": self.family,
                 "theta": dict(zip(self.spec.theta_names, self.theta.tolist())),
                 "beta": dict(zip(self.spec.column_names, self.beta.tolist())),
-                "estimate": self.estimate, "base": self.base.to_dict()}
+                "estimate": self.estimate, "vy_scale_other_equations": self.vy_scale,
+                "base": self.base.to_dict()}
 
     def to_json(self, path) -> Path:
         """Write the extended model to ``path`` atomically; return the path."""
@@ -169,8 +222,11 @@ class ExtendedModel:
             beta = [d["beta"][k] for k in spec.column_names]
         except (KeyError, TypeError):
             raise InputError(f"{path}: key theta or beta does not match family {d['family']!r}") from None
+        vy_scale = d.get("vy_scale_other_equations", 1.0)
+        if not isinstance(vy_scale, (int, float)) or isinstance(vy_scale, bool):
+            raise InputError(f"{path}: key vy_scale_other_equations is {vy_scale!r}, not a number")
         return cls(SindyModel.from_dict(d["base"], source=str(path)), d["family"], theta, beta,
-                   dict(d.get("estimate") or {}))
+                   dict(d.get("estimate") or {}), vy_scale)
 
 
 def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,

@@ -159,7 +159,7 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
     The re-identified model refits every coefficient, which a short campaign may overfit; it is
     judged by leave-one-run-out over the train runs (refitted without the run it predicts).
     """
-    added = ExtendedModel(model, name, best.theta, best.beta, {**best.estimate, "extension": "added"})
+    added = ExtendedModel.added(model, name, best.theta, best.beta, {**best.estimate, "extension": "added"})
     full = reidentify(model, name, best.theta, tr, weights, {**best.estimate, "extension": "reidentified"})
     if best.estimate.get("scored_with") == "refit":  # the scored model is the re-identified one
         return full
@@ -246,7 +246,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         if c.significant:  # what each other significant mechanism alone would buy
             ext = (reidentify(model, c.name, c.score.theta, tr, weights)
                    if c.score.estimate.get("scored_with") == "refit"
-                   else ExtendedModel(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate)))
+                   else ExtendedModel.added(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate)))
             others[c.name] = errors_5s(res_before, multistep(ext, test, test_names))[1]
     seconds["multistep"] = time.perf_counter() - t0
     t0 = time.perf_counter()
