@@ -49,7 +49,8 @@ if str(ROOT) not in sys.path:  # run as a script from a checkout
 from identification.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
 from identification.evaluate import EvaluationResult, evaluate_model, make_windows  # noqa: E402
 from identification.model import EnvelopeWarning, SindyModel  # noqa: E402
-from identification.search import SearchGrid, SearchResult, search, states_of_runs  # noqa: E402
+from identification.search import (LOW_RATE_GRID, QUICK_LOW_RATE_GRID, SearchGrid, SearchResult,  # noqa: E402
+                                   search, states_of_runs)
 from identification.trajectory import read_trajectory_campaign  # noqa: E402
 from identification.types import BodyStates, TrajectoryCampaign, TrajectoryRun  # noqa: E402
 
@@ -66,12 +67,8 @@ README_BASELINES = {
 #: target of issue 6: identified model's 5 s position error over the README unicycle's
 TARGET_RATIO = {"warthog-drive-cmd": 0.6, "warthog-drive-wheels": 0.8}
 
-#: the full search for 10 Hz ICP poses (bench/bench_real.py)
-REAL_GRID = SearchGrid(s=(1.0, 10.0, 30.0, 100.0), tau=(0.5, 1.0, 2.0), alpha=(0.0, 1.0),
-                       T=(0.02, 0.05, 0.1, 0.25), library=("poly1", "poly3", "poly3_absu"), n_folds=4)
-#: a small fixed grid that runs in seconds (tests, ``--quick``)
-QUICK_REAL_GRID = SearchGrid(s=(10.0,), tau=(0.5, 1.0), alpha=(0.0,), T=(0.02, 0.05, 0.1),
-                             library=("poly1",), n_folds=4)
+#: the full search for 10 Hz ICP poses, and a small fixed grid that runs in seconds (tests, ``--quick``)
+REAL_GRID, QUICK_REAL_GRID = LOW_RATE_GRID, QUICK_LOW_RATE_GRID
 
 
 @dataclass

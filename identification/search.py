@@ -76,6 +76,47 @@ DEFAULT_GRID = SearchGrid(s=(0.0, 0.0005, 0.005, 0.01), tau=(0.2, 0.5, 1.0, 2.0)
 QUICK_GRID = SearchGrid(s=(0.0005,), tau=(0.5, 1.0), alpha=(1e-4, 1e-3), T=(0.03, 0.1, 0.2), n_folds=3,
                         normalize=True)
 
+# Poses at 10 to 20 Hz (lidar ICP, motion capture, RTK) with centimetre noise and stamp jitter:
+# the spline must smooth (s of 1 to 100 against the noise estimated from the data) and a speed
+# set-point is followed within one to two seconds (tau of 0.5 to 2 s); raw-unit alpha and T.
+# Checked on the real Warthog campaigns of ../shared/data (bench/results/real.md).
+LOW_RATE_GRID = SearchGrid(s=(1.0, 10.0, 30.0, 100.0), tau=(0.5, 1.0, 2.0), alpha=(0.0, 1.0),
+                           T=(0.02, 0.05, 0.1, 0.25), library=("poly1", "poly3", "poly3_absu"), n_folds=4)
+QUICK_LOW_RATE_GRID = SearchGrid(s=(10.0,), tau=(0.5, 1.0), alpha=(0.0,), T=(0.02, 0.05, 0.1),
+                                 library=("poly1",), n_folds=4)
+#: median pose interval above which a campaign counts as low-rate (the trackers log at 50 Hz)
+LOW_RATE_INTERVAL_S = 0.03
+
+
+def median_pose_interval(runs: Sequence[TrajectoryRun]) -> float:
+    """Return the median interval between consecutive poses over ``runs``, s (NaN without poses)."""
+    dts = [np.diff(np.asarray(r.poses.t, float)) for r in runs]
+    dts = np.concatenate(dts) if dts else np.empty(0)
+    dts = dts[np.isfinite(dts) & (dts > 0)]
+    return float(np.median(dts)) if dts.size else float("nan")
+
+
+def grid_for_runs(runs: Sequence[TrajectoryRun], quick: bool = False, kind: str = "auto") -> tuple[SearchGrid, str]:
+    """Return the search grid for ``runs`` and why it was chosen.
+
+    ``kind`` ``"tracker"`` is :data:`DEFAULT_GRID` (:data:`QUICK_GRID` when ``quick``), made for
+    50 Hz laser-tracker poses; ``"low-rate"`` is :data:`LOW_RATE_GRID` (:data:`QUICK_LOW_RATE_GRID`);
+    ``"auto"`` takes the low-rate grid when the median pose interval exceeds
+    :data:`LOW_RATE_INTERVAL_S`.
+    """
+    if kind not in ("auto", "tracker", "low-rate"):
+        raise InputError(f"--grid: {kind!r} is not one of auto, tracker, low-rate")
+    dt = median_pose_interval(runs)
+    if kind == "auto":
+        kind = "low-rate" if np.isfinite(dt) and dt > LOW_RATE_INTERVAL_S else "tracker"
+        why = f"median pose interval {1e3 * dt:.0f} ms ({'above' if kind == 'low-rate' else 'at most'} " \
+              f"{1e3 * LOW_RATE_INTERVAL_S:.0f} ms)"
+    else:
+        why = "asked for"
+    if kind == "low-rate":
+        return (QUICK_LOW_RATE_GRID if quick else LOW_RATE_GRID), f"low-rate grid: {why}"
+    return (QUICK_GRID if quick else DEFAULT_GRID), f"tracker grid: {why}"
+
 
 @dataclass
 class SearchResult:

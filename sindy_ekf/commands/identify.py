@@ -15,9 +15,15 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     p.add_argument("campaign", type=Path, help="trajectory or tracker campaign")
     p.add_argument("--out", type=Path, required=True, metavar="MODEL.json", help="model file to write")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
-    p.add_argument("--quick", action="store_true", help="a small grid (s=0.0005, 2 tau, 2 alpha, 3 T, 3 folds)")
-    p.add_argument("--library", nargs="+", default=["poly3"], metavar="NAME",
-                   help="candidate libraries to search (poly1, poly2, poly3, poly3_absu, poly3_signsq)")
+    p.add_argument("--quick", action="store_true", help="a small grid (tracker: s=0.0005, 2 tau, 2 alpha, 3 T, "
+                   "3 folds; low-rate: s=10, 2 tau, 3 T, poly1)")
+    p.add_argument("--grid", choices=("auto", "tracker", "low-rate"), default="auto",
+                   help="base grid: tracker (50 Hz laser-tracker poses), low-rate (10-20 Hz lidar, mocap or "
+                        "RTK poses: larger spline smoothing, shorter windows, poly1/poly3/poly3_absu), or auto "
+                        "(low-rate when the median pose interval exceeds 30 ms; default)")
+    p.add_argument("--library", nargs="+", default=None, metavar="NAME",
+                   help="candidate libraries to search (poly1, poly2, poly3, poly3_absu, poly3_signsq; default the "
+                        "grid's: poly3 for tracker poses, poly1 poly3 poly3_absu for low-rate poses)")
     p.add_argument("--smoothing", nargs="+", type=float, default=None, metavar="S",
                    help="spline smoothing values s to search (default 0 0.0005 0.005 0.01 for 50 Hz tracker "
                         "poses; noisier or slower poses need larger s, e.g. 1 10 30 for 10 Hz lidar poses)")
@@ -40,16 +46,15 @@ def run(args) -> int:
 
     from identification.campaigns import open_campaign
     from identification.library import make_library
-    from identification.search import DEFAULT_GRID, QUICK_GRID, search
+    from identification.search import grid_for_runs, search
     from sindy_ekf.io_utils import atomic_write_json
 
     check_output_file(args.out, "--out")
     if args.json:
         check_output_file(args.json, "--json")
-    for name in args.library:
+    for name in args.library or ():
         make_library(name)  # an unknown library name fails now, not after the search
-    grid = QUICK_GRID if args.quick else DEFAULT_GRID
-    changes = {"library": tuple(args.library)}
+    changes = {"library": tuple(args.library)} if args.library else {}
     for opt, field in (("smoothing", "s"), ("tau", "tau"), ("alpha", "alpha"), ("threshold", "T")):
         values = getattr(args, opt)
         if values is not None:
@@ -58,16 +63,19 @@ def run(args) -> int:
                 raise InputError(f"--{opt}: {bad[0]:g} is not a valid value "
                                  f"({'positive' if opt == 'tau' else 'non-negative'} numbers expected)")
             changes[field] = tuple(sorted(set(values)))
-    grid = dataclasses.replace(grid, **changes)
     campaign = open_campaign(args.campaign)
     train = campaign.split("train")
     if not train:
         raise InputError(f"{args.campaign}: campaign.yaml marks no run as train")
+    grid, why = grid_for_runs(train, quick=args.quick, kind=args.grid)
+    grid = dataclasses.replace(grid, **changes)
+    print(f"{why}; {grid.size} grid points")
     result = search(runs=train, grid=grid, n_jobs=args.jobs)
     model = result.model
     best = result.row(result.selected)
     model.training.update({"cv_pos_err_5s_m": best["pos_err_5s_m"], "cv_yaw_err_5s_deg": best["yaw_err_5s_deg"],
-                           "grid_size": grid.size, "folds": result.folds, "campaign": str(args.campaign)})
+                           "grid_size": grid.size, "grid": why, "folds": result.folds,
+                           "campaign": str(args.campaign)})
     model.to_json(args.out)
     print(f"identified on {len(train)} train runs of {campaign.name}; grid of {grid.size} points, "
           f"{len(result.folds)}-fold CV by run")

@@ -424,7 +424,7 @@ def _refine(family: Family, model, split: Split, grid: np.ndarray, sse: np.ndarr
 def _parabolic_argmin(grid: np.ndarray, sse: np.ndarray) -> np.ndarray:
     """Return the vertex of the parabola through the best grid point and its neighbours (1-D)."""
     i = int(np.argmin(sse))
-    if grid.shape[1] != 1 or i == 0 or i == len(grid) - 1:
+    if grid.shape[1] != 1 or i == 0 or i == len(grid) - 1 or not np.all(np.isfinite(sse[i - 1:i + 2])):
         return grid[i]
     x, y = grid[i - 1:i + 2, 0], sse[i - 1:i + 2]
     den = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
@@ -488,6 +488,15 @@ def _coef_from_refit(model, sol: np.ndarray):
     return SindyModel(library=model.library, coef=coef, hyperparameters=dict(model.hyperparameters))
 
 
+def stable_at_rest(model) -> bool:
+    """Return whether every eigenvalue of ``J_f_x`` at rest (x = 0, u = 0) has a real part <= the
+    identification's tolerance (``identification.search.STABILITY_TOL``)."""
+    from identification.search import STABILITY_TOL
+
+    J = model.J_f_x(np.zeros(3), np.zeros(2))
+    return bool(np.all(np.isfinite(J)) and np.max(np.linalg.eigvals(J).real) <= STABILITY_TOL)
+
+
 def refit_score(family: Family, model, train: Split, test: Split, weights: np.ndarray,
                 theta_fixed: np.ndarray) -> dict:
     """Return the family scored with the model re-identified around it (same support, eqs. 5.55 to 5.59).
@@ -505,8 +514,21 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
     designs = [normal_equations(y_tr, refit_columns(family, model, train, th)[None], weights, train.window_run, R)
                for th in grid]
     d = Design(*(np.concatenate([getattr(x, k) for x in designs]) for k in ("G", "b", "yy")))
-    _, sse = solve_design(d)
+    sols, sse = solve_design(d)
+    # Admissible as in the identification's search (identification.search.admissible): a
+    # re-identified model that runs away at rest is no explanation, however well its windows fit
+    # (on 10 Hz real data a long input delay refits to positive self-damping: measured, wheels).
+    ok = np.array([stable_at_rest(_coef_from_refit(model, sol)) for sol in sols]) | ~stable_at_rest(model)
+    if not ok.any():
+        return {"gain": float("-inf"), "gain_runs": {}, "theta": np.asarray(grid[0], float),
+                "beta": np.zeros(family.n_columns), "estimate": family.estimate(grid[0], np.zeros(family.n_columns),
+                                                                                model),
+                "std": {}, "profile": {}}
+    sse = np.where(ok, sse, np.inf)
     theta = _parabolic_argmin(grid, sse) if grid.shape[1] == 1 else grid[0]
+    if not stable_at_rest(_coef_from_refit(model, solve_design(normal_equations(
+            y_tr, refit_columns(family, model, train, theta)[None], weights, train.window_run, R))[0][0])):
+        theta = grid[int(np.argmin(sse))]  # the vertex between grid points is not admissible: the best point
     X_tr = refit_columns(family, model, train, theta)
     sol = solve_design(normal_equations(y_tr, X_tr[None], weights, train.window_run, R))[0][0]
     X0_tr = refit_columns(null_fam, model, train, null_theta)
@@ -520,7 +542,8 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
     beta = sol[len(sol) - m:] if m else np.zeros(0)
     std = {}
     if family.kind == "input" and R > 1:
-        loo = [{family.theta_names[0]: float(_parabolic_argmin(grid, solve_design(d, np.flatnonzero(np.arange(R) != r))[1])[0])}
+        loo = [{family.theta_names[0]: float(_parabolic_argmin(
+                   grid, np.where(ok, solve_design(d, np.flatnonzero(np.arange(R) != r))[1], np.inf))[0])}
                for r in range(R)]
         std = _jackknife(loo)
     return {"gain": float(1 - w1.sum() / w0.sum()), "gain_runs": gain_runs, "theta": np.asarray(theta, float),

@@ -21,7 +21,8 @@ from identification.model import SindyModel
 from identification.types import BodyStates
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import ExtendedModel, multistep, outage_errors, reidentify
-from sindy_ekf.diagnose.families import FAMILIES, equation_weights, null_prediction, score_family
+from sindy_ekf.diagnose.families import (FAMILIES, stable_at_rest, equation_weights, null_prediction,
+                                         score_family)
 from sindy_ekf.diagnose.residuals import (lag_profile, multistep_errors_by_window, multistep_structure,
                                           residual_map, residual_structure)
 from sindy_ekf.diagnose.rank import THRESHOLD_PROVENANCE, RankedCause, rank_families, verdict
@@ -161,6 +162,8 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
     """
     added = ExtendedModel.added(model, name, best.theta, best.beta, {**best.estimate, "extension": "added"})
     full = reidentify(model, name, best.theta, tr, weights, {**best.estimate, "extension": "reidentified"})
+    if stable_at_rest(model) and not stable_at_rest(full.base):
+        return added  # a re-identification that runs away at rest is not admissible (as in the search)
     if best.estimate.get("scored_with") == "refit":  # the scored model is the re-identified one
         return full
     if len(tr.names) < 2:
@@ -177,6 +180,35 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
     # a full refit must beat the mechanism on the model by 20 % (RMS) on held-out runs: on short
     # campaigns a refit of every coefficient is often the noisier of the two
     return full if sq[0] < 0.64 * sq[1] else added
+
+
+def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train_names):
+    """Return the ranking with the named cause confirmed by 5 s prediction on the train runs, and its extension.
+
+    A family's gain is measured on the window residuals of the integral regression; a mechanism
+    that fits windows better can still predict worse over 5 s (on 10 Hz real data a long input
+    delay does, measured on ``warthog-drive-wheels``: window gain 38 %, 5 s error 10.5 -> 31 cm).
+    The significant families are therefore tried in ranking order, each extended model driven
+    over 5 s windows of the *train* runs (the runs it was fitted on: the test runs stay out of
+    sample), and the first one whose 5 s position error is lower than the given model's is
+    named. The others lose their significance, with a note saying what the 5 s check measured.
+    """
+    import dataclasses
+
+    base = multistep(model, train, train_names)
+    out, extended = list(ranked), None
+    for i, c in enumerate(ranked):
+        if not c.significant or extended is not None:
+            continue
+        ext = choose_extension(model, c.name, c.score, tr, weights, train, train_names)
+        before, after = errors_5s(base, multistep(ext, train, train_names))
+        if after["pos_err_5s_m"] < before["pos_err_5s_m"]:
+            extended = ext
+            continue
+        out[i] = dataclasses.replace(c, significant=False, note=(
+            f"window gain not confirmed over 5 s: the extended model predicts the train runs worse "
+            f"({100 * before['pos_err_5s_m']:.1f} -> {100 * after['pos_err_5s_m']:.1f} cm)"))
+    return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
 
 
 def in_envelope(model, split, margin: float = 0.1):
@@ -237,9 +269,10 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     res_before, windows = multistep_errors_by_window(model, test, test_names)  # end states kept for the structure
     extended, res_after = None, res_before
     if name != "none":
-        best = ranked[0].score
-        extended = choose_extension(model, name, best, tr, weights, train, train_names)
-        res_after = multistep(extended, test, test_names)
+        ranked, extended = confirm_on_train(model, ranked, tr, weights, train, train_names)
+        name = verdict(ranked)
+        if extended is not None:
+            res_after = multistep(extended, test, test_names)
     before, after = errors_5s(res_before, res_after)
     others = {}
     for c in ranked[1:]:
