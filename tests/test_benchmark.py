@@ -77,12 +77,12 @@ def test_scores_follow_the_information_each_estimator_has(mini):
     assert np.isnan(s["dead_reckoning"].nis_mean)
 
 
-def test_lateral_pseudo_measurement_is_optional_and_keeps_the_true_model_accurate(mini):
-    from sindy_ekf.benchmark import ESTIMATORS, OPTIONAL_ESTIMATORS
+def test_lateral_pseudo_measurement_runs_by_default_and_keeps_the_true_model_accurate(mini):
+    from sindy_ekf.benchmark import ESTIMATORS
 
     _, _, result, _ = mini
     s = result.scores
-    assert "sindy_ekf_lateral" in OPTIONAL_ESTIMATORS and "sindy_ekf_lateral" not in ESTIMATORS
+    assert "sindy_ekf_lateral" in ESTIMATORS
     # the simulator's vy is small but not zero: the fitted constraint must not spoil the true model
     assert s["sindy_ekf_lateral"].ate_pos_m < 1.3 * s["sindy_ekf"].ate_pos_m
     assert s["sindy_ekf_lateral"].outage_pos_err_m["10"] < s["unicycle_ekf"].outage_pos_err_m["10"]

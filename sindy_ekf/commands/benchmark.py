@@ -21,8 +21,9 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     p.add_argument("--gnss", default="dgnss", choices=sorted(PROFILES), help="GNSS profile (default dgnss)")
     p.add_argument("--seed", type=int, default=0, help="seed of the GNSS errors (default 0)")
     p.add_argument("--estimators", default=None, metavar="A,B,...",
-                   help="comma-separated subset (default: all available; sindy_ekf_lateral, sindy_ekf with the "
-                        "v_y = 0 pseudo-measurement, only on request)")
+                   help="comma-separated subset (default: all available: dead_reckoning, cv_ekf, unicycle_ekf, "
+                        "sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), oracle_ekf on "
+                        "simulated campaigns, sindy_graph, sindy_isam2)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write TUM files of every estimate, the JSON and the plots into DIR")
@@ -58,8 +59,9 @@ def run(args) -> int:
         names = tuple(n for n in names if n != "oracle_ekf")
     if "oracle_ekf" in names and oracle is None:
         raise InputError(f"{args.campaign}: oracle_ekf needs a simulated campaign (truth/truth.yaml)")
+    s = model.hyperparameters.get("s")  # Q and the unicycle from states at the model's own smoothing
     result = benchmark_campaign(campaign, model, profile=args.gnss, seed=args.seed,
-                                oracle_dynamics=oracle, estimators=names)
+                                oracle_dynamics=oracle, estimators=names, smoothing=None if s is None else float(s))
     if args.out is not None:
         write_benchmark(result, args.out)
     if args.json is not None:
