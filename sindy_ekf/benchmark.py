@@ -9,7 +9,9 @@ run's first pose, and one GNSS series per run):
 - ``cv_ekf``, ``unicycle_ekf``, ``sindy_ekf``, ``oracle_ekf`` (the simulator's true dynamics, when
   given): :func:`sindy_ekf.ekf.run_ekf_batch` with each process model, Q fitted on the train runs;
 - ``sindy_graph``: batch smoothing of each run (:func:`sindy_ekf.graph.smooth_batch`), started
-  from the ``sindy_ekf`` estimate; ``sindy_isam2``: fixed-lag iSAM2 in real time.
+  from the ``sindy_ekf`` estimate; ``sindy_isam2``: fixed-lag iSAM2 in real time;
+- ``sindy_ekf_lateral``, ``sindy_graph_lateral``: the same with the non-holonomic ``v_y = 0``
+  pseudo-measurement of a skid-steered robot (std from the train runs' lateral velocity).
 
 Scores, at the pose times (the estimation grid holds them, so no interpolation): ATE of position
 and heading (RMS over all test-run poses; alignment ``none``: truth and estimates share the local
@@ -46,12 +48,13 @@ log = logging.getLogger(__name__)
 ALIGNMENT = "none"
 P0_STD = np.array([0.05, 0.05, np.radians(1.0), 0.05, 0.02, 0.05])
 OUTAGE_TAU_STEP_S = 0.1
-# sindy_ekf_lateral (sindy_ekf with the v_y = 0 pseudo-measurement of a skid-steered robot) runs by
-# default: on the real Warthog poses (10 Hz lidar ICP) the identified yaw equation holds a vy term
-# learned from spline noise, and without the constraint vy wanders and sindy_ekf diverges (ATE
-# 5.5 m on warthog-drive-cmd, 0.215 m with it; bench/results/real.md)
+# sindy_ekf_lateral and sindy_graph_lateral (with the v_y = 0 pseudo-measurement of a skid-steered
+# robot) run by default: on the real Warthog poses (10 Hz lidar ICP) the identified yaw equation
+# holds a vy term learned from spline noise; without the constraint vy wanders, sindy_ekf diverges
+# (ATE 5.5 m on warthog-drive-cmd, 0.215 m with it) and the graph's ATE is 1.7 m (0.154 m with it;
+# bench/results/real_cli.md)
 ESTIMATORS = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "sindy_ekf_lateral", "oracle_ekf",
-              "sindy_graph", "sindy_isam2")
+              "sindy_graph", "sindy_graph_lateral", "sindy_isam2")
 OPTIONAL_ESTIMATORS: tuple[str, ...] = ()  # accepted in ``estimators`` but not run by default
 LATERAL_EVERY = 10  # steps between v_y = 0 pseudo-measurements (5 Hz on the 50 Hz grid)
 
@@ -269,8 +272,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     profile : GNSS profile of :mod:`simulation.gnss`; ``seed`` seeds it (run ``i`` uses seed + i).
     oracle_dynamics : ``simulation.robot.TrueDynamics`` for ``oracle_ekf`` (simulated campaigns).
     estimators : names to run, a subset of :data:`ESTIMATORS` and :data:`OPTIONAL_ESTIMATORS`
-        (``sindy_ekf_lateral``: sindy_ekf with the ``v_y = 0`` pseudo-measurement of
-        :func:`sindy_ekf.ekf.fit_lateral_constraint` on the train runs, every
+        (``sindy_ekf_lateral`` and ``sindy_graph_lateral``: sindy_ekf and sindy_graph with the
+        ``v_y = 0`` pseudo-measurement of :func:`sindy_ekf.ekf.fit_lateral_constraint` on the train runs, every
         :data:`LATERAL_EVERY` steps).
     train_campaign : where to fit Q and the unicycle gains (default ``campaign``'s train runs).
     outage_warmup_s, outage_recovery_s : GNSS before the first outage and between outages
@@ -310,8 +313,10 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         start = time.perf_counter()
         keep(name, run_ekf_batch(models[name], batch))
         runtimes[name] = time.perf_counter() - start
-    if "sindy_ekf_lateral" in estimators:
+    lateral = None
+    if any(n.endswith("_lateral") for n in estimators):
         lateral = fit_lateral_constraint([x.x6[:, 4] for x in series], every=LATERAL_EVERY)
+    if "sindy_ekf_lateral" in estimators:
         log.info("sindy_ekf_lateral: v_y = 0 with std %.4f m/s every %d steps", lateral.vy_std_m_s,
                  lateral.every)
         start = time.perf_counter()
@@ -324,7 +329,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         keep("dead_reckoning", run_ekf_batch(models["sindy_ekf"], [
             EkfRun(f"{r.name} dead_reckoning", r.grid, r.u, r.x0, P0, None) for r in runs]))
         runtimes["dead_reckoning"] = time.perf_counter() - start
-    if "sindy_graph" in estimators or "sindy_isam2" in estimators:
+    if {"sindy_graph", "sindy_isam2", "sindy_graph_lateral"} & set(estimators):
         from sindy_ekf.graph import smooth_batch, smooth_isam2
 
         if "sindy_graph" in estimators:
@@ -341,6 +346,20 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
                                             name=f"{r.name} sindy_graph"))
             keep("sindy_graph", results)
             runtimes["sindy_graph"] = time.perf_counter() - start
+        if "sindy_graph_lateral" in estimators:
+            start = time.perf_counter()
+            init = estimates.get("sindy_ekf_lateral")
+            results = []
+            for r in runs:
+                x_init = None
+                if init is not None:
+                    x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
+                                              for i in range(6)])
+                results.append(smooth_batch(models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
+                                            x_init=x_init, marginal_stride=10, lateral=lateral,
+                                            name=f"{r.name} sindy_graph_lateral"))
+            keep("sindy_graph_lateral", results)
+            runtimes["sindy_graph_lateral"] = time.perf_counter() - start
         if "sindy_isam2" in estimators:
             start = time.perf_counter()
             keep("sindy_isam2", [smooth_isam2(models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,

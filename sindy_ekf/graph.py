@@ -37,6 +37,8 @@ from sindy_ekf.process_models import N_X, ProcessModel
 
 log = logging.getLogger(__name__)
 
+FREE_SIGMA = 1e4  # sigma of a component a pseudo-measurement leaves free (m/s, rad/s): no information
+
 
 def X(k: int) -> int:
     """Return the key of the pose at step ``k``."""
@@ -197,14 +199,32 @@ def _marginals_world(graph, values, x: np.ndarray, which: np.ndarray) -> np.ndar
     return P
 
 
+def _lateral_factor(k: int, lateral) -> gtsam.PriorFactorVector:
+    """Return the ``v_y = 0`` pseudo-measurement on ``V(k)`` (built-in factor; vx and omega left free).
+
+    The non-holonomic constraint of a skid-steered robot, as the EKF's
+    (:class:`sindy_ekf.ekf.LateralConstraint`): a prior ``[0, 0, 0]`` whose vx and omega sigmas are
+    :data:`FREE_SIGMA` (no information) and whose vy sigma is ``lateral.vy_std_m_s``.
+    """
+    sigmas = np.array([FREE_SIGMA, lateral.vy_std_m_s, FREE_SIGMA])
+    return gtsam.PriorFactorVector(V(k), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+
+
 def build_graph(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P0: np.ndarray,
-                gnss=None, robust: str | None = "huber", name: str = "graph"):
-    """Return ``(graph, dynamics)``: the factor graph of one run and its dynamics-factor cache."""
+                gnss=None, robust: str | None = "huber", name: str = "graph", lateral=None):
+    """Return ``(graph, dynamics)``: the factor graph of one run and its dynamics-factor cache.
+
+    ``lateral`` (a :class:`sindy_ekf.ekf.LateralConstraint`): add the ``v_y = 0`` factor at every
+    ``lateral.every``-th state.
+    """
     t = np.asarray(t, float)
     dyn = DynamicsFactors(model, t, np.asarray(u, float))
     graph = gtsam.NonlinearFactorGraph()
     for f in _prior_factors(x0, P0):
         graph.add(f)
+    if lateral is not None:
+        for k in range(0, len(t), int(lateral.every)):
+            graph.add(_lateral_factor(k, lateral))
     Q = model.Q(dyn.dt)
     for k in range(len(t) - 1):
         graph.add(dyn.factor(k, gtsam.noiseModel.Gaussian.Covariance(Q[k])))
@@ -273,20 +293,21 @@ def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
 def smooth_batch(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                  gnss=None, x_init: np.ndarray | None = None, robust: str | None = "huber",
                  marginal_stride: int | None = 1, max_iterations: int = 20, rel_tol: float = 1e-6,
-                 name: str = "sindy_graph") -> GraphResult:
+                 name: str = "sindy_graph", lateral=None) -> GraphResult:
     """Return the batch Levenberg-Marquardt smoothing of one run.
 
     ``x_init`` (n, 6) is the starting trajectory (default: the EKF's estimate with the same
     model). Marginal covariances are computed at every ``marginal_stride``-th step and at the
-    last (None: only the last); the rest are NaN.
+    last (None: only the last); the rest are NaN. ``lateral``: the ``v_y = 0`` factors
+    (:func:`build_graph`).
     """
     start = time.perf_counter()
     t = np.asarray(t, float)
-    graph, dyn = build_graph(model, t, u, x0, P0, gnss, robust, name)
+    graph, dyn = build_graph(model, t, u, x0, P0, gnss, robust, name, lateral)
     if x_init is None:  # the filter's estimate: close to the optimum, unlike dead reckoning
         from sindy_ekf.ekf import run_ekf
 
-        x_init = run_ekf(model, t, u, x0, P0, gnss, name=name).x
+        x_init = run_ekf(model, t, u, x0, P0, gnss, name=name, lateral=lateral).x
     if not np.all(np.isfinite(x_init)):
         raise InputError(f"{name}: initial trajectory for the graph is not finite")
     values = _initial_values(np.asarray(x_init, float))
@@ -303,7 +324,7 @@ def smooth_batch(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
 
 def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                  gnss=None, robust: str | None = "huber", update_every: int = 10, lag_s: float = 3.0,
-                 name: str = "sindy_isam2") -> GraphResult:
+                 name: str = "sindy_isam2", lateral=None) -> GraphResult:
     """Return the incremental (iSAM2) estimates of one run, as they were known in real time.
 
     ``gtsam.IncrementalFixedLagSmoother`` (iSAM2 with states older than ``lag_s`` marginalised
@@ -361,6 +382,8 @@ def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
             x_last = model.step(x_last, u[k - 1], t[k - 1] - t[0], t[k] - t[k - 1])
             add_state(k, x_last)
             graph.add(dyn.factor(k - 1, gtsam.noiseModel.Gaussian.Covariance(Q[k - 1])))
+            if lateral is not None and k % int(lateral.every) == 0:
+                graph.add(_lateral_factor(k, lateral))
         last = min(k, n - 1)
         while j < len(ka) and ka[j] <= last:
             graph.add(_gnss_factor(int(kv[j]), z[j], std[j], lever, robust))

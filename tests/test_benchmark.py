@@ -34,7 +34,8 @@ def mini(tmp_path_factory):
     campaign = read_trajectory_campaign(root)
     result = benchmark_campaign(campaign, model, "dgnss", seed=3, oracle_dynamics=TrueDynamics(),
                                 estimators=("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf",
-                                            "oracle_ekf", "sindy_graph", "sindy_ekf_lateral"),
+                                            "oracle_ekf", "sindy_graph", "sindy_ekf_lateral",
+                                            "sindy_graph_lateral"),
                                 outage_warmup_s=10.0, outage_recovery_s=12.0)
     out = write_benchmark(result, root.parent / "out", plots=True)
     return root, model, result, out
@@ -77,7 +78,7 @@ def test_scores_follow_the_information_each_estimator_has(mini):
     assert np.isnan(s["dead_reckoning"].nis_mean)
 
 
-def test_lateral_pseudo_measurement_runs_by_default_and_keeps_the_true_model_accurate(mini):
+def test_lateral_pseudo_measurements_run_by_default_and_keep_the_true_model_accurate(mini):
     from sindy_ekf.benchmark import ESTIMATORS
 
     _, _, result, _ = mini
@@ -87,6 +88,10 @@ def test_lateral_pseudo_measurement_runs_by_default_and_keeps_the_true_model_acc
     assert s["sindy_ekf_lateral"].ate_pos_m < 1.3 * s["sindy_ekf"].ate_pos_m
     assert s["sindy_ekf_lateral"].outage_pos_err_m["10"] < s["unicycle_ekf"].outage_pos_err_m["10"]
     assert 0.5 < s["sindy_ekf_lateral"].nis_mean < 4.0
+    # the graph with the same v_y = 0 factors: no worse than the graph without on the true model
+    assert "sindy_graph_lateral" in ESTIMATORS
+    assert s["sindy_graph_lateral"].ate_pos_m < 1.3 * s["sindy_graph"].ate_pos_m
+    assert s["sindy_graph_lateral"].outage_pos_err_m["10"] < s["unicycle_ekf"].outage_pos_err_m["10"]
 
 
 def test_outputs_hold_tum_files_json_and_plots(mini):

@@ -23,7 +23,7 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     p.add_argument("--estimators", default=None, metavar="A,B,...",
                    help="comma-separated subset (default: all available: dead_reckoning, cv_ekf, unicycle_ekf, "
                         "sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), oracle_ekf on "
-                        "simulated campaigns, sindy_graph, sindy_isam2)")
+                        "simulated campaigns, sindy_graph, sindy_graph_lateral, sindy_isam2)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write TUM files of every estimate, the JSON and the plots into DIR")

@@ -318,17 +318,20 @@ class OutageResult:
 
 def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[BodyStates],
                   outage_s: float = 10.0, lead_s: float = 10.0, profile: str = "rtk", seed: int = 0,
-                  max_outages: int = 12) -> OutageResult:
+                  max_outages: int = 12, lateral: bool = True) -> OutageResult:
     """Return each model's EKF position error at the end of ``outage_s`` GNSS outages on the test runs (inf: diverged).
 
     For every outage (scheduled after ``lead_s`` of GNSS, then every ``lead_s + outage_s``) the
     EKF (``sindy_ekf.ekf.run_ekf_batch``, all outages in lockstep, process noise from the model's one-step residuals on the train
     runs) runs from ``lead_s`` before the outage to its end; the error is the distance between
     the estimate and the recorded pose there. ``models`` maps a name to a ``SindyModel`` or an
-    :class:`ExtendedModel` (driven by its motor inputs).
+    :class:`ExtendedModel` (driven by its motor inputs). ``lateral``: the filter applies the
+    ``v_y = 0`` pseudo-measurement of a skid-steered robot (``sindy_ekf_lateral`` of the benchmark,
+    std from the train runs' lateral velocity), without which a model whose yaw equation holds
+    a vy term can drift away in an outage (measured on the real Warthog runs).
     """
-    from sindy_ekf.benchmark import outage_ekf_run
-    from sindy_ekf.ekf import run_ekf_batch
+    from sindy_ekf.benchmark import LATERAL_EVERY, outage_ekf_run
+    from sindy_ekf.ekf import fit_lateral_constraint, run_ekf_batch
     from sindy_ekf.process_models import (BodyModelProcess, TrueDynamicsProcess, fit_process_noise,
                                           state_series_from_body_states)
 
@@ -337,6 +340,8 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
             return [model.states_for_motors(st) for st in runs]
         return [replace(st, t=np.asarray(st.t) - st.t[0]) for st in runs]
 
+    constraint = (fit_lateral_constraint([np.asarray(st.vy, float) for st in train], every=LATERAL_EVERY)
+                  if lateral else None)
     errors = {}
     for name, model in models.items():
         proc = TrueDynamicsProcess(model, name) if isinstance(model, ExtendedModel) else BodyModelProcess(model, name)
@@ -353,12 +358,12 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
                                            seed + 100 * i + k, f"{name} outage {len(runs)}"))
                 ends.append((t[sel][-1], st.x[sel][-1], st.y[sel][-1]))
         try:  # all outages in lockstep: one vectorised model call per step
-            results = run_ekf_batch(proc, runs)
+            results = run_ekf_batch(proc, runs, lateral=constraint)
         except InputError:  # a model diverged somewhere: run them apart, a diverged one counts as inf
             results = []
             for r in runs:
                 try:
-                    results.append(run_ekf_batch(proc, [r])[0])
+                    results.append(run_ekf_batch(proc, [r], lateral=constraint)[0])
                 except InputError:
                     results.append(None)
         errs = []
