@@ -20,9 +20,10 @@ body velocities from smoothing splines of the poses (eqs. 5.64 to 5.68). The hyp
 (folds by run), ranked by the 5 s local-frame position error (sections 5.3.6, 5.3.8); 10 Hz
 poses with late stamps need spline smoothing (``s`` of 1 to 100, not the thesis's 0.0005 for
 50 Hz laser-tracker poses) and short integration windows (``tau`` of 0.5 to 2 s: a speed
-set-point is followed within one to two seconds). Of the best-ranked models the first that is not unstable
-at rest is kept (:func:`select_stable`): 5 s windows do not see a slowly growing lateral mode,
-an EKF coasting through a GNSS outage does. Predictions integrate the model with the pose kinematics
+set-point is followed within one to two seconds; ``identification.search.LOW_RATE_GRID``, which
+``sindy-ekf identify`` picks by itself for such poses). The model kept is the search's own choice
+(one-standard-error rule among models stable at rest, :func:`select_stable`): 5 s windows do not
+see a slowly growing lateral mode, an EKF coasting through a GNSS outage does. Predictions integrate the model with the pose kinematics
 (eq. 5.75) from the data's pose and velocity at the start of each 5 s window (50 % overlap,
 eqs. 5.76 to 5.78), and are compared with the unicycle (``vx = k1 u1``, ``omega = k2 u2``,
 gains by least squares on the train runs) and constant-velocity baselines.
@@ -123,18 +124,24 @@ def identify(campaign: TrajectoryCampaign, grid: SearchGrid = REAL_GRID, n_jobs:
 
 
 def select_stable(result: SearchResult, tol: float = 1e-9) -> tuple[SindyModel, int]:
-    """Return the best-ranked model that is not unstable at rest, and its rank (0 = best).
+    """Return the search's selected model and its rank (0 = best), as ``sindy-ekf identify`` keeps it.
 
-    The search scores 5 s windows, which a slowly growing mode does not spoil; the EKF's dead
-    reckoning through a 30 s outage and the factor graph's long horizons do. A model whose
-    Jacobian ``J_f_x`` at rest (x = 0, u = 0) has an eigenvalue with real part above ``tol``
-    (a lateral or yaw mode that grows by itself) is skipped. Falls back to the best model.
+    The search selects by the one-standard-error rule among admissible models (stable at rest,
+    never diverged on a held-out window: :func:`identification.search.select_one_se`); 5 s
+    windows do not see a slowly growing mode, an EKF coasting through a GNSS outage does. Should
+    the selected model still have an eigenvalue of ``J_f_x`` at rest above ``tol`` (no grid point
+    admissible), the best-ranked stable refitted model is taken instead.
     """
+    def stable(model) -> bool:
+        return bool(np.max(np.linalg.eigvals(model.J_f_x(np.zeros(3), np.zeros(2))).real) <= tol)
+
+    if stable(result.model):
+        return result.model, result.selected
     for rank, model in enumerate(result.top_models):
-        if np.max(np.linalg.eigvals(model.J_f_x(np.zeros(3), np.zeros(2))).real) <= tol:
+        if stable(model):
             return model, rank
-    log.warning("no model among the %d best is stable at rest; keeping the best", len(result.top_models))
-    return result.model, 0
+    log.warning("no model among the %d best is stable at rest; keeping the selected one", len(result.top_models))
+    return result.model, result.selected
 
 
 def score(model: SindyModel, train: TrajectoryCampaign, test: TrajectoryCampaign) -> CampaignScores:
@@ -211,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
         hp = sc.model.hyperparameters
         print(f"{name}: {sc.model.library.name}, s={hp['s']:g}, tau={hp['tau']:g} s, alpha={hp['alpha']:g}, "
               f"T={hp['T']:g}, {sc.model.complexity} terms (rank {sc.model.training['search_rank'] + 1} of the "
-              "search: the best not unstable at rest)")
+              "search: the one-standard-error choice among models stable at rest)")
         print("  " + sc.model.equations().replace("\n", "\n  "))
     print()
     print(format_table([*scores.values(), *cross]))
