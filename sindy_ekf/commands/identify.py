@@ -16,7 +16,7 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, metavar="MODEL.json", help="model file to write")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
     p.add_argument("--quick", action="store_true", help="a small grid (tracker: s=0.0005, 2 tau, 2 alpha, 3 T, "
-                   "3 folds; low-rate: s=10, 2 tau, 3 T, poly1)")
+                   "3 folds; low-rate: s=20, 2 tau, 2 T, poly1)")
     p.add_argument("--grid", choices=("auto", "tracker", "low-rate"), default="auto",
                    help="base grid: tracker (50 Hz laser-tracker poses), low-rate (10-20 Hz lidar, mocap or "
                         "RTK poses: larger spline smoothing, shorter windows, poly1/poly3/poly3_absu), or auto "
