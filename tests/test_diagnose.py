@@ -28,8 +28,10 @@ from sindy_ekf.errors import InputError  # noqa: E402
 
 # The magnitude and campaign seed of each hidden effect are drawn from this master seed; the code
 # under test never sees them. CI uses a fixed master seed so that a green run is reproducible;
-# SINDY_EKF_TEST_SEED=random (or any integer) draws other campaigns (master seeds 101 to 112 were
-# run on 2026-11-22: all pass); the randomised statistics over many campaigns are bench/'s job.
+# SINDY_EKF_TEST_SEED=random (or any integer) draws other campaigns. Run on 2026-11-22 with master
+# seeds 101 to 113: all hidden effects found, estimated and fixed; one effect-free campaign (109)
+# raised a false alarm (heading_dependence, gain 0.072 over its threshold 0.060), as a 10 % false-
+# alarm target allows. The randomised statistics over many campaigns are bench/'s job.
 _SEED_ENV = os.environ.get("SINDY_EKF_TEST_SEED", "20221221")
 MASTER_SEED = int(np.random.SeedSequence().entropy % 2**31 if _SEED_ENV == "random" else _SEED_ENV)
 RUN_S, RATE_HZ = 60.0, 25.0
