@@ -7,7 +7,8 @@ the baselines and the simulator's true dynamics, benchmarks the estimators and d
 model, and writes ``OUT/report/report.html``. ``OUT`` itself is the simulated tracker campaign
 (with ``truth/``; readers ignore the ``report/`` folder beside ``runs/``), so every other command
 can be pointed at it. Prints what the campaign holds, the headline figures and where the report
-is; stages that failed are named on stderr. The default output folder ``./demo-out`` is
+is; stages that failed are named on stderr and make the exit code 1 (the report is still
+written). The default output folder ``./demo-out`` is
 replaced on every run; any other non-empty folder needs ``--force``.
 """
 
@@ -86,4 +87,7 @@ def run(args) -> int:
         atomic_write_json(args.json, {"report": str(path), "seed": truth.seed, "minutes": truth.minutes,
                                       "effects": [{"name": n, "value": v} for n, v in truth.effects],
                                       "wall_s": time.perf_counter() - tic, **chain.headline()})
+    if chain.errors:  # the report is written and names them; the exit code says the chain is broken
+        print(f"demo: {len(chain.errors)} stage(s) failed: {', '.join(chain.errors)}", file=sys.stderr)
+        return 1
     return 0
