@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 
 WINDOW_S = 5.0
 MIN_TEST_WINDOWS = 4  # fewer 5 s windows on the test runs cannot support an out-of-sample verdict
+CONFIRM_TOLERANCE = 0.10  # a named cause may not make the median 5 s error on the train runs worse by more
 
 
 @dataclass
@@ -190,10 +191,13 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
     delay does, measured on ``warthog-drive-wheels``: window gain 38 %, 5 s error 10.5 -> 31 cm).
     The significant families are therefore tried in ranking order, each extended model driven
     over 5 s windows of the *train* runs (the runs it was fitted on: the test runs stay out of
-    sample), and the first one whose *median* 5 s position error is lower than the given
-    model's is named (the median: a cubic model may run away in a window or two where the
-    mechanism pushes it beyond its training envelope, which says little about the mechanism).
-    The others lose their significance, with a note saying what the 5 s check measured.
+    sample), and the first one whose *median* 5 s position error is not clearly worse than the
+    given model's (by more than :data:`CONFIRM_TOLERANCE`) is named. The median: a cubic model
+    may run away in a window or two where the mechanism pushes it beyond its training envelope,
+    which says little about the mechanism. The tolerance: the check guards against mechanisms
+    that break multi-step prediction, it does not re-rank by a second, noisier score (a battery
+    sag of 0.19 per 10 min in 45 s runs moves the median by +2 %, a wrong 0.56 s delay by
+    +180 %). The rejected lose their significance, with a note saying what the check measured.
     """
     import dataclasses
 
@@ -208,12 +212,15 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
             continue
         ext = choose_extension(model, c.name, c.score, tr, weights, train, train_names)
         after = median_5s(multistep(ext, train, train_names))
-        if after < base:
+        log.info("diagnose: %s extended, median 5 s position error on the train runs %.4f -> %.4f m",
+                 c.name, base, after)
+        if after <= (1.0 + CONFIRM_TOLERANCE) * base:
             extended = ext
             continue
         out[i] = dataclasses.replace(c, significant=False, note=(
             f"window gain not confirmed over 5 s: the extended model predicts the train runs worse "
-            f"(median 5 s position error {100 * base:.1f} -> {100 * after:.1f} cm)"))
+            f"(median 5 s position error {100 * base:.1f} -> {100 * after:.1f} cm, more than "
+            f"{100 * CONFIRM_TOLERANCE:.0f} % worse)"))
     return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
 
 
