@@ -210,7 +210,8 @@ def summarise(suite, ladder, timing, calib) -> str:
                   f"heading {timing['before']['yaw_err_5s_deg']:.2f} -> {timing['after']['yaw_err_5s_deg']:.2f} deg",
                   f"  - EKF (rtk GNSS) position error at the end of {o.get('outage_s', 10):g} s outages, RMS over "
                   f"{o.get('n', 0)} outages: {o.get('before_m', float('nan')):.3f} -> "
-                  f"{o.get('after_m', float('nan')):.3f} m", ""]
+                  f"{o.get('after_m', float('nan')):.3f} m (outages in which the filter diverged, left out of "
+                  f"the RMS: {o.get('n_diverged')})", ""]
     if calib:
         lines += [f"Threshold calibration (`.venv/bin/python bench/bench_diagnose.py --calibrate {calib['n']}`, "
                   "two thirds reference flow, one third same flow): largest test gain per family over "
