@@ -354,8 +354,8 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
             F = IKH @ F  # error transition of the step with the pseudo-measurement folded in
         for i, s in enumerate(active):
             if not (np.all(np.isfinite(x_next[i])) and np.all(np.isfinite(P_next[i]))):
-                raise InputError(f"{s.name}: the filter diverged at t={t_k[i] + dt[i]:.2f} s (state or "
-                                 "covariance not finite): the process model runs away here")
+                raise InputError(f"{s.name}: state or covariance became non-finite at t={t_k[i] + dt[i]:.2f} s "
+                                 f"(model {model.name!r} diverged)")
             Pi, repaired = repair_covariance(P_next[i])
             if repaired:
                 s.ekf.pd_repairs += 1
