@@ -19,10 +19,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
-CAMPAIGNS = ("warthog-drive-cmd", "warthog-drive-wheels")
-README_UNICYCLE = {"warthog-drive-cmd": (0.51, 30.7), "warthog-drive-wheels": (0.13, 2.7)}
-TARGET_RATIO = {"warthog-drive-cmd": 0.6, "warthog-drive-wheels": 0.8}
+sys.path.insert(0, str(ROOT / "examples"))
+from real_warthog import CAMPAIGNS, DATA, README_BASELINES, TARGET_RATIO  # noqa: E402  (one source of the figures)
+
+README_UNICYCLE = {name: b["unicycle"] for name, b in README_BASELINES.items()}
 CLI = [sys.executable, "-m", "sindy_ekf.cli"]
 
 
