@@ -102,7 +102,7 @@ def main() -> int:
 
     # 3. the benchmark on the test runs
     names = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "sindy_ekf_lateral", "oracle_ekf",
-             "sindy_graph") + \
+             "sindy_graph", "sindy_graph_lateral") + \
         (() if args.skip_isam2 else ("sindy_isam2",))
     if oracle is None:
         names = tuple(n for n in names if n != "oracle_ekf")
