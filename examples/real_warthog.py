@@ -51,7 +51,7 @@ from identification.baselines import ConstantVelocityModel, UnicycleModel  # noq
 from identification.evaluate import EvaluationResult, evaluate_model, make_windows  # noqa: E402
 from identification.model import EnvelopeWarning, SindyModel  # noqa: E402
 from identification.search import (LOW_RATE_GRID, QUICK_LOW_RATE_GRID, SearchGrid, SearchResult,  # noqa: E402
-                                   search, states_of_runs)
+                                   search, stable_at_rest, states_of_runs)
 from identification.trajectory import read_trajectory_campaign  # noqa: E402
 from identification.types import BodyStates, TrajectoryCampaign, TrajectoryRun  # noqa: E402
 
@@ -123,22 +123,19 @@ def identify(campaign: TrajectoryCampaign, grid: SearchGrid = REAL_GRID, n_jobs:
         return search(runs=train, grid=grid, n_top=14, n_jobs=n_jobs)
 
 
-def select_stable(result: SearchResult, tol: float = 1e-9) -> tuple[SindyModel, int]:
+def select_stable(result: SearchResult) -> tuple[SindyModel, int]:
     """Return the search's selected model and its rank (0 = best), as ``sindy-ekf identify`` keeps it.
 
     The search selects by the one-standard-error rule among admissible models (stable at rest,
     never diverged on a held-out window: :func:`identification.search.select_one_se`); 5 s
     windows do not see a slowly growing mode, an EKF coasting through a GNSS outage does. Should
-    the selected model still have an eigenvalue of ``J_f_x`` at rest above ``tol`` (no grid point
+    the selected model still not be :func:`identification.search.stable_at_rest` (no grid point
     admissible), the best-ranked stable refitted model is taken instead.
     """
-    def stable(model) -> bool:
-        return bool(np.max(np.linalg.eigvals(model.J_f_x(np.zeros(3), np.zeros(2))).real) <= tol)
-
-    if stable(result.model):
+    if stable_at_rest(result.model):
         return result.model, result.selected
     for rank, model in enumerate(result.top_models):
-        if stable(model):
+        if stable_at_rest(model):
             return model, rank
     log.warning("no model among the %d best is stable at rest; keeping the selected one", len(result.top_models))
     return result.model, result.selected

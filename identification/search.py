@@ -35,6 +35,22 @@ from sindy_ekf.progress import progress
 log = logging.getLogger(__name__)
 
 STABILITY_TOL = 1e-9  # largest real part of an eigenvalue of J_f_x at rest still counted as stable
+
+
+def max_re_eig_at_rest(library: FeatureLibrary, coef: np.ndarray) -> np.ndarray:
+    """Return the largest real part of the eigenvalues of ``J_f_x`` at rest (x = 0, u = 0) for
+    coefficient arrays ``coef (..., 3, k)`` of ``library`` (``J_f_x = coef @ d_theta/dx``)."""
+    _, d_theta0 = library.transform_with_jacobian(np.zeros(5))
+    J = np.einsum("...ek,vk->...ev", coef, d_theta0[:3])
+    with np.errstate(invalid="ignore"):
+        eig = np.where(np.isfinite(J).all(axis=(-2, -1)), np.linalg.eigvals(np.nan_to_num(J)).real.max(axis=-1),
+                       np.inf)
+    return eig
+
+
+def stable_at_rest(model: SindyModel) -> bool:
+    """Return whether the model comes to rest by itself: :func:`max_re_eig_at_rest` <= :data:`STABILITY_TOL`."""
+    return bool(max_re_eig_at_rest(model.library, model.coef) <= STABILITY_TOL)
 SELECTION_NOTE = "sparsest admissible model within one standard error (over folds) of the best CV error"
 
 # Table 5.1 of the thesis, plus tau in {1, 2, 3, 5} s (the thesis fixed tau = 3 s).
@@ -334,8 +350,6 @@ def _score_combo_serial(job) -> dict[str, np.ndarray]:
     max_re_eig = np.full(m, -np.inf)
     diverged = np.zeros(m)
     v_limit = grid.blowup_factor * np.max(np.abs(np.vstack([st.state for st in states])), axis=0)
-    # features and their derivatives at rest (x = 0, u = 0): J_f_x of every model is coef @ d_theta
-    _, d_theta0 = library.transform_with_jacobian(np.zeros(5))
     n_rows = 0
     dx_all = []
     for f in range(n_folds):
@@ -343,8 +357,7 @@ def _score_combo_serial(job) -> dict[str, np.ndarray]:
         r, c = problem.compressed(train)
         coef = np.stack([fit_stlsq(r, c, threshold=T, alpha=a, normalize=grid.normalize) for a, T in at])
         complexity += np.count_nonzero(coef, axis=(1, 2)) / n_folds
-        J_f_x_rest = np.einsum("mek,vk->mev", coef, d_theta0[:3])
-        max_re_eig = np.maximum(max_re_eig, np.linalg.eigvals(J_f_x_rest).real.max(axis=-1))
+        max_re_eig = np.maximum(max_re_eig, max_re_eig_at_rest(library, coef))
         rows_h = np.isin(problem.run_index, held)
         dx_h = problem.delta_x[rows_h]
         pred = np.einsum("pk,mek->mpe", problem.theta_int[rows_h], coef)

@@ -332,23 +332,13 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     if {"sindy_graph", "sindy_isam2", "sindy_graph_lateral"} & set(estimators):
         from sindy_ekf.graph import smooth_batch, smooth_isam2
 
-        if "sindy_graph" in estimators:
+        # batch smoothing, each started from its filter's estimate on the full grid
+        for name, init_name, constraint in (("sindy_graph", "sindy_ekf", None),
+                                            ("sindy_graph_lateral", "sindy_ekf_lateral", lateral)):
+            if name not in estimators:
+                continue
             start = time.perf_counter()
-            init = estimates.get("sindy_ekf")
-            results = []
-            for r in runs:
-                x_init = None
-                if init is not None:  # the EKF on the full grid is the starting trajectory
-                    x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
-                                              for i in range(6)])
-                results.append(smooth_batch(models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
-                                            x_init=x_init, marginal_stride=10,
-                                            name=f"{r.name} sindy_graph"))
-            keep("sindy_graph", results)
-            runtimes["sindy_graph"] = time.perf_counter() - start
-        if "sindy_graph_lateral" in estimators:
-            start = time.perf_counter()
-            init = estimates.get("sindy_ekf_lateral")
+            init = estimates.get(init_name)
             results = []
             for r in runs:
                 x_init = None
@@ -356,10 +346,10 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
                     x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
                                               for i in range(6)])
                 results.append(smooth_batch(models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
-                                            x_init=x_init, marginal_stride=10, lateral=lateral,
-                                            name=f"{r.name} sindy_graph_lateral"))
-            keep("sindy_graph_lateral", results)
-            runtimes["sindy_graph_lateral"] = time.perf_counter() - start
+                                            x_init=x_init, marginal_stride=10, lateral=constraint,
+                                            name=f"{r.name} {name}"))
+            keep(name, results)
+            runtimes[name] = time.perf_counter() - start
         if "sindy_isam2" in estimators:
             start = time.perf_counter()
             keep("sindy_isam2", [smooth_isam2(models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,

@@ -324,7 +324,7 @@ def smooth_batch(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
 
 def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                  gnss=None, robust: str | None = "huber", update_every: int = 10, lag_s: float = 3.0,
-                 name: str = "sindy_isam2", lateral=None) -> GraphResult:
+                 name: str = "sindy_isam2") -> GraphResult:
     """Return the incremental (iSAM2) estimates of one run, as they were known in real time.
 
     ``gtsam.IncrementalFixedLagSmoother`` (iSAM2 with states older than ``lag_s`` marginalised
@@ -382,8 +382,6 @@ def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
             x_last = model.step(x_last, u[k - 1], t[k - 1] - t[0], t[k] - t[k - 1])
             add_state(k, x_last)
             graph.add(dyn.factor(k - 1, gtsam.noiseModel.Gaussian.Covariance(Q[k - 1])))
-            if lateral is not None and k % int(lateral.every) == 0:
-                graph.add(_lateral_factor(k, lateral))
         last = min(k, n - 1)
         while j < len(ka) and ka[j] <= last:
             graph.add(_gnss_factor(int(kv[j]), z[j], std[j], lever, robust))

@@ -80,3 +80,37 @@ def inputs_at(truth: StateSeries, t: np.ndarray) -> np.ndarray:
 def truth_on(truth: StateSeries, t: np.ndarray) -> np.ndarray:
     """Return the truth's 6-state linearly interpolated at the times ``t``, (n, 6)."""
     return np.column_stack([np.interp(t, truth.t, truth.x6[:, i]) for i in range(6)])
+
+
+NEES_EPOCHS = (1010.0, 1016.0, 1024.0)  # 6 s apart (errors decorrelated), one in the outage of outage_runs
+
+
+def outage_runs(model, P0: np.ndarray, rng, n_runs: int = 24, duration_s: float = 26.0):
+    """Return ``(truths, runs)``: truth runs of ``model`` and EKF runs under DGNSS without outliers
+    with an outage from 1012 to 1020 s, each started from the truth perturbed by ``P0``."""
+    from dataclasses import replace
+
+    from simulation.gnss import PROFILES, simulate_gnss
+    from sindy_ekf.ekf import EkfRun, estimation_grid
+
+    prof = replace(PROFILES["dgnss"], outlier_prob=0.0)
+    truths = simulate_truths(model, duration_s, rng, n_runs=n_runs)
+    runs = []
+    for i, truth in enumerate(truths):
+        gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2], prof,
+                             seed=i, outages=np.array([[1012.0, 1020.0]]))
+        t = estimation_grid(truth.t, gnss.t_valid)
+        x0 = truth.x6[0] + rng.multivariate_normal(np.zeros(6), P0)
+        runs.append(EkfRun(f"run_{i}", t, inputs_at(truth, t), x0, P0, gnss))
+    return truths, runs
+
+
+def nees_at_epochs(truth: StateSeries, res, epochs=NEES_EPOCHS) -> list[float]:
+    """Return the 6-dof NEES of an EKF result against the truth at ``epochs``."""
+    ref = truth_on(truth, res.t)
+    out = []
+    for te in epochs:
+        k = np.searchsorted(res.t, te)
+        e = res.x[k] - ref[k]
+        out.append(float(e @ np.linalg.solve(res.P[k], e)))
+    return out

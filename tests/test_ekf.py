@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimation_helpers import PolyBody, inputs_at, simulate_truth, simulate_truths, truth_on
+from estimation_helpers import (PolyBody, inputs_at, nees_at_epochs, outage_runs, simulate_truth, simulate_truths,
+                               truth_on)
 from simulation.gnss import FLAG_OUTLIER, PROFILES, simulate_gnss
 from sindy_ekf.ekf import EkfRun, estimation_grid, run_ekf, run_ekf_batch
 from sindy_ekf.errors import InputError
@@ -32,24 +33,8 @@ def oracle():
 
 def test_ekf_is_consistent_with_the_oracle_model(oracle):
     """Average NEES over independent runs inside the two-sided 95 % chi-square band (6 dof)."""
-    rng = np.random.default_rng(1)
-    prof = replace(PROFILES["dgnss"], outlier_prob=0.0)
-    truths = simulate_truths(oracle, 26.0, rng, n_runs=24)
-    runs = []
-    for i, truth in enumerate(truths):
-        gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2], prof,
-                             seed=i, outages=np.array([[1012.0, 1020.0]]))
-        t = _grid(truth, gnss)
-        x0 = truth.x6[0] + rng.multivariate_normal(np.zeros(6), P0)
-        runs.append(EkfRun(f"run_{i}", t, inputs_at(truth, t), x0, P0, gnss))
-    nees = []
-    for truth, res in zip(truths, run_ekf_batch(oracle, runs)):
-        ref = truth_on(truth, res.t)
-        # epochs 6 s apart (errors decorrelated), one in the outage
-        for te in (1010.0, 1016.0, 1024.0):
-            k = np.searchsorted(res.t, te)
-            e = res.x[k] - ref[k]
-            nees.append(e @ np.linalg.solve(res.P[k], e))
+    truths, runs = outage_runs(oracle, P0, np.random.default_rng(1))
+    nees = [v for truth, res in zip(truths, run_ekf_batch(oracle, runs)) for v in nees_at_epochs(truth, res)]
     n = len(nees)
     lo, hi = chi2.ppf([0.025, 0.975], 6 * n) / n
     assert lo <= np.mean(nees) <= hi, (np.mean(nees), lo, hi)

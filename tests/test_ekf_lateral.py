@@ -1,15 +1,13 @@
-"""The optional lateral non-holonomic pseudo-measurement ``v_y = 0`` of the EKF."""
+"""The lateral non-holonomic pseudo-measurement ``v_y = 0`` of the EKF."""
 from __future__ import annotations
 
 import copy
-from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from estimation_helpers import PolyBody, inputs_at, simulate_truths, truth_on
-from simulation.gnss import PROFILES, simulate_gnss
+from estimation_helpers import PolyBody, inputs_at, nees_at_epochs, outage_runs, simulate_truths, truth_on
 from sindy_ekf.ekf import (EkfRun, LateralConstraint, estimation_grid, fit_lateral_constraint,
                            lateral_update, run_ekf_batch)
 from sindy_ekf.errors import InputError
@@ -71,24 +69,12 @@ def test_ekf_with_the_constraint_stays_consistent_with_the_oracle(trained):
     """Average NEES over independent runs inside the two-sided 95 % chi-square band (6 dof),
     with a GNSS outage, and the constraint does not make the estimate worse."""
     model, lateral, _ = trained
-    rng = np.random.default_rng(1)
-    prof = replace(PROFILES["dgnss"], outlier_prob=0.0)
-    truths = simulate_truths(model, 26.0, rng, n_runs=24)
-    runs = []
-    for i, truth in enumerate(truths):
-        gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2], prof,
-                             seed=i, outages=np.array([[1012.0, 1020.0]]))
-        t = estimation_grid(truth.t, gnss.t_valid)
-        x0 = truth.x6[0] + rng.multivariate_normal(np.zeros(6), P0)
-        runs.append(EkfRun(f"run_{i}", t, inputs_at(truth, t), x0, P0, gnss))
+    truths, runs = outage_runs(model, P0, np.random.default_rng(1))
     nees, err_on, err_off = [], [], []
     with_lateral = run_ekf_batch(model, runs, lateral=lateral)
     for truth, on, off in zip(truths, with_lateral, run_ekf_batch(model, runs)):
         ref = truth_on(truth, on.t)
-        for te in (1010.0, 1016.0, 1024.0):
-            k = np.searchsorted(on.t, te)
-            e = on.x[k] - ref[k]
-            nees.append(e @ np.linalg.solve(on.P[k], e))
+        nees += nees_at_epochs(truth, on)
         err_on.append(on.x[:, 4] - ref[:, 4])
         err_off.append(off.x[:, 4] - ref[:, 4])
         assert on.P[-1, 4, 4] < off.P[-1, 4, 4]  # the pseudo-measurement was applied

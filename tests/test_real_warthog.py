@@ -173,7 +173,7 @@ def test_diagnosis_on_real_data_names_only_what_5s_prediction_confirms(identifie
     """On these runs the window residuals favour mechanisms (a 0.56 s delay on wheels) whose
     re-identified models run away at rest or predict 5 s worse; such a cause must not be named."""
     from sindy_ekf.diagnose import diagnose_states
-    from sindy_ekf.diagnose.families import stable_at_rest
+    from identification.search import stable_at_rest
 
     camp = read_trajectory_campaign(data / "warthog-drive-wheels")
     model = identified["warthog-drive-wheels"].model

@@ -73,15 +73,9 @@ class ExtendedModel:
         A base without a lateral law (eq. 7.8) has no drift to keep: ``vy_scale`` stays 1.
         """
         vy_scale = 1.0
-        if family == "lateral_slip":
-            from sindy_ekf.diagnose.families import model_coefficient
-
-            c, k = model_coefficient(base, "vy", "vx omega"), model_coefficient(base, "vy", "vy")
-            beta_ = np.asarray(beta, float).reshape(-1)
-            c_new, k_new = c + beta_[0], k + beta_[1]
-            if c != 0 and k != 0 and k_new != 0 and c_new * k != 0:
-                gain = (c_new / k_new) / (c / k)
-                vy_scale = gain if np.isfinite(gain) and gain > 0 else 1.0
+        if family == "lateral_slip":  # the family's own estimate of the drift ratio (None without a law)
+            gain = FAMILY_SPECS[family].estimate(np.asarray(theta, float), np.asarray(beta, float), base)["slip_gain"]
+            vy_scale = gain if gain is not None and np.isfinite(gain) and gain > 0 else 1.0
         return cls(base, family, theta, beta, dict(estimate or {}), vy_scale)
 
     @property
@@ -318,22 +312,20 @@ class OutageResult:
 
 def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[BodyStates],
                   outage_s: float = 10.0, lead_s: float = 10.0, profile: str = "rtk", seed: int = 0,
-                  max_outages: int = 12, lateral: bool = False) -> OutageResult:
+                  max_outages: int = 12) -> OutageResult:
     """Return each model's EKF position error at the end of ``outage_s`` GNSS outages on the test runs (inf: diverged).
 
     For every outage (scheduled after ``lead_s`` of GNSS, then every ``lead_s + outage_s``) the
     EKF (``sindy_ekf.ekf.run_ekf_batch``, all outages in lockstep, process noise from the model's one-step residuals on the train
     runs) runs from ``lead_s`` before the outage to its end; the error is the distance between
     the estimate and the recorded pose there. ``models`` maps a name to a ``SindyModel`` or an
-    :class:`ExtendedModel` (driven by its motor inputs). ``lateral``: the filter applies the
-    ``v_y = 0`` pseudo-measurement of a skid-steered robot (``sindy_ekf_lateral`` of the benchmark,
-    std from the train runs' lateral velocity). Off by default: it helps a model whose yaw
-    equation holds a spurious vy term (real Warthog cmd runs: 2.26 -> 0.83 m), but it made a
-    cubic model identified on a simulated campaign diverge in 6 of 12 outages (the plain filter
-    in none); the benchmark reports both filters side by side.
+    :class:`ExtendedModel` (driven by its motor inputs). The plain filter: the ``v_y = 0``
+    pseudo-measurement (``sindy_ekf_lateral`` of the benchmark) helps a model whose yaw equation
+    holds a spurious vy term, but made a cubic model identified on a simulated campaign diverge
+    in 6 of 12 outages (the plain filter in 4); the benchmark reports both filters side by side.
     """
-    from sindy_ekf.benchmark import LATERAL_EVERY, outage_ekf_run
-    from sindy_ekf.ekf import fit_lateral_constraint, run_ekf_batch
+    from sindy_ekf.benchmark import outage_ekf_run
+    from sindy_ekf.ekf import run_ekf_batch
     from sindy_ekf.process_models import (BodyModelProcess, TrueDynamicsProcess, fit_process_noise,
                                           state_series_from_body_states)
 
@@ -342,8 +334,6 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
             return [model.states_for_motors(st) for st in runs]
         return [replace(st, t=np.asarray(st.t) - st.t[0]) for st in runs]
 
-    constraint = (fit_lateral_constraint([np.asarray(st.vy, float) for st in train], every=LATERAL_EVERY)
-                  if lateral else None)
     errors = {}
     for name, model in models.items():
         proc = TrueDynamicsProcess(model, name) if isinstance(model, ExtendedModel) else BodyModelProcess(model, name)
@@ -360,12 +350,12 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
                                            seed + 100 * i + k, f"{name} outage {len(runs)}"))
                 ends.append((t[sel][-1], st.x[sel][-1], st.y[sel][-1]))
         try:  # all outages in lockstep: one vectorised model call per step
-            results = run_ekf_batch(proc, runs, lateral=constraint)
+            results = run_ekf_batch(proc, runs)
         except InputError:  # a model diverged somewhere: run them apart, a diverged one counts as inf
             results = []
             for r in runs:
                 try:
-                    results.append(run_ekf_batch(proc, [r], lateral=constraint)[0])
+                    results.append(run_ekf_batch(proc, [r])[0])
                 except InputError:
                     results.append(None)
         errs = []

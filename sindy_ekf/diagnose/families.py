@@ -33,6 +33,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from identification.library import STATE_NAMES, parse_term
+from identification.search import STABILITY_TOL, max_re_eig_at_rest, stable_at_rest
 from sindy_ekf.diagnose.data import Split
 
 log = logging.getLogger(__name__)
@@ -473,28 +474,22 @@ def refit_columns(family: Family, model, split: Split, theta: np.ndarray) -> np.
     return X
 
 
+def _coefs_from_refit(model, sols: np.ndarray) -> np.ndarray:
+    """Return coefficient arrays ``(C, 3, k)`` with the model's support refitted to each row of
+    ``sols (C, n)`` (their xi part: the support's coefficients equation by equation)."""
+    sols = np.atleast_2d(sols)
+    rows, cols = np.nonzero(model.coef)  # row-major: equation by equation, as refit_columns orders them
+    coefs = np.zeros((len(sols),) + model.coef.shape)
+    coefs[:, rows, cols] = sols[:, :len(rows)]
+    return coefs
+
+
 def _coef_from_refit(model, sol: np.ndarray):
     """Return a model-like object with the model's support refitted to ``sol`` (the xi part)."""
     from identification.model import SindyModel
 
-    act = ActiveTerms(model)
-    coef = np.zeros_like(model.coef)
-    keep = np.flatnonzero(np.any(model.coef != 0, axis=0))
-    col = 0
-    for e in range(3):
-        b = np.flatnonzero(act.coef[e] != 0)
-        coef[e, keep[b]] = sol[col:col + len(b)]
-        col += len(b)
-    return SindyModel(library=model.library, coef=coef, hyperparameters=dict(model.hyperparameters))
-
-
-def stable_at_rest(model) -> bool:
-    """Return whether every eigenvalue of ``J_f_x`` at rest (x = 0, u = 0) has a real part <= the
-    identification's tolerance (``identification.search.STABILITY_TOL``)."""
-    from identification.search import STABILITY_TOL
-
-    J = model.J_f_x(np.zeros(3), np.zeros(2))
-    return bool(np.all(np.isfinite(J)) and np.max(np.linalg.eigvals(J).real) <= STABILITY_TOL)
+    return SindyModel(library=model.library, coef=_coefs_from_refit(model, sol)[0],
+                      hyperparameters=dict(model.hyperparameters))
 
 
 def refit_score(family: Family, model, train: Split, test: Split, weights: np.ndarray,
@@ -518,19 +513,24 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
     # Admissible as in the identification's search (identification.search.admissible): a
     # re-identified model that runs away at rest is no explanation, however well its windows fit
     # (on 10 Hz real data a long input delay refits to positive self-damping: measured, wheels).
-    ok = np.array([stable_at_rest(_coef_from_refit(model, sol)) for sol in sols]) | ~stable_at_rest(model)
+    ok = (max_re_eig_at_rest(model.library, _coefs_from_refit(model, sols)) <= STABILITY_TOL) | \
+        ~stable_at_rest(model)
     if not ok.any():
         return {"gain": float("-inf"), "gain_runs": {}, "theta": np.asarray(grid[0], float),
                 "beta": np.zeros(family.n_columns), "estimate": family.estimate(grid[0], np.zeros(family.n_columns),
                                                                                 model),
                 "std": {}, "profile": {}}
     sse = np.where(ok, sse, np.inf)
+
+    def refit_at(th):
+        X = refit_columns(family, model, train, th)
+        return X, solve_design(normal_equations(y_tr, X[None], weights, train.window_run, R))[0][0]
+
     theta = _parabolic_argmin(grid, sse) if grid.shape[1] == 1 else grid[0]
-    if not stable_at_rest(_coef_from_refit(model, solve_design(normal_equations(
-            y_tr, refit_columns(family, model, train, theta)[None], weights, train.window_run, R))[0][0])):
+    X_tr, sol = refit_at(theta)
+    if not stable_at_rest(_coef_from_refit(model, sol)):
         theta = grid[int(np.argmin(sse))]  # the vertex between grid points is not admissible: the best point
-    X_tr = refit_columns(family, model, train, theta)
-    sol = solve_design(normal_equations(y_tr, X_tr[None], weights, train.window_run, R))[0][0]
+        X_tr, sol = refit_at(theta)
     X0_tr = refit_columns(null_fam, model, train, null_theta)
     sol0 = solve_design(normal_equations(y_tr, X0_tr[None], weights, train.window_run, R))[0][0]
     r1 = test.delta_v - np.einsum("pen,n->pe", refit_columns(family, model, test, theta), sol)

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -21,8 +22,8 @@ from identification.model import SindyModel
 from identification.types import BodyStates
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import ExtendedModel, multistep, outage_errors, reidentify
-from sindy_ekf.diagnose.families import (FAMILIES, stable_at_rest, equation_weights, null_prediction,
-                                         score_family)
+from identification.search import stable_at_rest
+from sindy_ekf.diagnose.families import FAMILIES, equation_weights, null_prediction, score_family
 from sindy_ekf.diagnose.residuals import (lag_profile, multistep_errors_by_window, multistep_structure,
                                           residual_map, residual_structure)
 from sindy_ekf.diagnose.rank import THRESHOLD_PROVENANCE, RankedCause, rank_families, verdict
@@ -199,8 +200,6 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
     sag of 0.19 per 10 min in 45 s runs moves the median by +2 %, a wrong 0.56 s delay by
     +180 %). The rejected lose their significance, with a note saying what the check measured.
     """
-    import dataclasses
-
     def median_5s(res) -> float:
         e = np.asarray(res.eps_p[:, -1], float)
         return float(np.median(np.where(np.isfinite(e), e, np.inf)))
