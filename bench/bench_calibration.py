@@ -16,11 +16,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from identification.calibration import (ARCSEC_PER_RAD, angles_from_rotation,  # noqa: E402
-                                        calibrate, fit_body_frame, fit_transform,
-                                        fit_transform_closed_form)
-from identification.io_survey import read_survey  # noqa: E402
-from sindy_ekf.io_utils import atomic_write_text  # noqa: E402
+from groundfloor.files import atomic_write_text  # noqa: E402
+from identification.preprocessing.calibration import (  # noqa: E402
+    ARCSEC_PER_RAD,
+    angles_from_rotation,
+    calibrate,
+    fit_body_frame,
+    fit_transform,
+    fit_transform_closed_form,
+)
+from identification.preprocessing.io_survey import read_survey  # noqa: E402
 
 TABLE_7_2_T = np.array([-2.050360, -8.757229, -0.086725])
 TABLE_7_2_ROT_DEG = np.array([-0.374896, -0.180820, 142.749476])

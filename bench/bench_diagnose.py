@@ -5,7 +5,7 @@ Usage::
     .venv/bin/python bench/bench_diagnose.py --calibrate 16   # effect-free study -> thresholds
     .venv/bin/python bench/bench_diagnose.py [--jobs 2]       # suite, ladder, timing -> results
 
-Campaigns are the tests' shape (tests/diagnose_synth.py: 4 x 45 s train and 2 x 45 s test runs of
+Campaigns are the tests' shape (tests/tests.support.diagnose_synth.py: 4 x 45 s train and 2 x 45 s test runs of
 the simulator, 25 Hz body states with measurement noise), diagnosed against the reference model
 identified on the effect-free campaign of seed 12345. Parts:
 
@@ -38,9 +38,11 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE.parent / "tests"))
 
-from diagnose_synth import fit_reference_with_lateral_law, simulate_states_campaign  # noqa: E402
-
 from simulation.effects import EFFECTS, Effect  # noqa: E402
+from tests.support.diagnose_synth import (  # noqa: E402
+    fit_reference_with_lateral_law,
+    simulate_states_campaign,
+)
 
 RUN_S, RATE_HZ = 45.0, 25.0
 MASTER_SEED = 20261121
@@ -66,7 +68,7 @@ def one_campaign(job: tuple) -> dict:
         warnings.simplefilter("ignore")
         model = _MODEL
         if flow == "same":  # identify then diagnose the same campaign: the model holds the effect
-            from identification.sindy import fit_sindy
+            from identification.sindy.regression import fit_sindy
 
             model = fit_sindy(train, "poly3", tau=2.0, alpha=1.0, threshold=0.2, names=a)
         d = diagnose_states(model, train, test, a, b, uncertainty=False)
@@ -130,11 +132,11 @@ def timing_default(effect=("input_delay", 0.15)) -> dict:
     the model is identified on its own train runs (the same-campaign flow of ``identify`` then
     ``diagnose``).
     """
-    from identification.sindy import fit_sindy
+    from identification.sindy.regression import fit_sindy
     from simulation.campaign import RUNS_TABLE_6_4
     from simulation.robot import simulate_run
-    from diagnose_synth import states_from_true_run
     from sindy_ekf.diagnose import diagnose_states
+    from tests.support.diagnose_synth import states_from_true_run
 
     rng = np.random.default_rng(7)
     states, names, split = [], [], []

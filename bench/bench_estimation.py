@@ -52,13 +52,18 @@ def main() -> int:
         subprocess.run([exe, "identify", str(campaign_dir), "--out", str(model_path), "--quick",
                         "--quiet"], check=True)
 
-    from identification.campaigns import open_campaign
-    from identification.model import SindyModel
-    from identification.preprocess import DEFAULT_SMOOTHING
-    from sindy_ekf.benchmark import P0_STD, _prepare_run, benchmark_campaign, fit_models
+    from identification.preprocessing.campaigns import open_campaign
+    from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
+    from identification.sindy.model import SindyModel
+    from sindy_ekf.benchmark.run import (
+        P0_STD,
+        _prepare_run,
+        benchmark_campaign,
+        fit_models,
+    )
     from sindy_ekf.commands.benchmark import oracle_dynamics_for
-    from sindy_ekf.ekf import EkfRun, run_ekf_batch
-    from sindy_ekf.graph import smooth_batch, smooth_isam2
+    from sindy_ekf.estimation.ekf import EkfRun, run_ekf_batch
+    from sindy_ekf.estimation.graph import smooth_batch, smooth_isam2
 
     model = SindyModel.load(model_path)
     campaign = open_campaign(campaign_dir)
@@ -136,7 +141,7 @@ def main() -> int:
     if oracle is not None and "10" in sc["sindy_ekf"].outage_pos_err_m:
         # reference: the simulator's own polynomial terms as the "identified" model, to separate
         # what the estimator does from what the identification got right
-        from identification.model import model_from_terms
+        from identification.sindy.model import model_from_terms
         from simulation.robot import RobotParams
 
         ref = benchmark_campaign(campaign, model_from_terms(RobotParams().terms()), args.gnss, seed=0,

@@ -34,18 +34,28 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from identification.adjust import adjust_coefficients, subsampling_effect  # noqa: E402
-from identification.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
-from identification.evaluate import (PoseDependentDynamics, evaluate_model, evaluate_reference,  # noqa: E402
-                                     make_windows)
-from identification.library import parse_term  # noqa: E402
-from identification.search import DEFAULT_GRID, admissible, refit, search, select_parsimonious  # noqa: E402
-from identification.sindy import integral_problem  # noqa: E402
-from identification.states import body_states_segments  # noqa: E402
-from identification.types import InputSeries, PoseTrack  # noqa: E402
+from groundfloor.files import atomic_write_text  # noqa: E402
+from groundfloor.types import InputSeries, PoseTrack  # noqa: E402
+from identification.preprocessing.states import body_states_segments  # noqa: E402
+from identification.sindy.adjust import adjust_coefficients, subsampling_effect  # noqa: E402
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
+from identification.sindy.evaluate import (  # noqa: E402
+    PoseDependentDynamics,
+    evaluate_model,
+    evaluate_reference,
+    make_windows,
+)
+from identification.sindy.library import parse_term  # noqa: E402
+from identification.sindy.regression import integral_problem  # noqa: E402
+from identification.sindy.search import (  # noqa: E402
+    DEFAULT_GRID,
+    admissible,
+    refit,
+    search,
+    select_parsimonious,
+)
 from simulation.campaign import RUNS_TABLE_6_4  # noqa: E402
 from simulation.robot import TrueDynamics, simulate_run  # noqa: E402
-from sindy_ekf.io_utils import atomic_write_text  # noqa: E402
 
 POS_STD_M, YAW_STD_RAD = 50e-6, np.radians(0.006)
 
@@ -169,7 +179,7 @@ def main() -> None:
         f"Data: {minutes:.1f} min simulated with `simulation.robot.simulate_run` in the run lengths and splits "
         f"of thesis table 6.4 ({len(train)} train, {len(test)} test runs; model B + lateral slip + process "
         "noise, human-like driver), poses at 50 Hz with 50 um / 0.006 deg noise, body states from "
-        "`identification.states` for each s. Not the bag campaign (see the docstring).",
+        "`identification.preprocessing.states` for each s. Not the bag campaign (see the docstring).",
         "",
         "## Full grid",
         "",

@@ -3,12 +3,12 @@
 Usage: ``.venv/bin/python bench/bench_poses.py [--seeds 0 2 3] [--minutes M]``; writes
 ``bench/results/poses.md``.
 
-1. Speed: one synthetic 10-minute run at 50 Hz (30 000 samples, tests/pose_synth.py),
+1. Speed: one synthetic 10-minute run at 50 Hz (30 000 samples, tests/tests.support.pose_synth.py),
    best of three wall-clock times per stage.
 2. Accuracy on simulated campaigns (``simulation.campaign.simulate_campaign``; seed 0 is the
    full default campaign, 45.4 min, reused from ``bench/_work/campaign_default_seed0`` when
    present; other seeds are simulated with ``--minutes``): the bags are read and synchronised
-   with helper H4's ``identification.io_tracker``/``identification.sync``, then this area's
+   with helper H4's ``identification.preprocessing.io_tracker``/``identification.preprocessing.sync``, then this area's
    stages run and are scored against ``truth/`` (which the stages never read).
 """
 
@@ -26,12 +26,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from identification.hub import fit_hub_model, fit_hub_model_joint  # noqa: E402
-from identification.poses import fit_poses  # noqa: E402
-from identification.states import body_states_from_poses  # noqa: E402
-from identification.types import InputSeries  # noqa: E402
-from sindy_ekf.errors import InputError  # noqa: E402
-from sindy_ekf.io_utils import atomic_write_text  # noqa: E402
+from groundfloor.errors import InputError  # noqa: E402
+from groundfloor.files import atomic_write_text  # noqa: E402
+from groundfloor.types import InputSeries  # noqa: E402
+from identification.preprocessing.hub import fit_hub_model, fit_hub_model_joint  # noqa: E402
+from identification.preprocessing.poses import fit_poses  # noqa: E402
+from identification.preprocessing.states import body_states_from_poses  # noqa: E402
 
 SMOOTHINGS = (0.0, 0.0005, 0.005, 0.01, 1.0, 10.0)
 WORK = ROOT / "bench" / "_work"
@@ -49,7 +49,7 @@ def best_of(fn, repeat: int = 3) -> tuple[float, object]:
 
 def bench_speed() -> list[str]:
     """Return markdown lines with the stage times on 30 000 synthetic samples."""
-    from pose_synth import LEVER_FRONT, LEVER_REAR, measurements
+    from tests.support.pose_synth import LEVER_FRONT, LEVER_REAR, measurements
 
     m = measurements(duration_s=600.0, seed=0)
     n = m.t.size
@@ -88,11 +88,11 @@ def campaign_dir(seed: int, minutes: float | None) -> Path:
 
 def bench_accuracy(root: Path) -> tuple[list[str], dict]:
     """Return markdown lines and figures of this area's stages on one campaign vs truth."""
-    from identification.calibration import calibrate
-    from identification.io_survey import read_survey
-    from identification.io_tracker import read_tracker_run
-    from identification.preprocess import point_std_m
-    from identification.sync import azimuth_at, sync_run
+    from identification.preprocessing.calibration import calibrate
+    from identification.preprocessing.io_survey import read_survey
+    from identification.preprocessing.io_tracker import read_tracker_run
+    from identification.preprocessing.preprocess import point_std_m
+    from identification.preprocessing.sync import azimuth_at, sync_run
     from simulation.truth import read_truth
 
     truth = read_truth(root)
@@ -159,7 +159,7 @@ def bench_accuracy(root: Path) -> tuple[list[str], dict]:
              f"max |error| {np.abs(err_single[:, 0]).max() * 1e6:.1f} / {np.abs(err_single[:, 1]).max() * 1e6:.1f} um; "
              f"joint fit error {err_joint[0] * 1e6:+.1f} / {err_joint[1] * 1e6:+.1f} um "
              f"(+- {joint[0].radius_std_m[0] * 1e6:.1f} / {joint[0].radius_std_m[1] * 1e6:.1f} um)",
-             f"- runs not synchronised by `identification.sync` (skipped): {'; '.join(skipped) or 'none'}",
+             f"- runs not synchronised by `identification.preprocessing.sync` (skipped): {'; '.join(skipped) or 'none'}",
              f"- baseline RMS before/after the joint model, mean over runs: "
              f"{np.mean([m.rms_before_m for m in joint]) * 1e3:.4f} / "
              f"{np.mean([m.rms_after_m for m in joint]) * 1e3:.4f} mm"]

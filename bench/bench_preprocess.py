@@ -24,8 +24,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from identification.preprocess import preprocess_campaign  # noqa: E402
-from sindy_ekf.io_utils import atomic_write_text  # noqa: E402
+from groundfloor.files import atomic_write_text  # noqa: E402
+from identification.preprocessing.preprocess import preprocess_campaign  # noqa: E402
 
 SMOOTHINGS = (0.0, 0.0005, 0.005, 0.01)
 
@@ -38,7 +38,7 @@ def nearest(t_ref: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def score(result, truth) -> dict:
     """Return accuracy figures of a preprocessing result against the simulator's truth."""
-    from identification.states import body_states_from_poses
+    from identification.preprocessing.states import body_states_from_poses
 
     rows, err_p, err_yaw, err_v = [], [], [], {s: [] for s in SMOOTHINGS}
     for name, r in result.runs.items():

@@ -12,7 +12,7 @@ bench/RESULTS.md by ``bench/run_all.py``) with, per campaign of ``../shared/data
 - the diagnosis (``sindy_ekf.diagnose``) of the identified model, with its gain, and an
   independent check of the delay family: the unicycle with an input delay chosen on the
   train runs;
-- the estimator benchmark (``sindy_ekf.benchmark``) when that module exists.
+- the estimator benchmark (``sindy_ekf.benchmark.run``) when that module exists.
 """
 
 from __future__ import annotations
@@ -32,11 +32,10 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
-from identification.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
-from identification.evaluate import evaluate_model  # noqa: E402
-from identification.search import states_of_runs  # noqa: E402
-from identification.trajectory import read_trajectory_campaign  # noqa: E402
-
+from identification.preprocessing.trajectory import read_trajectory_campaign  # noqa: E402
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
+from identification.sindy.evaluate import evaluate_model  # noqa: E402
+from identification.sindy.search import states_of_runs  # noqa: E402
 
 NOTES = """### Notes on these data
 
@@ -147,7 +146,7 @@ def main() -> int:
     md += ["### Baselines of the data README, reproduced", "",
            "Unicycle gains fitted on the train runs, constant velocity from the data's initial velocity; "
            "body velocities by centred differences over +-2 poses (`states_by_differences`); "
-           "`identification.evaluate`, 5 s windows, 50 % overlap, RMS at 5 s.", "",
+           "`identification.sindy.evaluate`, 5 s windows, 50 % overlap, RMS at 5 s.", "",
            "| campaign | model | pos 5 s [m] | yaw 5 s [deg] | windows | README |", "|---|---|---|---|---|---|"]
     campaigns = {n: read_trajectory_campaign(ex.DATA / n) for n in ex.CAMPAIGNS}
     for name, camp in campaigns.items():
@@ -172,7 +171,7 @@ def main() -> int:
         t0 = time.perf_counter()
         saved = args.models_dir / f"{name}.json" if args.models_dir is not None else None
         if args.reuse_models and saved is not None and saved.is_file():
-            from identification.model import SindyModel
+            from identification.sindy.model import SindyModel
 
             camp = read_trajectory_campaign(ex.DATA / name)
             scores[name] = ex.score(SindyModel.load(saved), camp, camp)
@@ -217,9 +216,8 @@ def main() -> int:
         md.append(f"| {name} | {', '.join(f'{t:.2f}' for t in tc)} | {gain[0]:.2f} | {gain[1]:.2f} |")
     md.append("")
     if not args.quick:
-        from identification.search import QUICK_GRID
-
-        from sindy_ekf.errors import InputError
+        from groundfloor.errors import InputError
+        from identification.sindy.search import QUICK_GRID
 
         md += ["The tracker grid's quick variant (`identify --quick --grid tracker`: s = 0.0005, tau 0.5 and "
                "1 s, normalised alpha and T, poly3: made for 50 Hz laser-tracker poses) on the same train runs, "
@@ -323,13 +321,13 @@ def main() -> int:
     md.append("")
 
     # 6. estimator benchmark ------------------------------------------------------------------
-    if importlib.util.find_spec("sindy_ekf.benchmark") is None:
-        md += ["### Estimator benchmark", "", "`sindy_ekf.benchmark` did not exist when this ran: not measured.", ""]
+    if importlib.util.find_spec("sindy_ekf.benchmark.run") is None:
+        md += ["### Estimator benchmark", "", "`sindy_ekf.benchmark.run` did not exist when this ran: not measured.", ""]
     else:
-        from sindy_ekf.benchmark import benchmark_campaign
+        from sindy_ekf.benchmark.run import benchmark_campaign
 
         md += ["### Estimator benchmark (test runs, GNSS degraded from the ICP poses)", "",
-               f"`sindy_ekf.benchmark.benchmark_campaign(campaign, model, profile='{args.gnss}', seed=0, "
+               f"`sindy_ekf.benchmark.run.benchmark_campaign(campaign, model, profile='{args.gnss}', seed=0, "
                "smoothing=model's s)`: Q and unicycle gains fitted on the train runs, GNSS simulated from the "
                "ICP poses with scheduled outages; ATE over all test-run poses (no alignment), RMS position "
                "error at the end of the 10 s outages.", "",

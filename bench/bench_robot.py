@@ -22,9 +22,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from groundfloor.files import atomic_write_text  # noqa: E402
 from simulation.effects import EFFECTS, Effect  # noqa: E402
 from simulation.robot import TrueDynamics, simulate_run  # noqa: E402
-from sindy_ekf.io_utils import atomic_write_text  # noqa: E402
 
 TABLE_6_4_S = (100, 390, 340, 300, 100, 470, 125, 440, 460)
 

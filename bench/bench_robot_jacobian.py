@@ -13,8 +13,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-from simulation.robot import TrueDynamics  # noqa: E402
 from test_robot_jacobian import _loop_poly_jacobian  # noqa: E402
+
+from simulation.robot import TrueDynamics  # noqa: E402
 
 
 def main() -> int:

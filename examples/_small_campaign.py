@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.trajectory import write_trajectory_campaign
-from identification.types import InputSeries, PoseTrack, TrajectoryRun
+from groundfloor.types import InputSeries, PoseTrack, TrajectoryRun
+from identification.preprocessing.trajectory import write_trajectory_campaign
 from simulation.effects import Effect
 from simulation.robot import simulate_run
 

@@ -10,15 +10,15 @@ Problem
 Model
     State ``[x, y, psi, vx, vy, omega]``; the pose follows eq. 5.75, the body velocities the
     process model (SINDy eq. 5.53 identified by integral SINDy on the train runs, or a baseline),
-    stepped by RK4 with its exact Jacobian (``sindy_ekf.process_models``); process noise from the
+    stepped by RK4 with its exact Jacobian (``sindy_ekf.estimation.process_models``); process noise from the
     one-step residuals on the train runs. GNSS measures the antenna at a lever arm,
     ``h(x) = p + R(psi) l``; the EKF applies each fix at its time of validity (stochastic
     cloning over the latency) behind a chi-square gate; the graph puts one dynamics factor per
-    step and a Huber-robust GNSS factor per fix (``sindy_ekf.graph``). Scores: absolute
+    step and a Huber-robust GNSS factor per fix (``sindy_ekf.estimation.graph``). Scores: absolute
     trajectory error (RMS position and heading over the run) and the position error at the end
     of each outage.
 
-This example wires the pieces by hand to show them; ``sindy_ekf.benchmark.benchmark_campaign``
+This example wires the pieces by hand to show them; ``sindy_ekf.benchmark.run.benchmark_campaign``
 (the ``sindy-ekf benchmark`` command) does the same over all test runs of a campaign, with NEES
 and NIS consistency and the smoother on the full 50 Hz grid.
 """
@@ -31,14 +31,19 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.campaigns import open_campaign
-from identification.search import states_of_runs
-from identification.sindy import fit_sindy
+from identification.preprocessing.campaigns import open_campaign
+from identification.sindy.regression import fit_sindy
+from identification.sindy.search import states_of_runs
 from simulation.gnss import schedule_outages, simulate_gnss
-from sindy_ekf.ekf import EkfRun, estimation_grid, run_ekf_batch
-from sindy_ekf.graph import smooth_batch
-from sindy_ekf.process_models import (BodyModelProcess, ConstantVelocityProcess, fit_process_noise, fit_unicycle,
-                                      state_series_from_body_states)
+from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
+from sindy_ekf.estimation.graph import smooth_batch
+from sindy_ekf.estimation.process_models import (
+    BodyModelProcess,
+    ConstantVelocityProcess,
+    fit_process_noise,
+    fit_unicycle,
+    state_series_from_body_states,
+)
 
 SMOOTHING = 0.0005
 TAU_S, ALPHA, THRESHOLD = 3.0, 10.0, 0.5  # a sparse model: stays tame where noisy fixes push the state

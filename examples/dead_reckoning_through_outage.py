@@ -9,12 +9,12 @@ Problem
 Model
     State ``[x, y, psi, vx, vy, omega]``: pose in the local frame and body velocities. The pose
     follows the kinematics of eq. 5.75; the velocities follow a body model stepped by RK4 with
-    the exact chain-rule Jacobian (``sindy_ekf.process_models``): the SINDy model identified on
+    the exact chain-rule Jacobian (``sindy_ekf.estimation.process_models``): the SINDy model identified on
     the train runs (integral SINDy, eqs. 5.55 to 5.59), a unicycle with first-order lags fitted
     on the same runs, constant velocity, and the simulator's true dynamics as the best possible
     reference. The process noise of each is fitted from its one-step residuals on the train
     runs. GNSS (``simulation.gnss``, RTK profile, 10 Hz, 50 ms latency) measures the antenna at a
-    lever arm, ``h(x) = p + R(psi) l`` (``sindy_ekf.ekf.h_gnss``).
+    lever arm, ``h(x) = p + R(psi) l`` (``sindy_ekf.estimation.ekf.h_gnss``).
 """
 
 from __future__ import annotations
@@ -24,14 +24,20 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.campaigns import open_campaign
-from identification.search import states_of_runs
-from identification.sindy import fit_sindy
+from identification.preprocessing.campaigns import open_campaign
+from identification.sindy.regression import fit_sindy
+from identification.sindy.search import states_of_runs
 from simulation.robot import TrueDynamics
-from sindy_ekf.benchmark import outage_ekf_run
-from sindy_ekf.ekf import run_ekf_batch
-from sindy_ekf.process_models import (BodyModelProcess, ConstantVelocityProcess, TrueDynamicsProcess,
-                                      fit_process_noise, fit_unicycle, state_series_from_body_states)
+from sindy_ekf.benchmark.run import outage_ekf_run
+from sindy_ekf.estimation.ekf import run_ekf_batch
+from sindy_ekf.estimation.process_models import (
+    BodyModelProcess,
+    ConstantVelocityProcess,
+    TrueDynamicsProcess,
+    fit_process_noise,
+    fit_unicycle,
+    state_series_from_body_states,
+)
 
 OUTAGE_S = 10.0
 LEAD_S = 15.0  # GNSS before each outage: the filter converges, then dead-reckons

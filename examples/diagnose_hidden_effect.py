@@ -26,10 +26,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from diagnose_synth import fit_reference_with_lateral_law, simulate_states_campaign  # noqa: E402
-
 from simulation.effects import EFFECTS, Effect  # noqa: E402
 from sindy_ekf.diagnose import diagnose_states  # noqa: E402
+from tests.support.diagnose_synth import (  # noqa: E402
+    fit_reference_with_lateral_law,
+    simulate_states_campaign,
+)
 
 
 def main(seed: int = 4, family: str | None = None) -> dict:

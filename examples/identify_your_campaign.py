@@ -29,10 +29,10 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from identification.baselines import ConstantVelocityModel, UnicycleModel
-from identification.campaigns import open_campaign
-from identification.evaluate import evaluate_on_runs
-from identification.search import SearchGrid, search, states_of_runs
+from identification.preprocessing.campaigns import open_campaign
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.evaluate import evaluate_on_runs
+from identification.sindy.search import SearchGrid, search, states_of_runs
 
 # A small but real grid: 2 values of tau, alpha and T (the full one, table 5.1 plus tau, has
 # 480 points and is what `sindy-ekf identify` searches by default).

@@ -20,7 +20,7 @@ body velocities from smoothing splines of the poses (eqs. 5.64 to 5.68). The hyp
 (folds by run), ranked by the 5 s local-frame position error (sections 5.3.6, 5.3.8); 10 Hz
 poses with late stamps need spline smoothing (``s`` of 1 to 100, not the thesis's 0.0005 for
 50 Hz laser-tracker poses) and short integration windows (``tau`` of 0.5 to 2 s: a speed
-set-point is followed within one to two seconds; ``identification.search.LOW_RATE_GRID``, which
+set-point is followed within one to two seconds; ``identification.sindy.search.LOW_RATE_GRID``, which
 ``sindy-ekf identify`` picks by itself for such poses). The model kept is the search's own choice
 (one-standard-error rule among models stable at rest, :func:`select_stable`): 5 s windows do not
 see a slowly growing lateral mode, an EKF coasting through a GNSS outage does. Predictions integrate the model with the pose kinematics
@@ -47,13 +47,20 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a script from a checkout
     sys.path.insert(0, str(ROOT))
 
-from identification.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
-from identification.evaluate import EvaluationResult, evaluate_model, make_windows  # noqa: E402
-from identification.model import EnvelopeWarning, SindyModel  # noqa: E402
-from identification.search import (LOW_RATE_GRID, QUICK_LOW_RATE_GRID, SearchGrid, SearchResult,  # noqa: E402
-                                   search, stable_at_rest, states_of_runs)
-from identification.trajectory import read_trajectory_campaign  # noqa: E402
-from identification.types import BodyStates, TrajectoryCampaign, TrajectoryRun  # noqa: E402
+from groundfloor.types import BodyStates, TrajectoryCampaign, TrajectoryRun  # noqa: E402
+from identification.preprocessing.trajectory import read_trajectory_campaign  # noqa: E402
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
+from identification.sindy.evaluate import EvaluationResult, evaluate_model, make_windows  # noqa: E402
+from identification.sindy.model import EnvelopeWarning, SindyModel  # noqa: E402
+from identification.sindy.search import (  # noqa: E402
+    LOW_RATE_GRID,
+    QUICK_LOW_RATE_GRID,
+    SearchGrid,
+    SearchResult,
+    search,
+    stable_at_rest,
+    states_of_runs,
+)
 
 log = logging.getLogger(__name__)
 
@@ -127,9 +134,9 @@ def select_stable(result: SearchResult) -> tuple[SindyModel, int]:
     """Return the search's selected model and its rank (0 = best), as ``sindy-ekf identify`` keeps it.
 
     The search selects by the one-standard-error rule among admissible models (stable at rest,
-    never diverged on a held-out window: :func:`identification.search.select_one_se`); 5 s
+    never diverged on a held-out window: :func:`identification.sindy.search.select_one_se`); 5 s
     windows do not see a slowly growing mode, an EKF coasting through a GNSS outage does. Should
-    the selected model still not be :func:`identification.search.stable_at_rest` (no grid point
+    the selected model still not be :func:`identification.sindy.search.stable_at_rest` (no grid point
     admissible), the best-ranked stable refitted model is taken instead.
     """
     if stable_at_rest(result.model):

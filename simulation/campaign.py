@@ -28,14 +28,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from simulation import bags, truth as truth_io
+from groundfloor.errors import InputError
+from groundfloor.files import atomic_output_dir, check_output_dir
+from groundfloor.progress import progress
+from simulation import bags
+from simulation import truth as truth_io
 from simulation.clocks import NS, simulate_tracker_clock
 from simulation.hubs import baseline_geometry
 from simulation.measurement import AT960, LTD800
 from simulation.tracker_run import RunSetup, simulate_tracker_run
-from sindy_ekf.errors import InputError
-from sindy_ekf.io_utils import atomic_output_dir, check_output_dir
-from sindy_ekf.progress import progress
 
 log = logging.getLogger(__name__)
 

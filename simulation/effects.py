@@ -61,7 +61,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
 
 # Centre of the driving area (midpoint between the trackers) and its long-axis direction; the
 # patch sits on the long axis, 1.4 m from the centre towards the LTD800 (see simulation.driver).

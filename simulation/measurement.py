@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
 
 
 @dataclass(frozen=True)

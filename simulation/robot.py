@@ -46,9 +46,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+from groundfloor.errors import InputError
 from simulation.driver import DrivingArea, HumanDriver, simulate_joy_stamps
 from simulation.effects import EFFECTS, Effect
-from sindy_ekf.errors import InputError
 
 VARS = ("vx", "vy", "omega", "u1", "u2")  # order of the exponents of a monomial
 

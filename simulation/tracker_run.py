@@ -21,9 +21,21 @@ from scipy.interpolate import CubicHermiteSpline
 
 from simulation import bags
 from simulation.clocks import NS, TRIGGER_PERIOD_S, simulate_trigger, stamp_tracker
-from simulation.hubs import baseline_geometry, eccentric_offset_body, hub_angle, hub_commands
+from simulation.hubs import (
+    baseline_geometry,
+    eccentric_offset_body,
+    hub_angle,
+    hub_commands,
+)
 from simulation.measurement import (
-    AT960, DUTY_JITTER_STD_S, LTD800, in_intervals, simulate_dropouts, simulate_duty_cycle, simulate_lost, simulate_spurious,
+    AT960,
+    DUTY_JITTER_STD_S,
+    LTD800,
+    in_intervals,
+    simulate_dropouts,
+    simulate_duty_cycle,
+    simulate_lost,
+    simulate_spurious,
 )
 from simulation.truth import RunTruth, TrueStates
 

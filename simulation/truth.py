@@ -60,7 +60,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
 
 FORMAT = "sindy-ekf-truth/1"
 STATE_COLUMNS = ("t_utc", "t_rel", "x", "y", "z", "psi", "pitch", "vx", "vy", "omega", "u1", "u2", "at960_duty_s")
@@ -193,7 +193,7 @@ def write_truth(campaign_dir: str | Path, truth: CampaignTruth) -> Path:
     """Write ``truth/truth.yaml`` and ``truth/runs/<run>/states.csv``; return the truth folder.
 
     Plain writes: the caller builds the campaign in a temporary folder that is renamed into
-    place as a whole (:func:`sindy_ekf.io_utils.atomic_output_dir`).
+    place as a whole (:func:`groundfloor.files.atomic_output_dir`).
     """
     root = Path(campaign_dir) / "truth"
     for r in truth.runs:

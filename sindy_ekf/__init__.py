@@ -1,16 +1,18 @@
 """sindy-ekf: identified SINDy driving dynamics of a skid-steered robot as the process model of
 an EKF and a factor graph, benchmarked against laser-tracker truth.
 
-The package is split in three, as the data flow is:
+The project is split as the data flow is (``docs/ARCHITECTURE.md``):
 
+- :mod:`groundfloor`: errors, files, progress, angles, stage values, the GNSS measurement type,
+  the dynamics interface; imports nothing of the project;
 - :mod:`simulation`: a faithful simulator of the robot and of the laser-tracker campaign
   (writes the data contract), and the degraded-GNSS generator;
-- :mod:`identification`: raw bags to poses and body-frame states (thesis ch. 5.1, 5.2) and
-  integral SINDy with control (thesis 5.3);
-- :mod:`sindy_ekf`: process models, EKF, factor graph, benchmark, diagnosis, report and the
-  ``sindy-ekf`` command line.
-
-Importing this package is cheap: heavy modules are imported where they are used.
+- :mod:`identification`: :mod:`identification.preprocessing` (raw bags to poses and body-frame
+  states, thesis 5.1, 5.2) and :mod:`identification.sindy` (integral SINDy with control, 5.3);
+- :mod:`sindy_ekf`: estimation (process models, EKF, factor graph), benchmark, diagnosis,
+  report and the ``sindy-ekf`` command line.
 """
 
-__version__ = "0.1.0"
+from groundfloor import __version__
+
+__all__ = ["__version__"]

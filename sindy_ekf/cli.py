@@ -12,8 +12,8 @@ import importlib
 import logging
 import sys
 
-from sindy_ekf import __version__
-from sindy_ekf.errors import InputError
+from groundfloor import __version__
+from groundfloor.errors import InputError
 
 COMMANDS = ["simulate", "preprocess", "identify", "evaluate", "benchmark", "diagnose", "report", "demo"]
 
@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if verbose else (logging.ERROR if quiet else logging.WARNING),
         format="%(levelname)s %(name)s: %(message)s",
     )
-    from sindy_ekf import progress
+    from groundfloor import progress
 
     progress.enable(not quiet)
     try:

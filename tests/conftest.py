@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+from tests.support import SHARED
 
 
 @pytest.fixture(scope="session")
@@ -34,7 +34,7 @@ def small_campaign(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def small_trajectory(small_campaign, tmp_path_factory) -> Path:
     """``small_campaign`` preprocessed into a trajectory campaign (preprocess --out)."""
-    from identification.preprocess import preprocess_campaign
+    from identification.preprocessing.preprocess import preprocess_campaign
 
     out = tmp_path_factory.mktemp("trajectory") / "small"
     preprocess_campaign(small_campaign, out)

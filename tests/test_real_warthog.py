@@ -16,10 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identification.baselines import ConstantVelocityModel, UnicycleModel
-from identification.evaluate import evaluate_model, make_windows
-from identification.search import states_of_runs
-from identification.trajectory import read_trajectory_campaign, write_trajectory_campaign
+from identification.preprocessing.trajectory import (
+    read_trajectory_campaign,
+    write_trajectory_campaign,
+)
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.evaluate import evaluate_model, make_windows
+from identification.sindy.search import states_of_runs
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "real_warthog.py"
 
@@ -152,14 +155,14 @@ def test_example_main_prints_the_comparison_and_scores_an_unseen_recording(ex, d
                    "warthog-drive-cmd -> warthog-drive-wheels", "README unicycle"):
         assert needle in text
     assert re.search(r"warthog-drive-wheels\s+other-day\s+sindy\s+\d+\.\d+", text)
-    from identification.model import SindyModel
+    from identification.sindy.model import SindyModel
 
     model = SindyModel.load(tmp_path / "models" / "warthog-drive-wheels.json")
     assert model.hyperparameters["s"] == ex.QUICK_REAL_GRID.s[0]
 
 
 def test_identify_picks_the_low_rate_grid_for_lidar_poses(data, small_trajectory):
-    from identification.search import DEFAULT_GRID, LOW_RATE_GRID, grid_for_runs
+    from identification.sindy.search import DEFAULT_GRID, LOW_RATE_GRID, grid_for_runs
 
     grid, why = grid_for_runs(read_trajectory_campaign(data / "warthog-drive-wheels").split("train"))
     assert grid == LOW_RATE_GRID and "100 ms" in why  # ICP at about 10 Hz
@@ -172,8 +175,8 @@ def test_identify_picks_the_low_rate_grid_for_lidar_poses(data, small_trajectory
 def test_diagnosis_on_real_data_names_only_what_5s_prediction_confirms(identified, data):
     """On these runs the window residuals favour mechanisms (a 0.56 s delay on wheels) whose
     re-identified models run away at rest or predict 5 s worse; such a cause must not be named."""
+    from identification.sindy.search import stable_at_rest
     from sindy_ekf.diagnose import diagnose_states
-    from identification.search import stable_at_rest
 
     camp = read_trajectory_campaign(data / "warthog-drive-wheels")
     model = identified["warthog-drive-wheels"].model

@@ -45,11 +45,11 @@ def oracle_dynamics_for(campaign_dir: Path):
 
 def run(args) -> int:
     """Run the benchmark, print a table, write JSON / TUM / plots when asked."""
-    from identification.campaigns import open_campaign
-    from identification.model import SindyModel
-    from sindy_ekf.benchmark import ESTIMATORS, benchmark_campaign, write_benchmark
-    from sindy_ekf.errors import InputError
-    from sindy_ekf.io_utils import atomic_write_json
+    from groundfloor.errors import InputError
+    from groundfloor.files import atomic_write_json
+    from identification.preprocessing.campaigns import open_campaign
+    from identification.sindy.model import SindyModel
+    from sindy_ekf.benchmark.run import ESTIMATORS, benchmark_campaign, write_benchmark
 
     model = SindyModel.load(args.model)
     campaign = open_campaign(args.campaign)

@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
 
 DEMO_MINUTES = 4.0
 DEFAULT_OUT = Path("demo-out")
@@ -46,7 +46,7 @@ def check_out(out: Path, force: bool) -> Path:
     A missing or empty folder, one the demo wrote before (it holds the marker file) or any
     folder with ``force`` is fine; the parent must be writable.
     """
-    from sindy_ekf.report import check_report_dir
+    from sindy_ekf.report.html import check_report_dir
 
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: output exists and is not a folder")
@@ -58,12 +58,12 @@ def check_out(out: Path, force: bool) -> Path:
 
 def run(args) -> int:
     """Simulate, run the chain, write the report; print where it is and the headline figures."""
+    from groundfloor.files import atomic_write_json
     from simulation.campaign import simulate_campaign
     from sindy_ekf.commands.report import format_headline, format_problems
     from sindy_ekf.commands.simulate import format_table
-    from sindy_ekf.io_utils import atomic_write_json
-    from sindy_ekf.report import render_report
-    from sindy_ekf.report_chain import QUICK, run_chain
+    from sindy_ekf.report.chain import QUICK, run_chain
+    from sindy_ekf.report.html import render_report
 
     tic = time.perf_counter()
     campaign = check_out(args.out, args.force)

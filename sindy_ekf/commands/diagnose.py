@@ -23,9 +23,9 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     """Diagnose, print the ranking and the gain, write JSON, plots and the extended model on request."""
+    from groundfloor.files import atomic_write_json
     from sindy_ekf.diagnose import diagnose_campaign
     from sindy_ekf.diagnose.residuals import top_structure
-    from sindy_ekf.io_utils import atomic_write_json
 
     d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf)
     print(f"diagnosis of {args.model.name} on {args.campaign}: most likely cause: {d.verdict}")
@@ -49,9 +49,13 @@ def run(args) -> int:
         print(f"measurement: {f.name}: {f.cause}; correction: {f.correction}; baseline RMS "
               f"{1e6 * g['before']:.0f} -> {1e6 * g['after']:.0f} um ({f.runs} runs)")
     if args.plots:
-        from identification.evaluate import plot_error_curves
-        from sindy_ekf.diagnose.residuals import (plot_family_profiles, plot_lag_profile, plot_residual_map,
-                                                  plot_residual_structure)
+        from identification.sindy.evaluate import plot_error_curves
+        from sindy_ekf.diagnose.residuals import (
+            plot_family_profiles,
+            plot_lag_profile,
+            plot_residual_map,
+            plot_residual_structure,
+        )
 
         args.plots.mkdir(parents=True, exist_ok=True)
         plot_residual_structure(d.structure, args.plots / "residual_structure.png")

@@ -6,7 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +30,7 @@ def oracle_for(campaign_dir: Path):
     """
     if not (Path(campaign_dir) / "truth" / "truth.yaml").is_file():
         return None
-    from identification.evaluate import PoseDependentDynamics
+    from identification.sindy.evaluate import PoseDependentDynamics
     from simulation.effects import Effect
     from simulation.robot import TrueDynamics
     from simulation.truth import read_truth
@@ -42,12 +42,12 @@ def oracle_for(campaign_dir: Path):
 
 def run(args) -> int:
     """Evaluate model, baselines and (simulated campaigns) the oracle; print and write JSON."""
-    from identification.baselines import ConstantVelocityModel, UnicycleModel
-    from identification.campaigns import open_campaign
-    from identification.evaluate import evaluate_on_runs, plot_error_curves
-    from identification.model import SindyModel
-    from identification.search import states_of_runs
-    from sindy_ekf.io_utils import atomic_write_json
+    from groundfloor.files import atomic_write_json
+    from identification.preprocessing.campaigns import open_campaign
+    from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+    from identification.sindy.evaluate import evaluate_on_runs, plot_error_curves
+    from identification.sindy.model import SindyModel
+    from identification.sindy.search import states_of_runs
 
     model = SindyModel.load(args.model)
     campaign = open_campaign(args.campaign)

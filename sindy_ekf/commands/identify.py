@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
 
 
 def add_parser(sub, common) -> argparse.ArgumentParser:
@@ -44,10 +44,10 @@ def run(args) -> int:
     """Search, write the model and print its equations and the ranking; return the exit code."""
     import dataclasses
 
-    from identification.campaigns import open_campaign
-    from identification.library import make_library
-    from identification.search import grid_for_runs, search
-    from sindy_ekf.io_utils import atomic_write_json
+    from groundfloor.files import atomic_write_json
+    from identification.preprocessing.campaigns import open_campaign
+    from identification.sindy.library import make_library
+    from identification.sindy.search import grid_for_runs, search
 
     check_output_file(args.out, "--out")
     if args.json:
@@ -132,10 +132,14 @@ def _plots(result, out_dir: Path, train, model) -> None:
     """Write the search figures (7.4-7.7, 7.10, 7.11) and the adjustment's correlations (7.12)."""
     import numpy as np
 
-    from identification.adjust import adjust_coefficients, plot_correlation
-    from identification.model import plot_term_prevalence
-    from identification.search import plot_error_vs_complexity, plot_grid, states_of_runs
-    from identification.sindy import integral_problem
+    from identification.sindy.adjust import adjust_coefficients, plot_correlation
+    from identification.sindy.model import plot_term_prevalence
+    from identification.sindy.regression import integral_problem
+    from identification.sindy.search import (
+        plot_error_vs_complexity,
+        plot_grid,
+        states_of_runs,
+    )
 
     out_dir.mkdir(parents=True, exist_ok=True)
     for s in np.unique(result.table["s"]):

@@ -32,7 +32,7 @@ def format_summary(result) -> str:
     """Return the per-run summary table printed by the command."""
     import numpy as np
 
-    from identification.preprocess import TIMING_ERROR_R
+    from identification.preprocessing.preprocess import TIMING_ERROR_R
 
     head = (f"{'run':<10} {'split':<5} {'LTD800 ppm':>11} {'AT960 ppm':>10} {'offset ms':>10} "
             f"{'r before':>8} {'r after':>8} {'base rms mm':>12} {'poses':>6} "
@@ -64,8 +64,11 @@ def format_summary(result) -> str:
 
 def run(args) -> int:
     """Preprocess, print the summary table, write ``--json``; return the exit code."""
-    from identification.preprocess import DEFAULT_SMOOTHING, preprocess_campaign
-    from sindy_ekf.io_utils import atomic_write_json
+    from groundfloor.files import atomic_write_json
+    from identification.preprocessing.preprocess import (
+        DEFAULT_SMOOTHING,
+        preprocess_campaign,
+    )
 
     smoothing = DEFAULT_SMOOTHING if args.smoothing is None else args.smoothing
     result = preprocess_campaign(args.campaign, args.out, smoothing=smoothing, force=args.force,

@@ -55,9 +55,9 @@ def format_problems(chain) -> str:
 
 def run(args) -> int:
     """Run the chain, write the report, print where it is and the headline figures."""
-    from sindy_ekf.io_utils import atomic_write_json
-    from sindy_ekf.report import check_report_dir, render_report
-    from sindy_ekf.report_chain import QUICK, run_chain
+    from groundfloor.files import atomic_write_json
+    from sindy_ekf.report.chain import QUICK, run_chain
+    from sindy_ekf.report.html import check_report_dir, render_report
 
     check_report_dir(args.out)
     chain = run_chain(args.campaign, args.out, model=args.model, grid=QUICK if args.quick else None)

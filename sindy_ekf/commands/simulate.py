@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from sindy_ekf.errors import InputError
-from sindy_ekf.io_utils import atomic_write_json
+from groundfloor.errors import InputError
+from groundfloor.files import atomic_write_json
 
 
 def add_parser(sub, common) -> argparse.ArgumentParser:

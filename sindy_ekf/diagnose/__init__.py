@@ -10,6 +10,11 @@ on test runs), :mod:`~sindy_ekf.diagnose.rank` (calibrated thresholds, ranking),
 """
 
 from sindy_ekf.diagnose.families import FAMILIES
-from sindy_ekf.diagnose.pipeline import Diagnosis, diagnose_campaign, diagnose_states, load_model
+from sindy_ekf.diagnose.pipeline import (
+    Diagnosis,
+    diagnose_campaign,
+    diagnose_states,
+    load_model,
+)
 
 __all__ = ["FAMILIES", "Diagnosis", "diagnose_campaign", "diagnose_states", "load_model"]

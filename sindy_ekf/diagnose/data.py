@@ -16,8 +16,8 @@ from typing import Sequence
 
 import numpy as np
 
-from identification.types import BodyStates
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
+from groundfloor.types import BodyStates
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ the inverse residual variance, as in the scoring).
 
 Gains: the 5 s multi-step position and heading errors on the test runs (thesis 5.3.8, as
 ``evaluate``) before (the given model) and after (the extended model); and the dead-reckoning
-error at the end of 10 s GNSS outages in the EKF (``sindy_ekf.ekf.run_ekf_batch``) with each model.
+error at the end of 10 s GNSS outages in the EKF (``sindy_ekf.estimation.ekf.run_ekf_batch``) with each model.
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ from typing import Sequence
 
 import numpy as np
 
-from identification.model import SindyModel
-from identification.types import BodyStates
+from groundfloor.errors import InputError
+from groundfloor.types import BodyStates
+from identification.sindy.model import SindyModel
 from sindy_ekf.diagnose.data import Split
 from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, null_prediction
-from sindy_ekf.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +131,7 @@ class ExtendedModel:
         return a
 
     def f_full(self, x6: np.ndarray, u: np.ndarray, t) -> np.ndarray:
-        """Return :meth:`f` (the interface of ``identification.evaluate`` for pose-dependent models)."""
+        """Return :meth:`f` (the interface of ``identification.sindy.evaluate`` for pose-dependent models)."""
         return self.f(x6, u, t)
 
     def f_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
@@ -175,7 +175,7 @@ class ExtendedModel:
         if self.vy_scale != 1.0:
             raise InputError(f"extended model {self.family!r}: its vx and omega equations see vy / "
                              f"{self.vy_scale:.3g}, not expressible in the SINDy library")
-        from identification.library import parse_term
+        from identification.sindy.library import parse_term
 
         coef = self.base.coef.copy()
         for term, b in zip(("vx omega", "vy"), self.beta):
@@ -195,7 +195,7 @@ class ExtendedModel:
 
     def to_json(self, path) -> Path:
         """Write the extended model to ``path`` atomically; return the path."""
-        from sindy_ekf.io_utils import atomic_write_json
+        from groundfloor.files import atomic_write_json
 
         return atomic_write_json(path, self.to_dict())
 
@@ -277,14 +277,14 @@ def check_extended(ext: ExtendedModel, model: SindyModel, train: Split) -> float
 
 
 def multistep(model, states: Sequence[BodyStates], names: Sequence[str], window_s: float = 5.0, dt: float = 0.02):
-    """Return the 5 s multi-step evaluation (``identification.evaluate``) of a model or an extended model.
+    """Return the 5 s multi-step evaluation (``identification.sindy.evaluate``) of a model or an extended model.
 
     An :class:`ExtendedModel` is driven by the motor inputs of its mechanism, with time counted
     from each run's start.
     """
     import warnings
 
-    from identification.evaluate import evaluate_model
+    from identification.sindy.evaluate import evaluate_model
 
     if isinstance(model, ExtendedModel):
         states = [model.states_for_motors(st) for st in states]
@@ -316,7 +316,7 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
     """Return each model's EKF position error at the end of ``outage_s`` GNSS outages on the test runs (inf: diverged).
 
     For every outage (scheduled after ``lead_s`` of GNSS, then every ``lead_s + outage_s``) the
-    EKF (``sindy_ekf.ekf.run_ekf_batch``, all outages in lockstep, process noise from the model's one-step residuals on the train
+    EKF (``sindy_ekf.estimation.ekf.run_ekf_batch``, all outages in lockstep, process noise from the model's one-step residuals on the train
     runs) runs from ``lead_s`` before the outage to its end; the error is the distance between
     the estimate and the recorded pose there. ``models`` maps a name to a ``SindyModel`` or an
     :class:`ExtendedModel` (driven by its motor inputs). The plain filter: the ``v_y = 0``
@@ -324,10 +324,14 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
     holds a spurious vy term, but made a cubic model identified on a simulated campaign diverge
     in 6 of 12 outages (the plain filter in 4); the benchmark reports both filters side by side.
     """
-    from sindy_ekf.benchmark import outage_ekf_run
-    from sindy_ekf.ekf import run_ekf_batch
-    from sindy_ekf.process_models import (BodyModelProcess, TrueDynamicsProcess, fit_process_noise,
-                                          state_series_from_body_states)
+    from sindy_ekf.benchmark.run import outage_ekf_run
+    from sindy_ekf.estimation.ekf import run_ekf_batch
+    from sindy_ekf.estimation.process_models import (
+        BodyModelProcess,
+        TrueDynamicsProcess,
+        fit_process_noise,
+        state_series_from_body_states,
+    )
 
     def prepared(model, runs):
         if isinstance(model, ExtendedModel):

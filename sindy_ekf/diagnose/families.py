@@ -32,8 +32,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from identification.library import STATE_NAMES, parse_term
-from identification.search import STABILITY_TOL, max_re_eig_at_rest, stable_at_rest
+from identification.sindy.library import STATE_NAMES, parse_term
+from identification.sindy.search import (
+    STABILITY_TOL,
+    max_re_eig_at_rest,
+    stable_at_rest,
+)
 from sindy_ekf.diagnose.data import Split
 
 log = logging.getLogger(__name__)
@@ -265,7 +269,7 @@ class ActiveTerms:
     """The model restricted to its active features: same ``f``, fewer columns to evaluate."""
 
     def __init__(self, model):
-        from identification.library import FeatureLibrary
+        from identification.sindy.library import FeatureLibrary
 
         keep = np.flatnonzero(np.any(model.coef != 0, axis=0))
         names = tuple(model.library.feature_names[j] for j in keep) or ("1",)
@@ -486,7 +490,7 @@ def _coefs_from_refit(model, sols: np.ndarray) -> np.ndarray:
 
 def _coef_from_refit(model, sol: np.ndarray):
     """Return a model-like object with the model's support refitted to ``sol`` (the xi part)."""
-    from identification.model import SindyModel
+    from identification.sindy.model import SindyModel
 
     return SindyModel(library=model.library, coef=_coefs_from_refit(model, sol)[0],
                       hyperparameters=dict(model.hyperparameters))
@@ -510,7 +514,7 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
                for th in grid]
     d = Design(*(np.concatenate([getattr(x, k) for x in designs]) for k in ("G", "b", "yy")))
     sols, sse = solve_design(d)
-    # Admissible as in the identification's search (identification.search.admissible): a
+    # Admissible as in the identification's search (identification.sindy.search.admissible): a
     # re-identified model that runs away at rest is no explanation, however well its windows fit
     # (on 10 Hz real data a long input delay refits to positive self-damping: measured, wheels).
     ok = (max_re_eig_at_rest(model.library, _coefs_from_refit(model, sols)) <= STABILITY_TOL) | \

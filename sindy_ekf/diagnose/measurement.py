@@ -1,6 +1,6 @@
 """Measurement-level findings of preprocessing, told as cause, correction and gain (thesis 5.2).
 
-Preprocessing (``identification.preprocess``) discovers two things in the raw tracker data and
+Preprocessing (``identification.preprocessing.preprocess``) discovers two things in the raw tracker data and
 corrects them; its ``preprocess.json`` records the numbers. This module reads them back and
 reports them in the diagnosis's language:
 
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sindy_ekf.errors import InputError
+from groundfloor.errors import InputError
 
 REPORT_FILE = "preprocess.json"
 

@@ -17,18 +17,38 @@ from typing import Sequence
 
 import numpy as np
 
-from identification.library import INPUT_NAMES, STATE_NAMES
-from identification.model import SindyModel
-from identification.types import BodyStates
+from groundfloor.errors import InputError
+from groundfloor.progress import progress
+from groundfloor.types import BodyStates
+from identification.sindy.library import INPUT_NAMES, STATE_NAMES
+from identification.sindy.model import SindyModel
+from identification.sindy.search import stable_at_rest
 from sindy_ekf.diagnose.data import split_from_states
-from sindy_ekf.diagnose.extend import ExtendedModel, multistep, outage_errors, reidentify
-from identification.search import stable_at_rest
-from sindy_ekf.diagnose.families import FAMILIES, equation_weights, null_prediction, score_family
-from sindy_ekf.diagnose.residuals import (lag_profile, multistep_errors_by_window, multistep_structure,
-                                          residual_map, residual_structure)
-from sindy_ekf.diagnose.rank import THRESHOLD_PROVENANCE, RankedCause, rank_families, verdict
-from sindy_ekf.errors import InputError
-from sindy_ekf.progress import progress
+from sindy_ekf.diagnose.extend import (
+    ExtendedModel,
+    multistep,
+    outage_errors,
+    reidentify,
+)
+from sindy_ekf.diagnose.families import (
+    FAMILIES,
+    equation_weights,
+    null_prediction,
+    score_family,
+)
+from sindy_ekf.diagnose.rank import (
+    THRESHOLD_PROVENANCE,
+    RankedCause,
+    rank_families,
+    verdict,
+)
+from sindy_ekf.diagnose.residuals import (
+    lag_profile,
+    multistep_errors_by_window,
+    multistep_structure,
+    residual_map,
+    residual_structure,
+)
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +146,7 @@ def check_model_inputs(model, source: str = "model") -> None:
 
 def load_model(path) -> SindyModel:
     """Return the SINDy model in ``path``, checking first that it was trained on inputs ``u1, u2``."""
-    from identification.model import read_model_json
+    from identification.sindy.model import read_model_json
 
     path = Path(path)
     d = read_model_json(path)
@@ -318,11 +338,11 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
 def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:
     """Return the diagnosis of the model in ``model_path`` on a campaign (trajectory or tracker).
 
-    Body states come from the project's spline step (``identification.search.states_of_runs``,
+    Body states come from the project's spline step (``identification.sindy.search.states_of_runs``,
     smoothing ``s`` of the model's hyperparameters); a run split at a gap becomes several segments.
     """
-    from identification.campaigns import open_campaign
-    from identification.search import states_of_runs
+    from identification.preprocessing.campaigns import open_campaign
+    from identification.sindy.search import states_of_runs
 
     model = load_model(model_path)
     camp = open_campaign(campaign)

@@ -112,8 +112,8 @@ def residual_structure(model, split: Split, n_bins: int = 8) -> dict[str, dict[s
 def multistep_structure(evaluation, windows, states, n_bins: int = 6) -> dict[str, dict[str, BinnedEffect]]:
     """Return the 5 s multi-step errors (along-track, cross-track, heading) binned against window regressors.
 
-    ``evaluation`` is an ``identification.evaluate.EvaluationResult`` over ``windows``
-    (``identification.evaluate.Windows``) built from ``states``; the errors are resolved in the
+    ``evaluation`` is an ``identification.sindy.evaluate.EvaluationResult`` over ``windows``
+    (``identification.sindy.evaluate.Windows``) built from ``states``; the errors are resolved in the
     body frame at the window start (``x0``), so a heading-dependent push shows as a signed mean.
     """
     pred_end = evaluation.extra["pred_end"]  # kept by multistep_errors_by_window
@@ -133,7 +133,13 @@ def multistep_structure(evaluation, windows, states, n_bins: int = 6) -> dict[st
 
 def multistep_errors_by_window(model, states, names, window_s: float = 5.0, dt: float = 0.02):
     """Return ``(evaluation, windows)`` of a 5 s multi-step prediction with the end states kept."""
-    from identification.evaluate import EvaluationResult, errors_from_rollout, make_windows, rms_over_windows, rollout
+    from identification.sindy.evaluate import (
+        EvaluationResult,
+        errors_from_rollout,
+        make_windows,
+        rms_over_windows,
+        rollout,
+    )
 
     windows = make_windows(list(states), window_s, 0.5, dt, list(names))
     pred = rollout(model, windows)

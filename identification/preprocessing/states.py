@@ -1,0 +1,490 @@
+"""Body-frame velocities and inputs at the pose times (thesis 5.3.4, 5.3.5, eqs. 5.64 to 5.68).
+
+The pose components x, y and yaw are approximated by weighted cubic smoothing splines, whose
+analytic derivatives give the local-frame velocities; these are rotated into the body frame
+(eqs. 5.64 to 5.66)::
+
+    vx = cos(yaw) x_dot + sin(yaw) y_dot,   vy = -sin(yaw) x_dot + cos(yaw) y_dot,   omega = yaw_dot
+
+The smoothing factor ``s``
+--------------------------
+``s`` keeps the meaning of eq. 5.68: the spline ``f`` is the smoothest (least ``int f''^2``)
+cubic spline whose *mean* squared normalised residual does not exceed ``s``::
+
+    (1/N) sum_i ((y_i - f(t_i)) / sigma_i)^2 <= s
+
+with ``sigma_i`` the pose standard deviation (``x_std``, ``y_std``, ``yaw_std``), so one ``s``
+serves metres and radians alike. ``s = 0`` interpolates; ``s = 1`` lets the spline deviate
+from the poses by their own noise (Reinsch's classic choice); larger values smooth more. In
+scipy's terms this is ``UnivariateSpline(t, y, w=1/sigma, s=N*s)``, but FITPACK's knot
+placement takes minutes for 30 000 poses at small ``s``, so the spline here is Reinsch's
+(1967) smoothing spline: a natural cubic spline with a knot at every pose, the penalty weight
+found by a root search so that the constraint holds with equality. It is the spline
+``scipy.interpolate.make_smoothing_spline`` computes for a given penalty, at O(N) cost per
+trial penalty (one banded Cholesky factorisation; Newton's method with the analytic slope of
+the residual needs two to six). With tracker-derived a priori sigmas (about 10 um, 0.001
+deg), the thesis's values 0.0005 to 0.01 (table 5.1, applied there to a posteriori sigmas
+inflated by the hub eccentricity) are close to interpolation; ``s = 1`` is the noise-matched
+choice, and larger values also remove real high-frequency motion (simulated campaigns,
+``bench/results/poses.md``: vy RMS against truth 0.6 mm/s at s <= 0.01, 0.3 mm/s at s = 1,
+while vx grows from 1.1 to 2.4 mm/s at s = 10). When a pose track has no sigmas the noise
+level of each component is estimated from the data (robust spread of fourth differences), so
+``s`` keeps its meaning.
+
+The smoothing spline is natural (zero curvature at both ends of a segment), so over roughly
+one smoothing length at each end the derivative is pulled towards the straight-line slope
+(synthetic test, s = 10: velocity RMS 3e-4 m/s with the ends, 5e-6 m/s without). By default
+(``pad_ends=True``) each segment is therefore refitted, with the penalty found on the data,
+after continuing both ends by a weighted quadratic over three kernel widths of the spline:
+the zero-curvature conditions then fall outside the data (same test: 3e-5 m/s with the ends).
+
+Inputs
+------
+The robot acts on the last joystick message it received, so the default ``input_hold="zoh"``
+samples the inputs with a zero-order hold (before the first message: the first message).
+The thesis interpolated linearly (``input_hold="linear"``); between irregular messages that
+anticipates a command change the motors have not seen yet.
+
+Gaps
+----
+Poses with NaN are dropped and the track is split where consecutive poses are further apart
+than ``max_gap_s`` (default :func:`identification.preprocessing.trajectory.gap_threshold_s`); each segment
+gets its own splines, and nothing is interpolated across a hole: samples in a gap, or in a
+segment of fewer than four poses, are NaN. :func:`body_states_segments` returns the segments
+separately.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.linalg import cho_solve_banded, cholesky_banded, solveh_banded
+
+from groundfloor.errors import InputError
+from groundfloor.types import BodyStates, InputSeries, PoseTrack
+from identification.preprocessing.trajectory import gap_segments
+
+log = logging.getLogger(__name__)
+
+#: fewest poses in a segment for a cubic spline
+MIN_SEGMENT = 4
+#: search range of the normalised penalty exponent (log10)
+_LOG_LAMBDA_RANGE = (-12.0, 14.0)
+
+
+class _Reinsch:
+    """Cubic smoothing spline values for any penalty, by Reinsch's algorithm.
+
+    Minimises ``sum (y - g)^2 / var + lam * int g''^2``: with ``Q`` the second-divided-
+    difference matrix and ``R`` the tridiagonal spline matrix, the interior second derivatives
+    solve ``(R + lam Q^T D Q) gamma = Q^T y`` (``D = diag(var)``, a pentadiagonal SPD system,
+    O(n) per penalty) and ``g = y - lam D Q gamma``. The bands of ``R`` and ``Q^T D Q`` are
+    built once and reused across the penalties a root search tries.
+    """
+
+    def __init__(self, t: np.ndarray, y: np.ndarray, var: np.ndarray):
+        h = np.diff(t)
+        self.inv_h = 1.0 / h
+        a = self.inv_h[:-1]  # column j of Q has a_j, b_j, c_j in rows j-1, j, j+1 (j interior)
+        c = self.inv_h[1:]
+        b = -(a + c)
+        d = var
+        m = t.size - 2
+        self.R = np.zeros((3, m))  # upper banded storage for solveh_banded
+        self.R[1, 1:] = h[1:-1] / 6.0
+        self.R[2] = (h[:-1] + h[1:]) / 3.0
+        self.T = np.zeros((3, m))
+        self.T[0, 2:] = d[2:-2] * c[:-2] * a[2:]
+        self.T[1, 1:] = d[1:-2] * b[:-1] * a[1:] + d[2:-1] * c[:-1] * b[1:]
+        self.T[2] = d[:-2] * a**2 + d[1:-1] * b**2 + d[2:] * c**2
+        self.rhs = np.diff(np.diff(y) * self.inv_h)
+        self.y, self.var = y, var
+
+    def log_lambda_guess(self, s: float) -> float:
+        """Return log10 of the penalty at which ``mean(((y - g) / sigma)^2) = s`` for small penalties.
+
+        For small ``lam``, ``y - g ~= lam D Q R^-1 Q^T y``: the residual grows linearly in
+        ``lam``, so one tridiagonal solve gives the asymptote.
+        """
+        gamma0 = solveh_banded(self.R[1:], self.rhs, check_finite=False)
+        slope = np.diff(np.concatenate([[0.0], gamma0, [0.0]])) * self.inv_h
+        Q_gamma = np.diff(np.concatenate([[0.0], slope, [0.0]]))
+        F1 = np.mean(self.var * Q_gamma**2)
+        return 0.5 * float(np.log10(s / max(F1, 1e-300)))
+
+    def _Q(self, gamma: np.ndarray) -> np.ndarray:
+        """Return ``Q gamma`` (second divided differences, transposed) for interior ``gamma``."""
+        slope = np.diff(np.concatenate([[0.0], gamma, [0.0]])) * self.inv_h
+        return np.diff(np.concatenate([[0.0], slope, [0.0]]))
+
+    def _T_matvec(self, v: np.ndarray) -> np.ndarray:
+        """Return ``Q^T D Q v`` from the upper banded storage of the symmetric matrix."""
+        T = self.T
+        out = T[2] * v
+        out[1:] += T[1, 1:] * v[:-1]
+        out[:-1] += T[1, 1:] * v[1:]
+        out[2:] += T[0, 2:] * v[:-2]
+        out[:-2] += T[0, 2:] * v[2:]
+        return out
+
+    def values(self, lam: float) -> np.ndarray:
+        """Return the smoothing spline's values at the knots for penalty ``lam``."""
+        if lam == 0.0:
+            return self.y.copy()
+        gamma = solveh_banded(self.R + lam * self.T, self.rhs, check_finite=False)
+        return self.y - lam * self.var * self._Q(gamma)
+
+    def chi2_and_slope(self, lam: float) -> tuple[float, float]:
+        """Return ``F = mean(((y - g) / sigma)^2)`` and ``d ln F / d ln lam`` at penalty ``lam``.
+
+        ``y - g = lam D Q gamma`` and ``d gamma / d lam = -(R + lam T)^-1 T gamma``: one
+        banded Cholesky factor serves both solves.
+        """
+        factor = cholesky_banded(self.R + lam * self.T, check_finite=False)
+        gamma = cho_solve_banded((factor, False), self.rhs, check_finite=False)
+        q = self._Q(gamma)
+        dq = self._Q(-cho_solve_banded((factor, False), self._T_matvec(gamma), check_finite=False))
+        vq2 = np.mean(self.var * q * q)
+        F = lam**2 * vq2
+        dF = 2.0 * lam * vq2 + 2.0 * lam**2 * np.mean(self.var * q * dq)
+        return float(F), float(lam * dF / max(F, 1e-300))
+
+
+def _solve_log_lambda(problem: "_Reinsch", s: float, tol: float = 5e-3, max_iter: int = 40) -> float | None:
+    """Return ``u = log10 lam`` at which ``mean(((y - g) / sigma)^2) = s``, or None if none.
+
+    Newton's method on ``f(u) = ln F - ln s`` with the analytic slope of
+    :meth:`_Reinsch.chi2_and_slope`, started from the small-penalty asymptote and kept inside
+    the bracket found so far (bisection when a step leaves it): typically three to five banded
+    factorisations. ``tol`` is on ``ln F``: 0.5 % in the residual of eq. 5.68.
+    """
+    lo, hi = _LOG_LAMBDA_RANGE
+    a, b = lo, hi  # f(a) < 0 < f(b) once evaluated; the ends are only assumed so
+    u = float(np.clip(problem.log_lambda_guess(s), lo, hi))
+    for _ in range(max_iter):
+        F, dlnF = problem.chi2_and_slope(10.0**u)
+        f = np.log(max(F, 1e-300)) - np.log(s)
+        if abs(f) < tol:
+            return u
+        if f < 0:
+            a = u
+        else:
+            b = u
+        if b - a < 1e-6:
+            return u
+        slope = np.log(10.0) * dlnF
+        u_new = u - f / slope if slope > 1e-9 else np.nan
+        if not a < u_new < b:  # Newton left the bracket: bisect it, or step out by 4 decades
+            if f < 0 and b >= hi:
+                if u >= hi:
+                    return None  # even the largest penalty leaves the residual below s
+                u_new = min(u + 4.0, hi)
+            elif f > 0 and a <= lo:
+                if u <= lo:
+                    return lo  # the smallest penalty already reaches s: interpolation
+                u_new = max(u - 4.0, lo)
+            else:
+                u_new = 0.5 * (a + b)
+        u = u_new
+    return u
+
+
+def smoothing_spline(t, y, y_std, s: float, pad_ends: bool = False) -> tuple[CubicSpline, float]:
+    """Return the weighted cubic smoothing spline of eq. 5.68 and its penalty weight.
+
+    Parameters
+    ----------
+    t : (n,) strictly increasing times, s.
+    y : (n,) values.
+    y_std : (n,) standard deviations of ``y`` (positive).
+    s : mean squared normalised residual allowed (eq. 5.68); 0 interpolates.
+    pad_ends : after the penalty is found on the data, refit with each end continued by
+        three equivalent kernel widths of the spline (``lam^(1/4)`` in samples) of values
+        from a weighted quadratic fitted to the last three widths of samples, so that the natural (zero-curvature)
+        end conditions fall outside the data instead of bending the derivative at its ends.
+        Off, the spline is exactly ``scipy.interpolate.make_smoothing_spline``'s.
+
+    Returns
+    -------
+    spline : scipy.interpolate.CubicSpline
+        Natural cubic spline through the smoothed values (the smoothing spline itself); call
+        ``spline(t, 1)`` for the analytic derivative. Its argument is ``t`` as given.
+    lam : float
+        Penalty weight on ``int f''^2`` in the units of ``t`` and ``y`` (0 when interpolating,
+        ``inf`` when ``s`` exceeds the residual of the weighted straight line, which is then
+        returned).
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    var = np.asarray(y_std, dtype=float) ** 2
+    if s < 0 or not np.isfinite(s):
+        raise InputError(f"smoothing: must be a finite value >= 0, got {s!r}")
+    t0 = t[0]
+    tau = t - t0
+    if s == 0.0 or t.size < 4:
+        return CubicSpline(t, y, bc_type="natural"), 0.0
+    # normalise time by the median step and values by the median sigma: penalty near 1
+    h_ref = float(np.median(np.diff(tau)))
+    std_ref = float(np.sqrt(np.median(var)))
+    tau_n, y_n, var_n = tau / h_ref, (y - y[0]) / std_ref, var / std_ref**2
+
+    problem = _Reinsch(tau_n, y_n, var_n)
+    w = 1.0 / var_n
+    A = np.column_stack([np.ones_like(tau_n), tau_n])
+    coef = np.linalg.lstsq(A * np.sqrt(w)[:, None], y_n * np.sqrt(w), rcond=None)[0]
+    chi2_line = np.mean((y_n - A @ coef) ** 2 * w)
+    if chi2_line <= s:
+        g_n, lam = A @ coef, np.inf
+    else:
+        log_lam = _solve_log_lambda(problem, s)
+        if log_lam is None:
+            g_n, lam = A @ coef, np.inf
+        else:
+            lam_n = 10.0**log_lam
+            lam = lam_n * h_ref**3 / std_ref**2
+            if pad_ends:
+                tau_p, g_p = _padded_fit(tau_n, y_n, var_n, lam_n)
+                return CubicSpline(t0 + tau_p * h_ref, y[0] + g_p * std_ref, bc_type="natural"), lam
+            g_n = problem.values(lam_n)
+    return CubicSpline(t, y[0] + g_n * std_ref, bc_type="natural"), lam
+
+
+def _padded_fit(tau: np.ndarray, y: np.ndarray, var: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return knots and smoothed values of the fit with quadratically continued ends.
+
+    Normalised units (unit median step, unit median variance): the equivalent kernel of a
+    cubic smoothing spline is about ``lam^(1/4)`` steps wide; each end is continued by three
+    widths, from a weighted quadratic through the last three widths of data (the best of the
+    combinations of one to three widths tried on the synthetic trajectories of the tests).
+    """
+    n = tau.size
+    width = lam**0.25
+    k = int(min(max(np.ceil(3.0 * width), 3), n // 2))
+    m = int(min(max(np.ceil(3.0 * width), 8), n))
+    pads_t, pads_y = [], []
+    for sl, steps in ((slice(0, m), -np.arange(k, 0, -1)), (slice(n - m, n), np.arange(1, k + 1))):
+        t_end = tau[0] if steps[0] < 0 else tau[-1]
+        coef = np.polyfit(tau[sl] - t_end, y[sl], 2, w=1.0 / np.sqrt(var[sl]))
+        pads_t.append(t_end + steps.astype(float))
+        pads_y.append(np.polyval(coef, steps.astype(float)))
+    tau_p = np.concatenate([pads_t[0], tau, pads_t[1]])
+    y_p = np.concatenate([pads_y[0], y, pads_y[1]])
+    var_p = np.concatenate([np.ones(k), var, np.ones(k)])
+    return tau_p, _Reinsch(tau_p, y_p, var_p).values(lam)
+
+
+def noise_std_from_data(y) -> float:
+    """Return a robust noise standard deviation of a smooth series from its fourth differences.
+
+    For white noise of standard deviation ``sigma`` the fourth difference has standard
+    deviation ``sqrt(70) sigma``; a smooth trajectory at 50 Hz contributes far less. The
+    spread is the scaled median absolute deviation, so the few jumps at gaps do not count.
+    """
+    y = np.asarray(y, dtype=float)
+    y = y[np.isfinite(y)]
+    if y.size < 6:
+        return float("nan")
+    d4 = np.diff(y, 4)
+    mad = 1.4826 * np.median(np.abs(d4 - np.median(d4)))
+    return float(max(mad / np.sqrt(70.0), 1e-12 * (np.ptp(y) + 1.0)))
+
+
+def _component_std(std: np.ndarray, values: np.ndarray, name: str) -> np.ndarray:
+    """Return per-sample sigmas: given ones, NaNs filled by their median, or estimated."""
+    std = np.asarray(std, dtype=float)
+    good = np.isfinite(std) & (std > 0)
+    if good.any():
+        if not good.all():
+            std = np.where(good, std, np.median(std[good]))
+        return std
+    sigma = noise_std_from_data(values)
+    log.info("states: no %s sigmas, using %.3g estimated from the data", name, sigma)
+    return np.full(values.shape, sigma)
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """Splines of one gap-free stretch of poses."""
+
+    t_start: float
+    t_stop: float
+    x: CubicSpline
+    y: CubicSpline
+    yaw: CubicSpline
+    t: np.ndarray  # pose times of the segment
+
+
+def _check_inputs(poses: PoseTrack, inputs: InputSeries, smoothing: float, input_hold: str) -> None:
+    """Raise InputError naming the culprit for bad pose/input series or options."""
+    if input_hold not in ("zoh", "linear"):
+        raise InputError(f"input_hold: must be 'zoh' or 'linear', got {input_hold!r}")
+    if smoothing is None or not np.isfinite(smoothing) or smoothing < 0:
+        raise InputError(f"smoothing: must be a finite value >= 0, got {smoothing!r}")
+    n = np.asarray(poses.t).size
+    for key in ("x", "y", "yaw"):
+        if np.asarray(getattr(poses, key)).size != n:
+            raise InputError(f"poses.{key}: {np.asarray(getattr(poses, key)).size} samples, poses.t has {n}")
+    if np.any(np.diff(poses.t) <= 0):
+        i = int(np.flatnonzero(np.diff(poses.t) <= 0)[0])
+        raise InputError(f"poses.t: stamps not strictly increasing at sample {i + 1}")
+    m = np.asarray(inputs.t).size
+    if m == 0:
+        raise InputError("inputs: no input samples")
+    for key in ("u1", "u2"):
+        if np.asarray(getattr(inputs, key)).size != m:
+            raise InputError(f"inputs.{key}: {np.asarray(getattr(inputs, key)).size} samples, inputs.t has {m}")
+    if np.any(np.diff(inputs.t) < 0):
+        i = int(np.flatnonzero(np.diff(inputs.t) < 0)[0])
+        raise InputError(f"inputs.t: stamps going backwards at sample {i + 1}")
+
+
+def _fit_segments(poses: PoseTrack, smoothing: float, max_gap_s: float | None,
+                  pad_ends: bool = True) -> list[_Segment]:
+    """Return the x, y, yaw splines of every gap-free segment with at least MIN_SEGMENT poses."""
+    t = np.asarray(poses.t, dtype=float)
+    x, y, yaw = (np.asarray(v, dtype=float) for v in (poses.x, poses.y, poses.yaw))
+    ok = np.isfinite(t) & np.isfinite(x) & np.isfinite(y) & np.isfinite(yaw)
+    if ok.sum() < MIN_SEGMENT:
+        raise InputError(f"poses: only {int(ok.sum())} finite poses (need {MIN_SEGMENT})")
+    t, x, y = t[ok], x[ok], y[ok]
+    yaw = np.unwrap(yaw[ok])  # wrapped input is fine; unwrapped stays as it is
+    stds = [_component_std(np.broadcast_to(np.asarray(std, float), ok.shape)[ok], v, name)
+            for std, v, name in ((poses.x_std, x, "x"), (poses.y_std, y, "y"), (poses.yaw_std, yaw, "yaw"))]
+    segments = []
+    t_base = t[0]
+    for start, stop in gap_segments(t, max_gap_s):
+        if stop - start < MIN_SEGMENT:
+            log.info("states: segment of %d poses at t=%.3f skipped (fewer than %d)",
+                     stop - start, t[start], MIN_SEGMENT)
+            continue
+        sl = slice(start, stop)
+        tt = t[sl] - t_base  # relative times: sub-microsecond steps survive at UTC epochs
+        splines = [smoothing_spline(tt, v[sl], sd[sl], smoothing, pad_ends)[0] for v, sd in zip((x, y, yaw), stds)]
+        segments.append(_Segment(t_start=t[start], t_stop=t[stop - 1], x=splines[0], y=splines[1],
+                                 yaw=splines[2], t=t[sl]))
+    if len(segments) > 1:
+        log.info("states: pose track split into %d segments at gaps", len(segments))
+    return segments
+
+
+def _sample_inputs(inputs: InputSeries, t_eval: np.ndarray, input_hold: str) -> tuple[np.ndarray, np.ndarray]:
+    """Return u1, u2 at ``t_eval`` by zero-order hold or linear interpolation."""
+    t_in = np.asarray(inputs.t, dtype=float)
+    u = np.column_stack([inputs.u1, inputs.u2]).astype(float)
+    if input_hold == "zoh":
+        idx = np.clip(np.searchsorted(t_in, t_eval, side="right") - 1, 0, t_in.size - 1)
+        out = u[idx]
+    else:
+        out = np.column_stack([np.interp(t_eval, t_in, u[:, k]) for k in range(2)])
+    return out[:, 0], out[:, 1]
+
+
+def _states_at(segments: list[_Segment], t_eval: np.ndarray, t_base: float) -> np.ndarray:
+    """Return (n, 6) [x, y, yaw, vx, vy, omega] at ``t_eval``; NaN outside every segment."""
+    out = np.full((t_eval.size, 6), np.nan)
+    for seg in segments:
+        inside = (t_eval >= seg.t_start) & (t_eval <= seg.t_stop)
+        if not inside.any():
+            continue
+        tt = t_eval[inside] - t_base
+        yaw = seg.yaw(tt)
+        x_dot, y_dot = seg.x(tt, 1), seg.y(tt, 1)
+        c, s = np.cos(yaw), np.sin(yaw)
+        out[inside] = np.column_stack([seg.x(tt), seg.y(tt), yaw, c * x_dot + s * y_dot,
+                                       -s * x_dot + c * y_dot, seg.yaw(tt, 1)])  # eqs. 5.64-5.66
+    return out
+
+
+def body_states_from_poses(poses: PoseTrack, inputs: InputSeries, smoothing: float, t_eval=None,
+                           input_hold: str = "zoh", max_gap_s: float | None = None,
+                           pad_ends: bool = True) -> BodyStates:
+    """Return body-frame velocities, inputs and smoothed poses at the pose (or given) times.
+
+    Implements eqs. 5.64 to 5.68 (thesis 5.3.5): weighted smoothing splines of x, y and yaw
+    with smoothing factor ``smoothing`` (see the module docstring for its meaning), analytic
+    derivatives rotated into the body frame, inputs sampled at the same times.
+
+    Parameters
+    ----------
+    poses : pose track (``*_std`` used as weights when present; yaw wrapped or unwrapped).
+    inputs : control inputs on their own stamps (same time base as the poses).
+    smoothing : s of eq. 5.68, >= 0 (0 interpolates).
+    t_eval : times to evaluate at; default the pose times.
+    input_hold : ``"zoh"`` (default, what the robot acts on) or ``"linear"`` (the thesis).
+    max_gap_s : split the track where poses are further apart; default
+        :func:`identification.preprocessing.trajectory.gap_threshold_s`.
+    pad_ends : continue each segment's ends quadratically before the final fit (see
+        :func:`smoothing_spline`); False gives the plain natural smoothing spline.
+
+    Returns
+    -------
+    BodyStates
+        At ``t_eval``; all state fields NaN where ``t_eval`` falls in a gap or in a dropped
+        pose (the inputs stay defined there).
+    """
+    _check_inputs(poses, inputs, smoothing, input_hold)
+    segments = _fit_segments(poses, smoothing, max_gap_s, pad_ends)
+    t_eval = np.asarray(poses.t if t_eval is None else t_eval, dtype=float)
+    t_base = float(np.asarray(poses.t, float)[np.isfinite(poses.t)][0])
+    if t_eval is poses.t or np.array_equal(t_eval, poses.t):
+        # at the pose times, a dropped (NaN) pose stays a hole even inside a segment
+        valid = np.isfinite(poses.x) & np.isfinite(poses.y) & np.isfinite(poses.yaw)
+    else:
+        valid = np.ones(t_eval.shape, bool)
+    st = _states_at(segments, t_eval, t_base)
+    st[~valid] = np.nan
+    u1, u2 = _sample_inputs(inputs, t_eval, input_hold)
+    return BodyStates(t=t_eval, vx=st[:, 3], vy=st[:, 4], omega=st[:, 5], u1=u1, u2=u2,
+                      x=st[:, 0], y=st[:, 1], yaw=st[:, 2])
+
+
+def body_states_segments(poses: PoseTrack, inputs: InputSeries, smoothing: float,
+                         input_hold: str = "zoh", max_gap_s: float | None = None,
+                         pad_ends: bool = True) -> list[BodyStates]:
+    """Return one gap-free BodyStates per segment of the pose track, at its pose times.
+
+    Same computation as :func:`body_states_from_poses`; use it where windows or integrals
+    must not span a hole (identification windows, multi-step evaluation).
+    """
+    _check_inputs(poses, inputs, smoothing, input_hold)
+    segments = _fit_segments(poses, smoothing, max_gap_s, pad_ends)
+    t_base = float(np.asarray(poses.t, float)[np.isfinite(poses.t)][0])
+    out = []
+    for seg in segments:
+        st = _states_at([seg], seg.t, t_base)
+        u1, u2 = _sample_inputs(inputs, seg.t, input_hold)
+        out.append(BodyStates(t=seg.t, vx=st[:, 3], vy=st[:, 4], omega=st[:, 5], u1=u1, u2=u2,
+                              x=st[:, 0], y=st[:, 1], yaw=st[:, 2]))
+    return out
+
+
+def plot_body_states(states_by_smoothing: dict, path=None, t_range=None):
+    """Return a figure of vx, vy and omega over time for several smoothing factors (fig. 7.9).
+
+    ``states_by_smoothing`` maps ``s`` to the :class:`BodyStates` computed with it;
+    ``t_range`` (seconds since the first sample) zooms in. Saved to ``path`` when given.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 7))
+    labels = (("vx", "v_x [m/s]", 1.0), ("vy", "v_y [m/s]", 1.0), ("omega", "omega [deg/s]", np.degrees(1.0)))
+    t0 = None
+    for s, st in states_by_smoothing.items():
+        t0 = st.t[0] if t0 is None else t0
+        t = st.t - t0
+        sel = np.ones(t.shape, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
+        for ax, (key, ylabel, k) in zip(axes, labels):
+            ax.plot(t[sel], getattr(st, key)[sel] * k, lw=0.8, label=f"s = {s:g}")
+            ax.set_ylabel(ylabel)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("time since start [s]")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig

@@ -1,0 +1,173 @@
+"""Least-squares adjustment of the active SINDy coefficients (thesis 5.3.9 and 7.9).
+
+Functional model eq. 5.79: only the state differences are observations,
+``Delta x_i + v_i = Theta'_active xi_i``, one Gauss-Markov model per equation (the equations do
+not share parameters, so the joint covariance is block-diagonal, as the thesis found). The
+adjustment gives the coefficients, their covariance ``sigma0^2 (A^T A)^-1``, the correlation
+matrix (fig. 7.12) and its strongest entries (table 7.7).
+
+Overlapping integration windows make the observations correlated, so ``sigma0`` and the
+standard deviations are optimistic; the correlations, which are what the thesis discusses,
+depend only on ``A`` and are unaffected.
+
+The thesis's proposed cure (section 7.9), targeted subsampling of low-acceleration data, is
+:func:`subsample_low_acceleration`; :func:`subsampling_effect` measures what it does to the
+correlations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from groundfloor.errors import InputError
+from identification.sindy.library import STATE_NAMES
+from identification.sindy.model import SindyModel
+from identification.sindy.regression import IntegralProblem, condition_number
+
+
+@dataclass(frozen=True)
+class Adjustment:
+    """Adjusted active coefficients with covariance and correlation (eq. 5.79)."""
+
+    terms: tuple[tuple[str, str], ...]  # (equation, feature name) per parameter
+    coef: np.ndarray  # (p,)
+    cov: np.ndarray  # (p, p), block-diagonal by equation
+    corr: np.ndarray  # (p, p)
+    sigma0: dict  # equation -> a-posteriori std of unit weight (m/s or rad/s)
+    condition_number: dict  # equation -> cond(A) of its active columns
+    n_obs: int
+
+    @property
+    def coef_std(self) -> np.ndarray:
+        """Standard deviations of the coefficients ``(p,)``."""
+        return np.sqrt(np.diag(self.cov))
+
+    def strongest_correlations(self, n: int = 15) -> list[tuple[float, str, str]]:
+        """Return the ``n`` largest ``|correlation|`` pairs as ``(rho, term A, term B)`` (table 7.7)."""
+        iu, ju = np.triu_indices(len(self.coef), k=1)
+        rho = self.corr[iu, ju]
+        order = np.argsort(-np.abs(rho), kind="stable")[:n]
+        return [(float(rho[o]), f"{self.terms[iu[o]][0]}: {self.terms[iu[o]][1]}",
+                 f"{self.terms[ju[o]][0]}: {self.terms[ju[o]][1]}") for o in order if rho[o] != 0]
+
+    def max_abs_correlation(self) -> float:
+        """Return the largest off-diagonal ``|correlation|``."""
+        c = np.abs(self.corr - np.diag(np.diag(self.corr)))
+        return float(c.max()) if c.size else 0.0
+
+
+def adjust_coefficients(model: SindyModel, problem: IntegralProblem, rows: np.ndarray | None = None) -> Adjustment:
+    """Return the least-squares adjustment of ``model``'s active terms on ``problem`` (eq. 5.79).
+
+    Parameters
+    ----------
+    model : SindyModel
+        Gives the active terms (non-zero coefficients) per equation.
+    problem : IntegralProblem
+        Integral regression of the same library (``theta_int``, ``delta_x``).
+    rows : ndarray of bool or int, optional
+        Windows to use (e.g. from :func:`subsample_low_acceleration`); all by default.
+
+    Raises
+    ------
+    InputError
+        If the libraries differ, no term is active, or an equation has no redundancy.
+    """
+    if problem.library.feature_names != model.library.feature_names:
+        raise InputError(f"adjustment: model library {model.library.name!r} differs from the problem's "
+                         f"{problem.library.name!r}")
+    theta = problem.theta_int if rows is None else problem.theta_int[rows]
+    dx = problem.delta_x if rows is None else problem.delta_x[rows]
+    terms, coefs, blocks, sigma0, cond = [], [], [], {}, {}
+    for i, eq in enumerate(STATE_NAMES):
+        active = np.flatnonzero(model.coef[i])
+        if not len(active):
+            continue
+        a = theta[:, active]
+        if len(a) <= len(active):
+            raise InputError(f"adjustment: equation {eq}: {len(a)} windows for {len(active)} active terms")
+        # lstsq on A rather than inverting A^T A: A is badly conditioned (the thesis's finding)
+        xi, *_ = np.linalg.lstsq(a, dx[:, i], rcond=None)
+        v = a @ xi - dx[:, i]
+        s0 = float(np.sqrt(v @ v / (len(a) - len(active))))
+        _, sv, vt = np.linalg.svd(a, full_matrices=False)
+        n_inv = (vt.T / sv**2) @ vt  # (A^T A)^-1 from the SVD, stable where the normal matrix is not
+        terms += [(eq, model.library.feature_names[j]) for j in active]
+        coefs.append(xi)
+        blocks.append(s0**2 * n_inv)
+        sigma0[eq] = s0
+        cond[eq] = condition_number(a)
+    if not terms:
+        raise InputError(f"adjustment: the model has no active terms")
+    p = len(terms)
+    cov = np.zeros((p, p))
+    k = 0
+    for b in blocks:
+        cov[k:k + len(b), k:k + len(b)] = b
+        k += len(b)
+    d = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(d, d)
+    return Adjustment(terms=tuple(terms), coef=np.concatenate(coefs), cov=cov, corr=corr, sigma0=sigma0,
+                      condition_number=cond, n_obs=len(theta))
+
+
+def subsample_low_acceleration(problem: IntegralProblem, keep_fraction: float = 0.2, quantile: float = 0.5,
+                               seed: int = 0) -> np.ndarray:
+    """Return a boolean mask of windows: all high-acceleration windows, a random few low ones.
+
+    The mean acceleration of a window is ``Delta x / tau``; each component is scaled by its
+    standard deviation over all windows and the norm taken. Windows below the ``quantile`` of
+    that norm (steady driving or standing still, where ``vx`` tracks ``u1`` and ``omega``
+    tracks ``u2`` and the columns become collinear) are kept with probability
+    ``keep_fraction`` (section 7.9's proposal).
+    """
+    if not 0 < keep_fraction <= 1 or not 0 < quantile < 1:
+        raise InputError(f"subsampling: keep_fraction={keep_fraction} must be in (0, 1], quantile={quantile} in (0, 1)")
+    acc = problem.delta_x / problem.tau
+    acc_norm = np.linalg.norm(acc / np.maximum(acc.std(axis=0), 1e-12), axis=1)
+    low = acc_norm < np.quantile(acc_norm, quantile)
+    rng = np.random.default_rng(seed)
+    return ~low | (rng.random(len(low)) < keep_fraction)
+
+
+def subsampling_effect(model: SindyModel, problem: IntegralProblem, keep_fraction: float = 0.2,
+                       quantile: float = 0.5, seed: int = 0) -> dict:
+    """Return the correlations before and after low-acceleration subsampling (section 7.9)."""
+    before = adjust_coefficients(model, problem)
+    mask = subsample_low_acceleration(problem, keep_fraction, quantile, seed)
+    after = adjust_coefficients(model, problem, rows=mask)
+
+    def stats(adj: Adjustment) -> dict:
+        off = np.abs(adj.corr[np.triu_indices(len(adj.coef), 1)])
+        off = off[off > 0]
+        return {"max_abs_corr": float(off.max()) if off.size else 0.0,
+                "mean_abs_corr": float(off.mean()) if off.size else 0.0,
+                "n_above_0.9": int(np.sum(off > 0.9)), "condition_number": adj.condition_number,
+                "n_windows": adj.n_obs}
+
+    return {"before": stats(before), "after": stats(after), "kept_fraction": float(mask.mean())}
+
+
+def plot_correlation(adj: Adjustment, path=None):
+    """Return (and save) the correlation matrix per equation (fig. 7.12)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eqs = [eq for eq in STATE_NAMES if any(t[0] == eq for t in adj.terms)]
+    fig, axes = plt.subplots(1, len(eqs), figsize=(6 * len(eqs), 5.5), squeeze=False)
+    for ax, eq in zip(axes[0], eqs):
+        idx = [i for i, t in enumerate(adj.terms) if t[0] == eq]
+        im = ax.imshow(adj.corr[np.ix_(idx, idx)], vmin=-1, vmax=1, cmap="RdBu_r")
+        labels = [adj.terms[i][1] for i in idx]
+        ax.set(xticks=range(len(idx)), yticks=range(len(idx)), title=f"d{eq}/dt")
+        ax.set_xticklabels(labels, rotation=90, fontsize=7)
+        ax.set_yticklabels(labels, fontsize=7)
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig

@@ -1,0 +1,340 @@
+"""Multi-step prediction in the local frame, all windows at once (thesis 5.3.7 and 5.3.8).
+
+The test runs are cut into windows of ``window_s`` (5 s) overlapping by 50 %. Each window
+starts from the data (pose and body velocities at a sample), is driven by the recorded inputs
+interpolated linearly, and is integrated over the combined local-frame ODE of eq. 5.75:
+
+.. math::  \\dot x = v_x\\cos\\psi - v_y\\sin\\psi,\\quad \\dot y = v_x\\sin\\psi + v_y\\cos\\psi,
+           \\quad \\dot\\psi = \\omega,\\quad \\dot{\\mathbf v}^b = \\mathbf f(\\mathbf v^b, \\mathbf u)
+
+(eq. 5.75 written with the body velocities as state, which is exact; with local-frame
+velocities as state the literal form of eq. 5.75 omits the rotation term ``omega x v``.)
+
+All windows (and, in the search, all candidate models) form one array ``(..., n_windows, 6)``
+integrated by one fixed-step RK4 loop over time (eqs. 5.70, 5.71); the thesis's two-step method
+(body velocities first, then the pose by explicit Euler, eq. 5.74) is there for comparison, and
+:func:`evaluate_reference` integrates one ``solve_ivp`` per window as the thesis did.
+Errors per window: position ``eps_p`` (eq. 5.76) and heading ``eps_h``; their RMS over windows
+``s_p(t)``, ``s_h(t)`` (eqs. 5.77, 5.78) at the end of the window are ``pos_err_5s_m`` and
+``yaw_err_5s_deg``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from groundfloor.errors import InputError
+from groundfloor.types import BodyStates
+from identification.preprocessing.trajectory import gap_threshold_s
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Prediction windows of several runs, sampled on one relative time grid.
+
+    Attributes
+    ----------
+    run : (W,) index of the run of each window; ``t0`` (W,) start time (a sample time).
+    x0 : (W, 6) initial ``[x, y, psi, vx, vy, omega]`` from the data.
+    t_rel : (n,) relative times ``0, dt, ..., window_s``.
+    u_half : (W, 2n - 1, 2) inputs at ``t_rel`` and the midpoints between (for RK4).
+    pose_truth : (W, n, 3) ``[x, y, yaw]`` of the data at ``t0 + t_rel``.
+    """
+
+    run: np.ndarray
+    t0: np.ndarray
+    x0: np.ndarray
+    t_rel: np.ndarray
+    u_half: np.ndarray
+    pose_truth: np.ndarray
+    run_names: tuple[str, ...] = ()
+
+    @property
+    def n_windows(self) -> int:
+        """Number of windows."""
+        return len(self.t0)
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    """Multi-step prediction errors of one model (thesis 5.3.8, figs. 5.11 and 7.8)."""
+
+    t_rel: np.ndarray  # (n,)
+    s_p: np.ndarray  # (n,) RMS position error over windows, m (eq. 5.77)
+    s_h: np.ndarray  # (n,) RMS heading error over windows, rad (eq. 5.78)
+    eps_p: np.ndarray  # (W, n) position error per window, m (eq. 5.76)
+    eps_h: np.ndarray  # (W, n) signed heading error per window, rad
+    method: str
+    name: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_windows(self) -> int:
+        """Number of windows."""
+        return self.eps_p.shape[0]
+
+    @property
+    def pos_err_5s_m(self) -> float:
+        """RMS position error at the end of the windows, m."""
+        return float(self.s_p[-1])
+
+    @property
+    def yaw_err_5s_deg(self) -> float:
+        """RMS heading error at the end of the windows, degrees."""
+        return float(np.degrees(self.s_h[-1]))
+
+    def summary(self) -> dict:
+        """Return the INTERFACES.md keys ``pos_err_5s_m``, ``yaw_err_5s_deg``, ``n_windows``."""
+        return {"pos_err_5s_m": self.pos_err_5s_m, "yaw_err_5s_deg": self.yaw_err_5s_deg,
+                "n_windows": int(self.n_windows)}
+
+
+class PoseDependentDynamics:
+    """Adapter for dynamics that need the full state and time, e.g. the simulator's truth.
+
+    ``f6(x6, u, t) -> (..., 3)`` with ``x6 = [x, y, psi, vx, vy, omega]``; ``t`` is the
+    absolute time of the data minus ``t_offset``.
+    """
+
+    uses_pose = True
+    kinematic = False
+
+    def __init__(self, f6, name: str = "oracle", t_offset: float = 0.0):
+        self.f6, self.name, self.t_offset = f6, name, t_offset
+
+    def f_full(self, x6: np.ndarray, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Return body accelerations ``(..., 3)``."""
+        return self.f6(x6, u, t - self.t_offset)
+
+
+def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: float = 0.5, dt: float = 0.02,
+                 names: Sequence[str] | None = None, max_gap_s: float | None = None) -> Windows:
+    """Return the windows of ``window_s`` with ``overlap`` over all runs (thesis 5.3.8).
+
+    Windows start at the data sample nearest to every ``window_s * (1 - overlap)``; windows
+    that cross the end of a run or a data gap longer than ``max_gap_s`` are left out. The
+    default gap is the data's own, per run: :func:`identification.preprocessing.trajectory.gap_threshold_s`
+    (``max(0.5 s, 10 x`` the median interval), so 10 Hz poses with a 0.5 s hole keep their windows).
+
+    Raises
+    ------
+    InputError
+        If no run is long enough for a single window.
+    """
+    names = tuple(names) if names is not None else tuple(f"#{i}" for i in range(len(states)))
+    if not 0 <= overlap < 1:
+        raise InputError(f"overlap={overlap}: must be in [0, 1)")
+    n = int(round(window_s / dt))
+    t_rel = np.arange(n + 1) * dt
+    t_half = np.arange(2 * n + 1) * (dt / 2)
+    runs, t0s, x0s, us, truths = [], [], [], [], []
+    for i, st in enumerate(states):
+        t = np.asarray(st.t, dtype=float)
+        if len(t) < 2 or t[-1] - t[0] < window_s:
+            continue
+        nominal = np.arange(t[0], t[-1] - window_s + 1e-9, window_s * (1 - overlap))
+        k = np.clip(np.searchsorted(t, nominal), 0, len(t) - 1)
+        k = np.unique(k[t[k] + window_s <= t[-1] + 1e-9])
+        gap_s = gap_threshold_s(t) if max_gap_s is None else max_gap_s
+        big_gap = np.concatenate([[0], np.cumsum(np.diff(t) > gap_s)])
+        k_end = np.searchsorted(t, t[k] + window_s)
+        k = k[big_gap[np.minimum(k_end, len(t) - 1)] == big_gap[k]]
+        if not len(k):
+            continue
+        tq = t[k][:, None] - t[0] + t_half[None, :]  # relative to run start: keeps float precision
+        tr = t - t[0]
+        us.append(np.stack([np.interp(tq, tr, st.u1), np.interp(tq, tr, st.u2)], axis=-1))
+        tq = tq[:, ::2]
+        truths.append(np.stack([np.interp(tq, tr, st.x), np.interp(tq, tr, st.y), np.interp(tq, tr, st.yaw)], -1))
+        x0s.append(np.column_stack([st.x[k], st.y[k], st.yaw[k], st.vx[k], st.vy[k], st.omega[k]]))
+        runs.append(np.full(len(k), i))
+        t0s.append(t[k])
+    if not t0s:
+        raise InputError(f"runs {', '.join(names)}: none is longer than one {window_s:g} s window")
+    return Windows(run=np.concatenate(runs), t0=np.concatenate(t0s), x0=np.vstack(x0s), t_rel=t_rel,
+                   u_half=np.concatenate(us), pose_truth=np.concatenate(truths), run_names=names)
+
+
+def _body_rate(model, s: np.ndarray, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Return ``d v_body / dt`` ``(..., 3)`` of any supported model at states ``s (..., 6)``."""
+    if getattr(model, "kinematic", False):
+        return np.zeros(s.shape[:-1] + (3,))
+    if getattr(model, "uses_pose", False):
+        return model.f_full(s, u, t)
+    return model.f(s[..., 3:], u)
+
+
+def _pose_rate(s: np.ndarray, v_body: np.ndarray) -> np.ndarray:
+    """Return ``[x_dot, y_dot, psi_dot]`` in the local frame (eq. 5.75, kinematic part)."""
+    c, sn = np.cos(s[..., 2]), np.sin(s[..., 2])
+    vx, vy, om = v_body[..., 0], v_body[..., 1], v_body[..., 2]
+    return np.stack([vx * c - vy * sn, vx * sn + vy * c, om], axis=-1)
+
+
+def _velocities(model, s: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Return the body velocities driving the pose: the state's, or a kinematic model's ``velocities``."""
+    return model.velocities(s[..., 3:], u) if getattr(model, "kinematic", False) else s[..., 3:]
+
+
+def rollout(model, windows: Windows, method: str = "rk4", batch_shape: tuple[int, ...] = ()) -> np.ndarray:
+    """Return predicted states ``(*batch_shape, W, n, 6)`` of all windows integrated together.
+
+    ``method="rk4"`` integrates the combined ODE of eq. 5.75 with classical RK4 (eqs. 5.70,
+    5.71); ``"euler2"`` is the thesis's two-step method: body velocities by RK4 on their own,
+    then the pose by explicit Euler with the current heading (eqs. 5.72 to 5.74).
+    ``batch_shape`` lets a model with stacked coefficients predict for many models at once.
+    """
+    if method not in ("rk4", "euler2"):
+        raise InputError(f"method {method!r}: expected 'rk4' or 'euler2'")
+    dt = windows.t_rel[1] - windows.t_rel[0]
+    n = len(windows.t_rel)
+    s = np.broadcast_to(windows.x0, batch_shape + windows.x0.shape).copy()
+    if getattr(model, "kinematic", False):
+        s[..., 3:] = _velocities(model, s, windows.u_half[:, 0])
+    out = np.empty(s.shape[:-1] + (n, 6))
+    out[..., 0, :] = s
+    with np.errstate(over="ignore", invalid="ignore"):
+        for i in range(n - 1):
+            u0, um, u1 = (windows.u_half[:, 2 * i + j] for j in range(3))
+            t = windows.t0 + windows.t_rel[i]
+            if method == "rk4":
+                def g(x, u, tt):
+                    return np.concatenate([_pose_rate(x, _velocities(model, x, u)), _body_rate(model, x, u, tt)], -1)
+
+                k1 = g(s, u0, t)
+                k2 = g(s + dt / 2 * k1, um, t + dt / 2)
+                k3 = g(s + dt / 2 * k2, um, t + dt / 2)
+                k4 = g(s + dt * k3, u1, t + dt)
+                s = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            else:
+                pose_next = s[..., :3] + dt * _pose_rate(s, _velocities(model, s, u0))
+                v = s[..., 3:]
+                k1 = _body_rate(model, s, u0, t)
+                k2 = _body_rate(model, np.concatenate([s[..., :3], v + dt / 2 * k1], -1), um, t + dt / 2)
+                k3 = _body_rate(model, np.concatenate([s[..., :3], v + dt / 2 * k2], -1), um, t + dt / 2)
+                k4 = _body_rate(model, np.concatenate([s[..., :3], v + dt * k3], -1), u1, t + dt)
+                s = np.concatenate([pose_next, v + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)], -1)
+            if getattr(model, "kinematic", False):
+                s[..., 3:] = _velocities(model, s, u1)
+            out[..., i + 1, :] = s
+    return out
+
+
+def errors_from_rollout(pred: np.ndarray, windows: Windows) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``eps_p`` and signed ``eps_h`` ``(..., W, n)``; diverged predictions give ``inf``."""
+    d = pred[..., :3] - windows.pose_truth
+    with np.errstate(invalid="ignore"):
+        eps_p = np.hypot(d[..., 0], d[..., 1])
+        eps_h = (d[..., 2] + np.pi) % (2 * np.pi) - np.pi
+    eps_p = np.where(np.isfinite(eps_p), eps_p, np.inf)
+    eps_h = np.where(np.isfinite(eps_h), eps_h, np.inf)
+    return eps_p, eps_h
+
+
+def rms_over_windows(eps: np.ndarray) -> np.ndarray:
+    """Return ``sqrt(mean(eps^2))`` over the window axis (-2): eqs. 5.77, 5.78."""
+    with np.errstate(over="ignore"):
+        return np.sqrt(np.mean(np.square(eps), axis=-2))
+
+
+def evaluate_model(model, states: Sequence[BodyStates] | Windows, method: str = "rk4", names=None,
+                   window_s: float = 5.0, overlap: float = 0.5, dt: float = 0.02, name: str = "") -> EvaluationResult:
+    """Return the multi-step prediction errors of ``model`` on ``states`` (thesis 5.3.8).
+
+    ``model`` is anything with ``f(x, u)`` (a :class:`~identification.sindy.model.SindyModel`, a
+    constant-velocity model), a kinematic model (``kinematic = True`` and ``velocities(x, u)``),
+    or a :class:`PoseDependentDynamics`. A model with ``check_envelope`` warns when the test
+    data leave its training envelope.
+    """
+    windows = states if isinstance(states, Windows) else make_windows(states, window_s, overlap, dt, names)
+    if hasattr(model, "check_envelope") and not isinstance(states, Windows):
+        model.check_envelope(np.vstack([st.state for st in states]), np.vstack([st.inputs for st in states]),
+                             name="test runs")
+    pred = rollout(model, windows, method)
+    eps_p, eps_h = errors_from_rollout(pred, windows)
+    return EvaluationResult(t_rel=windows.t_rel, s_p=rms_over_windows(eps_p), s_h=rms_over_windows(eps_h),
+                            eps_p=eps_p, eps_h=eps_h, method=method, name=name or getattr(model, "name", ""))
+
+
+def evaluate_reference(model, states: Sequence[BodyStates], names=None, window_s: float = 5.0,
+                       overlap: float = 0.5, dt: float = 0.02, rtol: float = 1e-8,
+                       atol: float = 1e-10) -> EvaluationResult:
+    """Return the same errors as :func:`evaluate_model` with one ``solve_ivp`` (RK45) per window.
+
+    This is the thesis's way (section 5.3.7, adaptive Dormand-Prince per window), kept as the
+    reference the batched integration is checked and timed against. Same windows, same linear
+    input interpolation, same combined ODE.
+    """
+    from scipy.integrate import solve_ivp
+
+    windows = make_windows(states, window_s, overlap, dt, names)
+    n = len(windows.t_rel)
+    pred = np.empty((windows.n_windows, n, 6))
+    for w in range(windows.n_windows):  # deliberately one solve per window: the reference
+        st = states[windows.run[w]]
+        t_run = np.asarray(st.t) - st.t[0]
+        t0 = windows.t0[w] - st.t[0]
+
+        def rhs(tt, s, st=st, t_run=t_run, t0=t0):
+            u = np.array([np.interp(t0 + tt, t_run, st.u1), np.interp(t0 + tt, t_run, st.u2)])
+            v = _velocities(model, s, u)
+            return np.concatenate([_pose_rate(s, v), _body_rate(model, s, u, windows.t0[w] + tt)])
+
+        sol = solve_ivp(rhs, (0.0, windows.t_rel[-1]), windows.x0[w], t_eval=windows.t_rel, rtol=rtol,
+                        atol=atol, method="RK45")
+        pred[w, : sol.y.shape[1]] = sol.y.T
+        pred[w, sol.y.shape[1]:] = np.nan
+    eps_p, eps_h = errors_from_rollout(pred, windows)
+    return EvaluationResult(t_rel=windows.t_rel, s_p=rms_over_windows(eps_p), s_h=rms_over_windows(eps_h),
+                            eps_p=eps_p, eps_h=eps_h, method="solve_ivp", name=getattr(model, "name", ""))
+
+
+def plot_error_curves(results: Sequence[EvaluationResult], path=None, stacked: bool = True):
+    """Return (and save) figs. 5.11 / 7.8: stacked per-window errors and ``s_p(t)``, ``s_h(t)``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_p, ax_h) = plt.subplots(1, 2, figsize=(11, 4))
+    for i, r in enumerate(results):
+        color = f"C{i % 10}"
+        if stacked and len(results) == 1:
+            ax_p.plot(r.t_rel, r.eps_p[np.isfinite(r.eps_p).all(1)].T, color="0.75", lw=0.5)
+            ax_h.plot(r.t_rel, np.degrees(np.abs(r.eps_h[np.isfinite(r.eps_h).all(1)])).T, color="0.75", lw=0.5)
+        label = f"{r.name or r.method}: {100 * r.pos_err_5s_m:.1f} cm, {r.yaw_err_5s_deg:.2f} deg"
+        ax_p.plot(r.t_rel, r.s_p, color=color, lw=2, label=label)
+        ax_h.plot(r.t_rel, np.degrees(r.s_h), color=color, lw=2)
+    ax_p.set(xlabel="integration time [s]", ylabel="position error [m]", title="s_p(t), eq. 5.77")
+    ax_h.set(xlabel="integration time [s]", ylabel="heading error [deg]", title="s_h(t), eq. 5.78")
+    ax_p.legend(fontsize=8)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def evaluate_on_runs(models: dict, runs, smoothing: float, methods=("rk4",)) -> dict[str, dict[str, EvaluationResult]]:
+    """Return ``{model name: {method: EvaluationResult}}`` on the gap-free segments of ``runs``.
+
+    ``runs`` are :class:`~groundfloor.types.TrajectoryRun` (the test runs); their body
+    states are computed with smoothing ``smoothing`` (the model's ``s``), so every model sees
+    the same windows.
+    """
+    from identification.sindy.search import states_of_runs
+
+    segs, names, _ = states_of_runs(runs, smoothing)
+    windows = make_windows(segs, names=names)
+    out = {}
+    for name, model in models.items():
+        if hasattr(model, "check_envelope"):
+            model.check_envelope(np.vstack([s.state for s in segs]), np.vstack([s.inputs for s in segs]),
+                                 name=f"test runs ({name})")
+        out[name] = {m: evaluate_model(model, windows, method=m, name=name) for m in methods}
+    return out

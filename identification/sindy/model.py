@@ -1,0 +1,293 @@
+"""The identified SINDy model as an object and as a self-describing JSON artefact.
+
+:class:`SindyModel` holds the library and the coefficients ``Xi`` of eq. 5.53 and evaluates
+the body dynamics ``x_dot = Theta(x, u) Xi`` with its analytic Jacobians, vectorised over any
+leading axes (the EKF and the factor graph call these at every step). The JSON file records
+everything needed to rebuild it and to judge where it may be trusted: feature names,
+coefficients per equation, library, hyperparameters ``s, tau, alpha, T``, the envelope of
+states and inputs seen in training, the package version and a format version.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from groundfloor.errors import InputError
+from identification.sindy.library import (
+    INPUT_NAMES,
+    STATE_NAMES,
+    VARIABLE_NAMES,
+    FeatureLibrary,
+    make_library,
+    parse_term,
+)
+
+log = logging.getLogger(__name__)
+
+FORMAT = "sindy-ekf-model"
+FORMAT_VERSION = 1
+
+
+class EnvelopeWarning(UserWarning):
+    """States or inputs outside the range the model was trained on."""
+
+
+def envelope_from_data(x_body: np.ndarray, u: np.ndarray) -> dict[str, list[float]]:
+    """Return the per-variable ``[min, max]`` of training states ``(n, 3)`` and inputs ``(n, 2)``."""
+    z = np.column_stack([x_body, u])
+    return {name: [float(np.nanmin(z[:, i])), float(np.nanmax(z[:, i]))] for i, name in enumerate(VARIABLE_NAMES)}
+
+
+@dataclass
+class SindyModel:
+    """Identified body dynamics ``[vx, vy, omega]_dot = f(x, u)`` (eqs. 5.53, 5.63, 5.66).
+
+    Parameters
+    ----------
+    library : FeatureLibrary
+        Candidate functions ``Theta`` on ``[vx, vy, omega, u1, u2]``.
+    coef : ndarray, shape (3, k)
+        ``Xi^T``: one row per equation (``vx``, ``vy``, ``omega``), one column per feature.
+    hyperparameters : dict
+        ``s``, ``tau``, ``alpha``, ``T`` the model was fitted with.
+    envelope : dict
+        Variable name to ``[min, max]`` seen in training.
+    training : dict
+        Free-form facts about the fit (condition number, number of windows, runs).
+    """
+
+    library: FeatureLibrary
+    coef: np.ndarray
+    hyperparameters: dict = field(default_factory=dict)
+    envelope: dict = field(default_factory=dict)
+    training: dict = field(default_factory=dict)
+    version: str = ""
+    kinematic = False
+
+    def __post_init__(self):
+        self.coef = np.asarray(self.coef, dtype=float)
+        if self.coef.shape != (len(STATE_NAMES), self.library.n_features):
+            raise InputError(f"model coefficients: shape {self.coef.shape}, expected "
+                             f"{(len(STATE_NAMES), self.library.n_features)} for library {self.library.name!r}")
+        if not self.version:
+            from groundfloor import __version__
+
+            self.version = __version__
+
+    # dynamics -------------------------------------------------------------------------------
+    def f(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return body accelerations ``[vx_dot, vy_dot, omega_dot]`` ``(..., 3)``. Implements eq. 5.53."""
+        return self.library.transform(np.concatenate(_stack_xu(x, u), axis=-1)) @ self.coef.T
+
+    def f_and_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return ``f (..., 3)``, ``J_f_x (..., 3, 3)`` and ``J_f_u (..., 3, 2)`` in one pass."""
+        theta, d_theta = self.library.transform_with_jacobian(np.concatenate(_stack_xu(x, u), axis=-1))
+        J_f_z = np.einsum("...vk,ek->...ev", d_theta, self.coef)
+        return theta @ self.coef.T, J_f_z[..., :3], J_f_z[..., 3:]
+
+    def J_f_x(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return the analytic Jacobian ``d f / d x`` ``(..., 3, 3)`` (product rule on the features)."""
+        return self.f_and_jacobians(x, u)[1]
+
+    def J_f_u(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return the analytic Jacobian ``d f / d u`` ``(..., 3, 2)``."""
+        return self.f_and_jacobians(x, u)[2]
+
+    # description ----------------------------------------------------------------------------
+    def active_terms(self, tol: float = 0.0) -> dict[str, dict[str, float]]:
+        """Return ``{equation: {feature name: coefficient}}`` of the non-zero terms."""
+        return {eq: {n: float(c) for n, c in zip(self.library.feature_names, row) if abs(c) > tol}
+                for eq, row in zip(STATE_NAMES, self.coef)}
+
+    @property
+    def complexity(self) -> int:
+        """Number of active terms over all equations (the thesis's "model complexity")."""
+        return int(np.count_nonzero(self.coef))
+
+    def equations(self, precision: int = 3) -> str:
+        """Return the model as text equations in the style of eqs. 7.4 to 7.9."""
+        lines = []
+        for eq, terms in self.active_terms().items():
+            rhs = ""
+            for name, c in terms.items():
+                sign = "-" if c < 0 else "+"
+                rhs += f" {sign} {abs(c):.{precision}f}" + ("" if name == "1" else f" {name}")
+            rhs = rhs.strip()
+            rhs = rhs[2:] if rhs.startswith("+ ") else ("-" + rhs[2:] if rhs.startswith("- ") else rhs)
+            lines.append(f"d{eq}/dt = {rhs or f'{0:.{precision}f}'}")
+        return "\n".join(lines)
+
+    # envelope -------------------------------------------------------------------------------
+    def check_envelope(self, x: np.ndarray, u: np.ndarray, margin: float = 0.1, name: str = "data") -> float:
+        """Return the fraction of samples outside the training envelope; warn naming the variables.
+
+        The envelope is widened by ``margin`` times its width on both sides before testing.
+        Issues an :class:`EnvelopeWarning` when any sample lies outside.
+        """
+        if not self.envelope:
+            return 0.0
+        z = np.concatenate(_stack_xu(x, u), axis=-1).reshape(-1, len(VARIABLE_NAMES))
+        lo = np.array([self.envelope[v][0] for v in VARIABLE_NAMES])
+        hi = np.array([self.envelope[v][1] for v in VARIABLE_NAMES])
+        pad = margin * (hi - lo)
+        out = (z < lo - pad) | (z > hi + pad)
+        frac = float(out.any(axis=1).mean()) if len(z) else 0.0
+        if frac > 0:
+            worst = [f"{v} ({100 * out[:, i].mean():.1f} %)" for i, v in enumerate(VARIABLE_NAMES) if out[:, i].any()]
+            msg = (f"{name}: {100 * frac:.1f} % of samples outside the model's training envelope: "
+                   + ", ".join(worst))
+            log.warning(msg)
+            warnings.warn(msg, EnvelopeWarning, stacklevel=2)
+        return frac
+
+    # files ----------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Return the JSON-ready description of the model."""
+        return {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "package_version": self.version,
+            "library": self.library.params,
+            "state_names": list(STATE_NAMES),
+            "input_names": list(INPUT_NAMES),
+            "feature_names": list(self.library.feature_names),
+            "coefficients": {eq: [float(c) for c in row] for eq, row in zip(STATE_NAMES, self.coef)},
+            "equations": self.equations().splitlines(),
+            "hyperparameters": self.hyperparameters,
+            "envelope": self.envelope,
+            "training": self.training,
+        }
+
+    def to_json(self, path: str | Path) -> Path:
+        """Write the model to ``path`` atomically; return the path."""
+        from groundfloor.files import atomic_write_json
+
+        return atomic_write_json(path, self.to_dict())
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "model") -> "SindyModel":
+        """Return the model described by ``d``; raise InputError naming what does not fit."""
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            got = d.get("format") if isinstance(d, dict) else type(d).__name__
+            raise InputError(f"{source}: not a sindy-ekf model file (format {got!r}, expected {FORMAT!r})")
+        if d.get("format_version") != FORMAT_VERSION:
+            raise InputError(f"{source}: model format_version {d.get('format_version')!r} not supported "
+                             f"(this is sindy-ekf reading version {FORMAT_VERSION})")
+        lib_name = (d.get("library") or {}).get("name")
+        try:
+            library = make_library(lib_name)
+        except InputError:
+            raise InputError(f"{source}: library {lib_name!r} is unknown to this version of sindy-ekf") from None
+        names = d.get("feature_names")
+        if list(names or []) != list(library.feature_names):
+            bad = next((f"{a!r} != {b!r}" for a, b in zip(names or [], library.feature_names) if a != b),
+                       f"{len(names or [])} features, expected {library.n_features}")
+            raise InputError(f"{source}: feature_names do not match library {lib_name!r}: {bad}")
+        try:
+            coef = np.array([d["coefficients"][eq] for eq in STATE_NAMES], dtype=float)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{source}: key coefficients is missing or malformed ({exc})") from None
+        if not np.all(np.isfinite(coef)):
+            raise InputError(f"{source}: key coefficients holds non-finite values")
+        from groundfloor import __version__
+
+        if str(d.get("package_version", "")).split(".")[:2] != __version__.split(".")[:2]:
+            log.warning("%s: written by sindy-ekf %s, read by %s", source, d.get("package_version"), __version__)
+        return cls(library=library, coef=coef, hyperparameters=dict(d.get("hyperparameters") or {}),
+                   envelope=dict(d.get("envelope") or {}), training=dict(d.get("training") or {}),
+                   version=str(d.get("package_version", "")))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SindyModel":
+        """Return the model stored in the JSON file ``path``.
+
+        Raises
+        ------
+        InputError
+            If the file is missing, not JSON, not a model file, of another format version, of an
+            unknown library, or its feature names differ from that library's.
+        """
+        return cls.from_dict(read_model_json(path), source=str(path))
+
+
+def _stack_xu(x, u) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``x[..., :3]`` and ``u[..., :2]`` broadcast to a common leading shape."""
+    x = np.asarray(x, dtype=float)[..., :3]
+    u = np.asarray(u, dtype=float)[..., :2]
+    lead = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+    return np.broadcast_to(x, lead + (3,)), np.broadcast_to(u, lead + (2,))
+
+
+def model_from_terms(terms: dict[str, dict[str, float]], library: str | FeatureLibrary = "poly3", **kw) -> SindyModel:
+    """Return a model with the given ``{equation: {term: coefficient}}`` (e.g. ``true_terms()``).
+
+    Terms are matched by meaning (:func:`~identification.sindy.library.parse_term`), so the order of
+    factors in a name does not matter.
+
+    Raises
+    ------
+    InputError
+        If a term is not in the library or an equation is not ``vx``, ``vy`` or ``omega``.
+    """
+    lib = make_library(library) if isinstance(library, str) else library
+    index = {a: j for j, a in enumerate(lib.atoms)}
+    coef = np.zeros((3, lib.n_features))
+    for eq, row in terms.items():
+        if eq not in STATE_NAMES:
+            raise InputError(f"terms: unknown equation {eq!r} (expected one of {', '.join(STATE_NAMES)})")
+        for name, c in row.items():
+            j = index.get(parse_term(name))
+            if j is None:
+                raise InputError(f"terms: {eq}: term {name!r} is not in library {lib.name!r}")
+            coef[STATE_NAMES.index(eq), j] = c
+    return SindyModel(library=lib, coef=coef, **kw)
+
+
+def term_prevalence(models: list[SindyModel]) -> dict[str, dict[str, float]]:
+    """Return ``{equation: {term: fraction of models using it}}``, most common first (fig. 7.11)."""
+    lib = models[0].library
+    used = np.stack([m.coef != 0 for m in models])  # (n_models, 3, k)
+    frac = used.mean(axis=0)
+    out = {}
+    for i, eq in enumerate(STATE_NAMES):
+        order = np.argsort(-frac[i], kind="stable")
+        out[eq] = {lib.feature_names[j]: float(frac[i, j]) for j in order if frac[i, j] > 0}
+    return out
+
+
+def plot_term_prevalence(models: list[SindyModel], path: str | Path | None = None, top: int = 15):
+    """Return (and save to ``path``) a bar chart of the ``top`` most prevalent terms per equation (fig. 7.11)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    prev = term_prevalence(models)
+    eqs = [eq for eq in STATE_NAMES if prev[eq]]
+    fig, axes = plt.subplots(1, max(len(eqs), 1), figsize=(5 * max(len(eqs), 1), 4.5), squeeze=False)
+    for ax, eq in zip(axes[0], eqs):
+        items = list(prev[eq].items())[:top]
+        ax.barh([n for n, _ in items][::-1], [100 * f for _, f in items][::-1])
+        ax.set_xlabel("models using the term [%]")
+        ax.set_title(f"d{eq}/dt ({len(models)} models)")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def read_model_json(path: str | Path):
+    """Return the parsed JSON of the model file ``path``; InputError if missing or not JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path}: model file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a JSON model file ({exc})") from None

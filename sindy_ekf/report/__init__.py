@@ -1,0 +1,1 @@
+"""The HTML report: the chain behind it, its sections and its figures."""

@@ -1,0 +1,1 @@
+"""Tests, mirroring the packages; shared builders live in :mod:`tests.support`."""

@@ -1,0 +1,245 @@
+"""Trajectory campaigns (data contract part 2): round trip, the real Warthog data, bad input."""
+
+from __future__ import annotations
+
+import csv
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from groundfloor.errors import InputError
+from groundfloor.types import BodyStates, InputSeries, PoseTrack, TrajectoryRun
+from identification.preprocessing.trajectory import (
+    gap_segments,
+    quaternion_from_yaw_pitch,
+    read_trajectory_campaign,
+    write_trajectory_campaign,
+)
+
+T0_UTC = 1722278818.878209352
+
+
+def _make_run(rng, name="r1", split="train", n=200, rate_hz=10.0, full=True) -> TrajectoryRun:
+    """Return a run on UTC stamps with irregular pose and input timing."""
+    t = T0_UTC + np.cumsum(rng.uniform(0.5, 1.5, n)) / rate_hz
+    yaw = np.cumsum(rng.normal(0.0, 0.2, n))  # unwrapped, leaves [-pi, pi]
+    nan = np.full(n, np.nan)
+    cols = dict(t=t, x=rng.normal(size=n), y=rng.normal(size=n), yaw=yaw,
+                z=rng.normal(size=n) if full else nan, pitch=rng.normal(0, 0.05, n) if full else nan,
+                x_std=rng.uniform(1e-5, 1e-4, n) if full else nan, y_std=nan, z_std=nan,
+                pitch_std=nan, yaw_std=rng.uniform(1e-4, 1e-3, n) if full else nan)
+    m = 3 * n
+    t_u = np.sort(rng.uniform(t[0] - 0.5, t[-1] + 0.5, m))
+    return TrajectoryRun(name=name, split=split, poses=PoseTrack(**cols),
+                         inputs=InputSeries(t=t_u, u1=rng.uniform(-1, 1, m), u2=rng.uniform(-1, 1, m)))
+
+
+def _write_csv(path: Path, header: list[str], rows) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def _campaign(root: Path, t_pose, yaw=None, t_input=None, meta=None, pose_header=None, extra=None) -> Path:
+    """Write a one-run campaign by hand (independent of the writer under test); return root."""
+    t_pose = np.asarray(t_pose, dtype=float)
+    yaw = np.zeros_like(t_pose) if yaw is None else yaw
+    t_input = t_pose if t_input is None else np.asarray(t_input, dtype=float)
+    meta = meta or {"name": "hand", "kind": "trajectory", "runs": [{"name": "a", "split": "test"}]}
+    (root).mkdir(parents=True, exist_ok=True)
+    (root / "campaign.yaml").write_text(yaml.safe_dump(meta) if isinstance(meta, dict) else meta)
+    header = pose_header or ["t", "x", "y", "yaw"]
+    rows = np.column_stack([t_pose, 0.1 * np.arange(t_pose.size), np.zeros_like(t_pose), yaw])
+    if extra is not None:
+        rows = np.column_stack([rows, extra])
+    _write_csv(root / "runs" / "a" / "poses.csv", header, [[repr(float(v)) for v in r] for r in rows])
+    _write_csv(root / "runs" / "a" / "inputs.csv", ["t", "u1", "u2"],
+               [[repr(float(v)), "0.5", "0.1"] for v in t_input])
+    return root
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def test_round_trip_keeps_every_column_and_writes_tum_for_evo(tmp_path):
+    rng = np.random.default_rng(0)
+    runs = [_make_run(rng, "r1", "train"), _make_run(rng, "r2", "test", full=False)]
+    n = runs[0].poses.t.size
+    states = BodyStates(t=runs[0].poses.t, vx=rng.normal(size=n), vy=rng.normal(size=n),
+                        omega=rng.normal(size=n), u1=rng.normal(size=n), u2=rng.normal(size=n),
+                        x=runs[0].poses.x, y=runs[0].poses.y, yaw=runs[0].poses.yaw)
+    out = write_trajectory_campaign(tmp_path / "c", "round", [(runs[0], states), (runs[1], None)],
+                                    source="unit test")
+    camp = read_trajectory_campaign(out)
+    assert camp.name == "round" and [r.name for r in camp.runs] == ["r1", "r2"]
+    assert [r.split for r in camp.runs] == ["train", "test"]
+    for a, b in zip(runs, camp.runs):
+        assert b.repairs == {}
+        np.testing.assert_allclose(b.poses.t, a.poses.t, rtol=0, atol=1e-9)  # ns on UTC seconds
+        for c in ("x", "y", "z", "pitch", "yaw", "x_std", "y_std", "z_std", "pitch_std", "yaw_std"):
+            np.testing.assert_array_equal(getattr(b.poses, c), getattr(a.poses, c), err_msg=c)
+        np.testing.assert_array_equal(b.inputs.u1, a.inputs.u1)
+        np.testing.assert_allclose(b.inputs.t, a.inputs.t, rtol=0, atol=1e-9)
+    back = np.genfromtxt(out / "runs" / "r1" / "states.csv", delimiter=",", names=True)
+    np.testing.assert_array_equal(back["omega"], states.omega)
+    assert not (out / "runs" / "r2" / "states.csv").exists()
+    assert yaml.safe_load((out / "campaign.yaml").read_text())["source"] == "unit test"
+
+    # TUM: evo reads it, and the quaternion is Rz(yaw) Ry(pitch) (checked against scipy)
+    from evo.tools import file_interface
+    from scipy.spatial.transform import Rotation
+
+    traj = file_interface.read_tum_trajectory_file(str(out / "runs" / "r1" / "poses.tum"))
+    np.testing.assert_allclose(traj.positions_xyz[:, 2], runs[0].poses.z, atol=1e-12)
+    q_wxyz = traj.orientations_quat_wxyz
+    R_ref = Rotation.from_euler("ZY", np.column_stack([runs[0].poses.yaw, runs[0].poses.pitch]))
+    R_got = Rotation.from_quat(q_wxyz[:, [1, 2, 3, 0]])
+    assert np.max((R_ref.inv() * R_got).magnitude()) < 1e-9
+    q = quaternion_from_yaw_pitch(np.array([0.3]), np.array([0.0]))
+    np.testing.assert_allclose(q, [[0, 0, np.sin(0.15), np.cos(0.15)]])
+    # unknown z and pitch are written as 0 so evo can read them
+    traj2 = file_interface.read_tum_trajectory_file(str(out / "runs" / "r2" / "poses.tum"))
+    assert np.all(traj2.positions_xyz[:, 2] == 0.0)
+
+
+def test_writer_refuses_non_empty_folder_and_leaves_it_intact(tmp_path):
+    rng = np.random.default_rng(1)
+    out = write_trajectory_campaign(tmp_path / "c", "x", [(_make_run(rng), None)])
+    before = (out / "runs" / "r1" / "poses.csv").read_text()
+    with pytest.raises(InputError, match="not empty"):
+        write_trajectory_campaign(out, "y", [(_make_run(rng), None)])
+    assert (out / "runs" / "r1" / "poses.csv").read_text() == before
+    write_trajectory_campaign(out, "y", [(_make_run(rng, "r9"), None)], force=True)
+    assert [r.name for r in read_trajectory_campaign(out).runs] == ["r9"]
+
+
+@pytest.mark.parametrize("campaign, n_train, test_run", [
+    ("warthog-drive-cmd", 7, "grass_2024_7_29_14h46s15_seg0"),
+    ("warthog-drive-wheels", 4, "grass_2024_7_29_14h46s15"),
+])
+def test_real_warthog_campaigns_read_as_the_files_say(shared_dir, campaign, n_train, test_run):
+    root = shared_dir / "data" / campaign
+    camp = read_trajectory_campaign(root)
+    assert camp.name == campaign
+    assert len(camp.split("train")) == n_train and [r.name for r in camp.split("test")] == [test_run]
+    for run in camp.runs:
+        # second, independent parse with the csv module
+        with open(root / "runs" / run.name / "poses.csv") as fh:
+            rows = list(csv.DictReader(fh))
+        assert run.poses.t.size == len(rows) and run.repairs == {}
+        np.testing.assert_array_equal(run.poses.x, [float(r["x"]) for r in rows])
+        np.testing.assert_array_equal(run.poses.pitch, [float(r["pitch"]) for r in rows])
+        assert np.all(np.isnan(run.poses.yaw_std))  # optional column absent
+        assert np.all(np.diff(run.poses.t) > 0) and np.all(np.diff(run.inputs.t) > 0)
+        assert np.max(np.abs(np.diff(run.poses.yaw))) < 1.0  # unwrapped
+        assert 0.09 < np.median(np.diff(run.poses.t)) < 0.16  # ICP at about 10 Hz, not 50 Hz
+        assert 0.049 < np.median(np.diff(run.inputs.t)) < 0.051
+        assert np.abs(run.inputs.u1).max() <= 1.1 and np.abs(run.inputs.u2).max() <= 1.1  # "about [-1, 1]"
+
+
+def test_wrapped_yaw_is_unwrapped_and_extra_columns_ignored(tmp_path):
+    t = np.arange(100) * 0.1
+    yaw_true = 1.5 * t  # 15 rad: more than two turns
+    wrapped = np.angle(np.exp(1j * yaw_true))
+    root = _campaign(tmp_path / "c", t, yaw=wrapped, pose_header=["t", "x", "y", "yaw", "speed"],
+                     extra=np.ones_like(t))
+    run = read_trajectory_campaign(root / "campaign.yaml").runs[0]
+    np.testing.assert_allclose(run.poses.yaw, yaw_true, atol=1e-12)
+    assert np.all(np.isnan(run.poses.z))
+
+
+# --------------------------------------------------------------------------------------------
+# bad input: one test per kind, each asserting the message or count names the culprit
+
+
+def test_poses_and_inputs_without_overlap_name_the_run(tmp_path):
+    t = np.arange(50) * 0.1
+    root = _campaign(tmp_path / "c", t, t_input=t + 100.0)
+    with pytest.raises(InputError, match=r"run a: poses .* do not overlap"):
+        read_trajectory_campaign(root)
+
+
+def test_ten_second_hole_is_counted_and_splits_segments(tmp_path, caplog):
+    t = np.concatenate([np.arange(100) * 0.1, 19.9 + np.arange(100) * 0.1])  # 10 s hole
+    root = _campaign(tmp_path / "c", t)
+    with caplog.at_level(logging.WARNING, logger="identification.preprocessing.trajectory"):
+        run = read_trajectory_campaign(root).runs[0]
+    assert run.repairs == {"gaps": 1}
+    assert "run a" in caplog.text and "gaps=1" in caplog.text
+    np.testing.assert_array_equal(gap_segments(run.poses.t), [[0, 100], [100, 200]])
+    # the trigger's skipped pulse (2 intervals at 50 Hz) is no gap
+    t50 = np.delete(np.arange(500) * 0.02, [150, 300])
+    assert gap_segments(t50).shape == (1, 2)
+
+
+def test_nan_rows_are_dropped_and_counted(tmp_path):
+    t = np.arange(60) * 0.1
+    yaw = np.zeros_like(t)
+    yaw[[5, 17, 40]] = np.nan
+    root = _campaign(tmp_path / "c", t, yaw=yaw)
+    run = read_trajectory_campaign(root).runs[0]
+    assert run.repairs == {"nan_pose_rows": 3}
+    assert run.poses.t.size == 57 and not np.any(np.isin(run.poses.t, t[[5, 17, 40]]))
+
+
+def test_duplicate_stamps_are_merged_and_counted(tmp_path):
+    t = np.arange(60) * 0.1
+    t_dup = np.insert(t, [10, 30], t[[10, 30]])
+    root = _campaign(tmp_path / "c", t_dup, t_input=np.insert(t, 7, t[7]))
+    run = read_trajectory_campaign(root).runs[0]
+    assert run.repairs == {"duplicate_pose_stamps": 2, "duplicate_input_stamps": 1}
+    np.testing.assert_array_equal(run.poses.t, t)
+    # x was 0.1 * row index: rows 10, 11 (same stamp) average to 1.05
+    assert run.poses.x[10] == pytest.approx(1.05)
+
+
+def test_stamps_going_backwards_name_file_and_row(tmp_path):
+    t = np.arange(60) * 0.1
+    t[20] = 1.0
+    root = _campaign(tmp_path / "c", t)
+    with pytest.raises(InputError, match=r"poses\.csv: stamps not in time order at row 22"):
+        read_trajectory_campaign(root)
+
+
+def test_missing_required_column_names_file_and_column(tmp_path):
+    root = _campaign(tmp_path / "c", np.arange(20) * 0.1, pose_header=["t", "x", "y", "heading"])
+    with pytest.raises(InputError, match=r"runs/a/poses\.csv: required column 'yaw' missing"):
+        read_trajectory_campaign(root)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("runs: [unclosed", r"campaign\.yaml: not valid YAML"),
+    ("- just\n- a list\n", r"campaign\.yaml: expected a mapping"),
+    ("kind: tracker\nruns: [{name: a, split: test}]\n", r"key 'kind' is 'tracker'"),
+    ("kind: trajectory\n", r"key 'runs' missing"),
+    ("kind: trajectory\nruns: [{name: a, split: validation}]\n", r"run a: key 'split' is 'validation'"),
+    ("kind: trajectory\nruns: [{name: a, split: test}, {name: b, split: train}]\n", r"run b: folder .* missing"),
+])
+def test_wrong_campaign_yaml_names_the_key(tmp_path, text, match):
+    root = _campaign(tmp_path / "c", np.arange(20) * 0.1, meta=text)
+    with pytest.raises(InputError, match=match):
+        read_trajectory_campaign(root)
+
+
+def test_missing_campaign_folder_or_inputs_file(tmp_path):
+    with pytest.raises(InputError, match="campaign folder missing"):
+        read_trajectory_campaign(tmp_path / "nope")
+    root = _campaign(tmp_path / "c", np.arange(20) * 0.1)
+    (root / "runs" / "a" / "inputs.csv").unlink()
+    with pytest.raises(InputError, match=r"runs/a/inputs\.csv: file missing"):
+        read_trajectory_campaign(root)
+
+
+def test_writer_refuses_runs_with_arrays_of_different_lengths(tmp_path):
+    from dataclasses import replace
+
+    run = _make_run(np.random.default_rng(2))
+    bad = replace(run, inputs=replace(run.inputs, u1=run.inputs.u1[:-1]))
+    with pytest.raises(InputError, match="run r1: input arrays differ in length"):
+        write_trajectory_campaign(tmp_path / "c", "x", [(bad, None)])
+    assert not (tmp_path / "c").exists()
