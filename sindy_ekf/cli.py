@@ -3,6 +3,8 @@
 No algorithm lives here. Each command is a module in :mod:`sindy_ekf.commands` with
 ``add_parser(subparsers)`` and ``run(args) -> int``. Bad input (``InputError``) ends with a
 one-line message on stderr and exit code 2; a traceback is shown only with ``--verbose``.
+Commands write figures only to files, so the command line sets matplotlib's backend once, to
+Agg (no display needed); the library never switches the backend of a notebook that imports it.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ import argparse
 import importlib
 import logging
 import sys
+
+import matplotlib
 
 from groundfloor import __version__
 from groundfloor.errors import InputError
@@ -55,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     from groundfloor import progress
 
     progress.enable(not quiet)
+    matplotlib.use("Agg")  # figures go to files; never open a window, even where a display exists
     try:
         return int(modules[args.command].run(args) or 0)
     except InputError as exc:

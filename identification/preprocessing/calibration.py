@@ -13,7 +13,7 @@ the measured agreement):
   (y along the rear axle, z the plane normal up, x = y cross z) and the prism lever arms.
 * :func:`calibrate`: both, as one :class:`Calibration`.
 
-Plots (``plot_network``, ``plot_body_frame``) are drawn only on request, with the Agg backend.
+Its figures (``plot_network``, ``plot_body_frame``) are in :mod:`identification.preprocessing.figures`.
 """
 
 from __future__ import annotations
@@ -448,89 +448,3 @@ def calibrate(survey: Survey, alpha: float = 0.001, strict: bool = False) -> Cal
     """
     return Calibration(transform=fit_transform(survey, alpha=alpha, strict=strict),
                        body=fit_body_frame(survey), prism_tracker=dict(survey.prism_tracker))
-
-
-# --------------------------------------------------------------------------------------------
-# Figures (drawn only on request)
-# --------------------------------------------------------------------------------------------
-
-def plot_network(survey: Survey, fit: TransformFit, exaggeration: float = 2e4, path=None):
-    """Return a top view of the network like thesis fig. 6.1, optionally saved to ``path``.
-
-    Shows the network points in the AT960 frame with their ids, the axes of both tracker frames
-    and the residual vectors ``x_at960 - (t + R x_ltd800)`` scaled by ``exaggeration``; a point
-    flagged by the blunder test is drawn in red.
-    """
-    from matplotlib.figure import (
-        Figure,  # Figure() needs no pyplot state: Agg by default
-    )
-
-    fig = Figure(figsize=(7, 6))
-    ax = fig.add_subplot()
-    p = np.array([survey.network_at960[i][:3] for i in fit.point_ids])
-    bad = np.array([i == fit.blunder_point for i in fit.point_ids])
-    ax.scatter(p[~bad, 0], p[~bad, 1], c="k", s=20, label="network point")
-    if bad.any():
-        ax.scatter(p[bad, 0], p[bad, 1], c="r", s=40, label="blunder")
-    r = fit.residuals_m * exaggeration
-    ax.quiver(p[:, 0], p[:, 1], r[:, 0], r[:, 1], angles="xy", scale_units="xy", scale=1.0,
-              color="tab:orange", label=f"residual x {exaggeration:g}")
-    for pid, q in zip(fit.point_ids, p):
-        ax.annotate(pid, q[:2], textcoords="offset points", xytext=(4, 4))
-    axis_len = 0.1 * np.ptp(p[:, :2]).max()
-    frames = {"AT960": (np.zeros(3), np.eye(3)),
-              "LTD800": (fit.t_at960_ltd800, fit.R_at960_ltd800)}
-    for name, (o, R) in frames.items():
-        for k, col in enumerate(("r", "g")):
-            ax.annotate("", o[:2] + axis_len * R[:2, k], o[:2],
-                        arrowprops=dict(arrowstyle="->", color=col, lw=2))
-        ax.annotate(name, o[:2], textcoords="offset points", xytext=(-10, -14))
-    ax.set_xlabel("x AT960 [m]")
-    ax.set_ylabel("y AT960 [m]")
-    ax.set_aspect("equal")
-    ax.legend(loc="best", fontsize="small")
-    ax.set_title(f"Network and tracker frames (s0^2 = {fit.variance_factor:.2f})")
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
-
-
-def plot_body_frame(survey: Survey, body: BodyFrameFit, path=None):
-    """Return a 3-D view like thesis fig. 7.1, optionally saved to ``path``.
-
-    Screw heads, fitted hub circles, the plane through the hub centres, the body axes and the
-    prisms, all in the body frame.
-    """
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(7, 6))
-    ax = fig.add_subplot(projection="3d")
-    phi = np.linspace(0.0, 2.0 * np.pi, 73)
-    for hub, c, nrm, r in zip(body.hub_names, body.hub_centres_survey, body.hub_normals_survey,
-                              body.hub_radii_m):
-        pts = body.body_from_survey(survey.wheel_hubs[hub][:, :3])
-        ax.scatter(*pts.T, c="k", s=8)
-        e1 = np.cross(nrm, [0.0, 0.0, 1.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(nrm, e1)
-        circle = c + r * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
-        ax.plot(*body.body_from_survey(circle).T, c="tab:blue")
-    centres = body.body_from_survey(body.hub_centres_survey)
-    ax.scatter(*centres.T, c="tab:blue", marker="x")
-    half = np.abs(centres[:, :2]).max(axis=0) * 1.2
-    gx, gy = np.meshgrid([-half[0], half[0]], [-half[1], half[1]])
-    ax.plot_surface(gx, gy, np.zeros_like(gx), alpha=0.15, color="tab:gray")
-    for k, col in enumerate(("r", "g", "b")):
-        ax.quiver(0, 0, 0, *(0.2 * np.eye(3)[k]), color=col)
-    for name, arm in body.lever_arms_body.items():
-        ax.scatter(*arm, c="tab:orange", s=40, marker="^")
-        ax.text(*arm, f" {name} prism")
-    span = np.vstack([centres, *body.lever_arms_body.values(), np.zeros(3)])
-    ax.set_box_aspect(np.ptp(span, axis=0))  # true proportions, as in fig. 7.1
-    ax.set_xlabel("x body [m]")
-    ax.set_ylabel("y body [m]")
-    ax.set_zlabel("z body [m]")
-    ax.set_title("Body frame from the wheel hubs")
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig

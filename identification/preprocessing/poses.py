@@ -251,37 +251,3 @@ def fit_poses(t, p_front_local, p_rear_local, lever_front_body, lever_rear_body,
     """
     return fit_poses_full(t, p_front_local, p_rear_local, lever_front_body, lever_rear_body,
                           std_front, std_rear, variance=variance).track
-
-
-def plot_poses(poses: PoseTrack, path_prefix=None):
-    """Return two figures: position and attitude components with their sigmas (figs. 7.2, 7.3).
-
-    Each component is drawn over time with its standard deviation in a panel below. Saved as
-    ``<path_prefix>_position.png`` and ``<path_prefix>_attitude.png`` when given.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = poses.t - poses.t[0]
-    figs = []
-    deg, arcsec = np.degrees(1.0), 3600.0 * np.degrees(1.0)
-    groups = (("position", [(k, getattr(poses, k), getattr(poses, f"{k}_std"), 1.0, "m", 1e3, "mm")
-                            for k in ("x", "y", "z")]),
-              ("attitude", [(k, getattr(poses, k), getattr(poses, f"{k}_std"), deg, "deg", arcsec, "arcsec")
-                            for k in ("pitch", "yaw")]))
-    for name, comps in groups:
-        fig, axes = plt.subplots(2, len(comps), sharex=True, figsize=(4 * len(comps), 5), squeeze=False)
-        for j, (label, val, std, k, unit, k_std, unit_std) in enumerate(comps):
-            axes[0, j].plot(t, val * k, lw=0.8)
-            axes[0, j].set_title(label)
-            axes[0, j].set_ylabel(f"{label} [{unit}]")
-            axes[1, j].plot(t, std * k_std, lw=0.8, color="C1")
-            axes[1, j].set_ylabel(f"sigma {label} [{unit_std}]")
-            axes[1, j].set_xlabel("time since start [s]")
-        fig.tight_layout()
-        if path_prefix is not None:
-            fig.savefig(f"{path_prefix}_{name}.png", dpi=120)
-        figs.append(fig)
-    return figs

@@ -9,7 +9,8 @@
 - turning-hub eccentricity model (5.2.3, eq. 5.25): :mod:`identification.preprocessing.hub`;
 - poses (5.2.4, eqs. 5.26 to 5.37): :mod:`identification.preprocessing.poses`;
 - body-frame states (5.3.5, eqs. 5.64 to 5.68): :mod:`identification.preprocessing.states`;
-- writing the trajectory campaign: :mod:`identification.preprocessing.trajectory`.
+- writing the trajectory campaign: :mod:`identification.preprocessing.trajectory`;
+- the figures of each step, on request: :mod:`identification.preprocessing.figures`.
 
 A run that cannot go on (a missing topic, no gaps, trackers that disagree) is skipped with a
 warning and listed in the result, so that the other runs go on. Every count (matched, lost and
@@ -246,7 +247,8 @@ def _read_and_process(job: tuple) -> tuple[str, RunResult | None, str | None]:
     result.seconds["read"] = t_read
     if plots_dir is not None:
         tic = time.perf_counter()
-        from identification.preprocessing.sync_plots import plot_run
+        # local: matplotlib is loaded only when figures are asked for
+        from identification.preprocessing.figures import plot_run
 
         plot_run(raw, result, Path(plots_dir) / name)
         result.seconds["plots"] = time.perf_counter() - tic

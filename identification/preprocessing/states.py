@@ -459,32 +459,3 @@ def body_states_segments(poses: PoseTrack, inputs: InputSeries, smoothing: float
         out.append(BodyStates(t=seg.t, vx=st[:, 3], vy=st[:, 4], omega=st[:, 5], u1=u1, u2=u2,
                               x=st[:, 0], y=st[:, 1], yaw=st[:, 2]))
     return out
-
-
-def plot_body_states(states_by_smoothing: dict, path=None, t_range=None):
-    """Return a figure of vx, vy and omega over time for several smoothing factors (fig. 7.9).
-
-    ``states_by_smoothing`` maps ``s`` to the :class:`BodyStates` computed with it;
-    ``t_range`` (seconds since the first sample) zooms in. Saved to ``path`` when given.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9, 7))
-    labels = (("vx", "v_x [m/s]", 1.0), ("vy", "v_y [m/s]", 1.0), ("omega", "omega [deg/s]", np.degrees(1.0)))
-    t0 = None
-    for s, st in states_by_smoothing.items():
-        t0 = st.t[0] if t0 is None else t0
-        t = st.t - t0
-        sel = np.ones(t.shape, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
-        for ax, (key, ylabel, k) in zip(axes, labels):
-            ax.plot(t[sel], getattr(st, key)[sel] * k, lw=0.8, label=f"s = {s:g}")
-            ax.set_ylabel(ylabel)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("time since start [s]")
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig

@@ -148,26 +148,3 @@ def subsampling_effect(model: SindyModel, problem: IntegralProblem, keep_fractio
                 "n_windows": adj.n_obs}
 
     return {"before": stats(before), "after": stats(after), "kept_fraction": float(mask.mean())}
-
-
-def plot_correlation(adj: Adjustment, path=None):
-    """Return (and save) the correlation matrix per equation (fig. 7.12)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    eqs = [eq for eq in STATE_NAMES if any(t[0] == eq for t in adj.terms)]
-    fig, axes = plt.subplots(1, len(eqs), figsize=(6 * len(eqs), 5.5), squeeze=False)
-    for ax, eq in zip(axes[0], eqs):
-        idx = [i for i, t in enumerate(adj.terms) if t[0] == eq]
-        im = ax.imshow(adj.corr[np.ix_(idx, idx)], vmin=-1, vmax=1, cmap="RdBu_r")
-        labels = [adj.terms[i][1] for i in idx]
-        ax.set(xticks=range(len(idx)), yticks=range(len(idx)), title=f"d{eq}/dt")
-        ax.set_xticklabels(labels, rotation=90, fontsize=7)
-        ax.set_yticklabels(labels, fontsize=7)
-        fig.colorbar(im, ax=ax, shrink=0.8)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig

@@ -295,31 +295,6 @@ def evaluate_reference(model, states: Sequence[BodyStates], names=None, window_s
                             eps_p=eps_p, eps_h=eps_h, method="solve_ivp", name=getattr(model, "name", ""))
 
 
-def plot_error_curves(results: Sequence[EvaluationResult], path=None, stacked: bool = True):
-    """Return (and save) figs. 5.11 / 7.8: stacked per-window errors and ``s_p(t)``, ``s_h(t)``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (ax_p, ax_h) = plt.subplots(1, 2, figsize=(11, 4))
-    for i, r in enumerate(results):
-        color = f"C{i % 10}"
-        if stacked and len(results) == 1:
-            ax_p.plot(r.t_rel, r.eps_p[np.isfinite(r.eps_p).all(1)].T, color="0.75", lw=0.5)
-            ax_h.plot(r.t_rel, np.degrees(np.abs(r.eps_h[np.isfinite(r.eps_h).all(1)])).T, color="0.75", lw=0.5)
-        label = f"{r.name or r.method}: {100 * r.pos_err_5s_m:.1f} cm, {r.yaw_err_5s_deg:.2f} deg"
-        ax_p.plot(r.t_rel, r.s_p, color=color, lw=2, label=label)
-        ax_h.plot(r.t_rel, np.degrees(r.s_h), color=color, lw=2)
-    ax_p.set(xlabel="integration time [s]", ylabel="position error [m]", title="s_p(t), eq. 5.77")
-    ax_h.set(xlabel="integration time [s]", ylabel="heading error [deg]", title="s_h(t), eq. 5.78")
-    ax_p.legend(fontsize=8)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
-
-
 def evaluate_on_runs(models: dict, runs, smoothing: float, methods=("rk4",)) -> dict[str, dict[str, EvaluationResult]]:
     """Return ``{model name: {method: EvaluationResult}}`` on the gap-free segments of ``runs``.
 

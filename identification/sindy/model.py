@@ -261,27 +261,6 @@ def term_prevalence(models: list[SindyModel]) -> dict[str, dict[str, float]]:
     return out
 
 
-def plot_term_prevalence(models: list[SindyModel], path: str | Path | None = None, top: int = 15):
-    """Return (and save to ``path``) a bar chart of the ``top`` most prevalent terms per equation (fig. 7.11)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    prev = term_prevalence(models)
-    eqs = [eq for eq in STATE_NAMES if prev[eq]]
-    fig, axes = plt.subplots(1, max(len(eqs), 1), figsize=(5 * max(len(eqs), 1), 4.5), squeeze=False)
-    for ax, eq in zip(axes[0], eqs):
-        items = list(prev[eq].items())[:top]
-        ax.barh([n for n, _ in items][::-1], [100 * f for _, f in items][::-1])
-        ax.set_xlabel("models using the term [%]")
-        ax.set_title(f"d{eq}/dt ({len(models)} models)")
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
-
-
 def read_model_json(path: str | Path):
     """Return the parsed JSON of the model file ``path``; InputError if missing or not JSON."""
     path = Path(path)

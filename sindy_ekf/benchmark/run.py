@@ -408,8 +408,11 @@ def ate(ref: np.ndarray, est: np.ndarray, max_diff_s: float = 0.01) -> tuple[flo
     return float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)))), float(np.degrees(np.sqrt(np.mean(dyaw ** 2))))
 
 
-def write_benchmark(result: BenchmarkResult, out_dir: str | Path, plots: bool = True) -> Path:
-    """Write TUM files of the truth and every estimate, the JSON and (optionally) the plots."""
+def write_benchmark(result: BenchmarkResult, out_dir: str | Path) -> Path:
+    """Write TUM files of the truth and every estimate and the JSON; return the folder.
+
+    The figures of the same folder are drawn by :func:`sindy_ekf.benchmark.figures.write_benchmark_figures`.
+    """
     from groundfloor.files import atomic_write_json, atomic_write_text
 
     out = Path(out_dir)
@@ -419,84 +422,23 @@ def write_benchmark(result: BenchmarkResult, out_dir: str | Path, plots: bool = 
         for run, e in per_run.items():
             atomic_write_text(out / "tum" / name / f"{run}.tum", tum_text(e.t, e.x[:, 0], e.x[:, 1], e.x[:, 2]))
     atomic_write_json(out / "benchmark.json", result.to_json())
-    if plots:
-        plot_trajectories(result, out / "trajectories.png")
-        plot_outage_errors(result, out / "outage_errors.png")
-        plot_nees(result, out / "nees.png")
     return out
 
 
-# -- plots ------------------------------------------------------------------------------------
+def pose_nees(result: BenchmarkResult, run: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Return ``{estimator: (t since the run's first pose s, pose NEES)}`` of one test run.
 
-def _figure(*args, **kw):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt.subplots(*args, **kw)
-
-
-def plot_trajectories(result: BenchmarkResult, path: str | Path | None = None):
-    """Return a figure of each test run's trajectories, with the pose track in outages shaded."""
-    runs = list(result.truth)
-    fig, axes = _figure(1, len(runs), figsize=(5 * len(runs), 5), squeeze=False)
-    for ax, run in zip(axes[0], runs):
-        tr = result.truth[run]
-        ax.plot(tr[:, 1], tr[:, 2], "k-", lw=2, label="laser tracker (truth)")
-        for a, b in result.outages[run]:
-            m = (tr[:, 0] >= a) & (tr[:, 0] <= b)
-            ax.plot(tr[m, 1], tr[m, 2], "-", color="0.8", lw=8, zorder=0,
-                    label="GNSS outage" if a == result.outages[run][0, 0] else None)
-        for name, per_run in result.estimates.items():
-            if name != "dead_reckoning":
-                ax.plot(per_run[run].x[:, 0], per_run[run].x[:, 1], lw=1, label=name)
-        ax.set(title=run, xlabel="x local [m]", ylabel="y local [m]", aspect="equal")
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
-
-
-def plot_outage_errors(result: BenchmarkResult, path: str | Path | None = None):
-    """Return a figure of RMS position error against time since the outage began, per length."""
-    keys = sorted({k for c in result.outage_curves.values() for k in c}, key=float)
-    fig, axes = _figure(1, max(len(keys), 1), figsize=(4 * max(len(keys), 1), 3.5), squeeze=False)
-    for ax, key in zip(axes[0], keys):
-        for name, c in result.outage_curves.items():
-            if key in c:
-                ax.plot(c[key][:, 0], c[key][:, 1], label=name)
-        ax.set(title=f"{key} s outages", xlabel="time since outage began [s]",
-               ylabel="RMS position error [m]", yscale="log")
-    axes[0][0].legend(fontsize=7)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
-
-
-def plot_nees(result: BenchmarkResult, path: str | Path | None = None, run: str | None = None):
-    """Return a figure of the pose NEES over time of one run, with the 95 % chi-square bounds."""
-    run = run or next(iter(result.truth))
-    fig, ax = _figure(figsize=(9, 3.5))
+    The NEES of ``(x, y, yaw)`` (3 dof) at every pose where the estimator gives a covariance;
+    estimators with fewer than two such poses (dead reckoning) are left out.
+    """
+    tr = result.truth[run]
+    out = {}
     for name, per_run in result.estimates.items():
         e = per_run[run]
-        tr = result.truth[run]
         err = np.column_stack([e.x[:, 0] - tr[:, 1], e.x[:, 1] - tr[:, 2], _wrap(e.x[:, 2] - tr[:, 3])])
         has = np.all(np.isfinite(e.P[:, :3, :3]), axis=(1, 2))
         if has.sum() < 2:
             continue
         nees = np.einsum("ni,ni->n", err[has], np.linalg.solve(e.P[has, :3, :3], err[has][..., None])[..., 0])
-        ax.semilogy(e.t[has] - tr[0, 0], nees, lw=0.8, label=name)
-    for b in result.nees_bounds_95:
-        ax.axhline(b, color="k", ls="--", lw=0.8)
-    for a, b in result.outages[run]:
-        ax.axvspan(a - result.truth[run][0, 0], b - result.truth[run][0, 0], color="0.9")
-    ax.set(title=f"{run}: pose NEES (3 dof), 95 % bounds dashed, outages shaded",
-           xlabel="time [s]", ylabel="NEES")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=120)
-    return fig
+        out[name] = (e.t[has] - tr[0, 0], nees)
+    return out

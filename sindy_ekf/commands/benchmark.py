@@ -63,7 +63,10 @@ def run(args) -> int:
     result = benchmark_campaign(campaign, model, profile=args.gnss, seed=args.seed,
                                 oracle_dynamics=oracle, estimators=names, smoothing=None if s is None else float(s))
     if args.out is not None:
+        from sindy_ekf.benchmark.figures import write_benchmark_figures
+
         write_benchmark(result, args.out)
+        write_benchmark_figures(result, args.out)
     if args.json is not None:
         atomic_write_json(args.json, result.to_json())
     durations = sorted({k for s in result.scores.values() for k in s.outage_pos_err_m}, key=float)

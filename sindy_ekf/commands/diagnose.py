@@ -49,29 +49,9 @@ def run(args) -> int:
         print(f"measurement: {f.name}: {f.cause}; correction: {f.correction}; baseline RMS "
               f"{1e6 * g['before']:.0f} -> {1e6 * g['after']:.0f} um ({f.runs} runs)")
     if args.plots:
-        from identification.sindy.evaluate import plot_error_curves
-        from sindy_ekf.diagnose.residuals import (
-            plot_family_profiles,
-            plot_lag_profile,
-            plot_residual_map,
-            plot_residual_structure,
-        )
+        from sindy_ekf.diagnose.figures import write_diagnosis_figures
 
-        args.plots.mkdir(parents=True, exist_ok=True)
-        plot_residual_structure(d.structure, args.plots / "residual_structure.png")
-        plot_residual_structure(d.multistep_structure, args.plots / "multistep_structure.png",
-                                title="5 s multi-step errors (along, cross, heading) against window regressors")
-        delay = next((c.score.theta[0] for c in d.ranked if c.name == "input_delay"), None)
-        plot_lag_profile(d.lag, args.plots / "lag_profile.png", delay)
-        plot_family_profiles([c.score for c in d.ranked], args.plots / "family_profiles.png")
-        patch = next((c.score.estimate for c in d.ranked if c.name == "position_dependence" and c.significant), None)
-        plot_residual_map(d.residual_map, args.plots / "residual_map.png", patch)
-        from dataclasses import replace
-
-        ev = [replace(d.evaluations["before"], name="model")]
-        if d.extended is not None:
-            ev.append(replace(d.evaluations["after"], name=f"extended ({d.verdict})"))
-        plot_error_curves(ev, path=args.plots / "before_after.png", stacked=False)
+        write_diagnosis_figures(d, args.plots)
     if args.extended_model and d.extended is not None:
         d.extended.to_json(args.extended_model)
     if args.json:

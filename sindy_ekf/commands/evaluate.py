@@ -45,7 +45,7 @@ def run(args) -> int:
     from groundfloor.files import atomic_write_json
     from identification.preprocessing.campaigns import open_campaign
     from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
-    from identification.sindy.evaluate import evaluate_on_runs, plot_error_curves
+    from identification.sindy.evaluate import evaluate_on_runs
     from identification.sindy.model import SindyModel
     from identification.sindy.search import states_of_runs
 
@@ -79,6 +79,8 @@ def run(args) -> int:
                 label = name if method == "rk4" else f"{name} (Euler 2-step)"
                 print(f"{label:18} {100 * e.pos_err_5s_m:9.2f} {e.yaw_err_5s_deg:10.2f}")
     if args.plots:
+        from identification.sindy.figures import plot_error_curves
+
         args.plots.mkdir(parents=True, exist_ok=True)
         plot_error_curves([main], path=args.plots / "prediction_errors_sindy.png")
         plot_error_curves([r["rk4"] for r in res.values()], path=args.plots / "prediction_errors_all.png",

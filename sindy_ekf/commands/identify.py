@@ -132,14 +132,15 @@ def _plots(result, out_dir: Path, train, model) -> None:
     """Write the search figures (7.4-7.7, 7.10, 7.11) and the adjustment's correlations (7.12)."""
     import numpy as np
 
-    from identification.sindy.adjust import adjust_coefficients, plot_correlation
-    from identification.sindy.model import plot_term_prevalence
-    from identification.sindy.regression import integral_problem
-    from identification.sindy.search import (
+    from identification.sindy.adjust import adjust_coefficients
+    from identification.sindy.figures import (
+        plot_correlation,
         plot_error_vs_complexity,
         plot_grid,
-        states_of_runs,
+        plot_term_prevalence,
     )
+    from identification.sindy.regression import integral_problem
+    from identification.sindy.search import states_of_runs
 
     out_dir.mkdir(parents=True, exist_ok=True)
     for s in np.unique(result.table["s"]):

@@ -1,48 +1,28 @@
 """Figures and tables of the report that no pipeline stage draws itself.
 
 Campaign overview (thesis section 6.3): the driven paths of every run, and the density of the
-control inputs and of the driving states (fig. 6.3). Each ``plot_*`` returns a matplotlib
-Figure built without pyplot (no global state, Agg), saved when given ``path``; nothing is drawn
-unless asked for.
+control inputs and of the driving states (fig. 6.3); the diagnosis's family gains. Each
+``plot_*`` returns a matplotlib Figure (:mod:`groundfloor.figures`), saved as PNG when given
+``path``; nothing is drawn unless asked for.
 """
 
 from __future__ import annotations
 
 import base64
 import io
-import sys
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from matplotlib.colors import LogNorm
 
+from groundfloor.figures import new_figure, save_figure
 from groundfloor.types import BodyStates, TrajectoryCampaign, TrajectoryRun
 
 
-def _figure(width: float, height: float, ncols: int = 1):
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width, height), layout="constrained")
-    return fig, fig.subplots(1, ncols, squeeze=False)[0]
-
-
-def _save(fig, path):
-    if path is not None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
-    return fig
-
-
-def png_base64_from_figure(fig, dpi: int = 80) -> str:
-    """Return the figure as a base64-encoded PNG (for an ``<img src="data:...">``) and close it.
-
-    Figures made through pyplot (some stages use it) are closed in pyplot's registry too, so a
-    long report does not accumulate open figures.
-    """
+def png_base64_from_figure(fig, dpi: float = 80) -> str:
+    """Return the figure as a base64-encoded PNG (for an ``<img src="data:...">``)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    if "matplotlib.pyplot" in sys.modules:
-        sys.modules["matplotlib.pyplot"].close(fig)
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
@@ -75,7 +55,7 @@ def run_overview(campaign: TrajectoryCampaign) -> list[dict]:
 
 def plot_driven_paths(runs: Sequence[TrajectoryRun], path=None):
     """Return a figure of every run's path in the local frame (train solid, test dashed)."""
-    fig, (ax,) = _figure(6.4, 5.2)
+    fig, ((ax,),) = new_figure(6.4, 5.2)
     for i, run in enumerate(runs):
         p = run.poses
         ax.plot(p.x, p.y, lw=0.9, color=f"C{i % 10}", ls="-" if run.split == "train" else "--",
@@ -85,7 +65,7 @@ def plot_driven_paths(runs: Sequence[TrajectoryRun], path=None):
     ax.set(xlabel="x local [m]", ylabel="y local [m]",
            title="driven paths (train solid, test dashed; o = start)")
     ax.legend(fontsize=7, ncols=2, loc="best")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_input_coverage(states: Sequence[BodyStates], bins: int = 41, path=None):
@@ -94,11 +74,9 @@ def plot_input_coverage(states: Sequence[BodyStates], bins: int = 41, path=None)
     Densities are sample counts at the pose times (log colour scale), so a run's share is its
     driving time, as in the thesis's heat maps.
     """
-    from matplotlib.colors import LogNorm
-
     u = np.vstack([np.column_stack([s.u1, s.u2]) for s in states])
     v = np.vstack([np.column_stack([s.vx, s.omega]) for s in states])
-    fig, (ax_u, ax_v) = _figure(10.5, 4.4, ncols=2)
+    fig, ((ax_u, ax_v),) = new_figure(10.5, 4.4, ncols=2)
     h_u = ax_u.hist2d(u[:, 1], u[:, 0], bins=bins, range=[[-1.05, 1.05], [-1.05, 1.05]], norm=LogNorm(),
                       cmap="viridis")
     ax_u.set(xlabel="u2 steering (left +)", ylabel="u1 throttle (forward +)", title="control inputs")
@@ -109,7 +87,7 @@ def plot_input_coverage(states: Sequence[BodyStates], bins: int = 41, path=None)
                       norm=LogNorm(), cmap="viridis")
     ax_v.set(xlabel="omega yaw rate [deg/s]", ylabel="vx forward velocity [m/s]", title="driving states")
     fig.colorbar(h_v[3], ax=ax_v, label="samples")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_family_gains(ranked, path=None):
@@ -118,7 +96,7 @@ def plot_family_gains(ranked, path=None):
     ``ranked`` are :class:`sindy_ekf.diagnose.rank.RankedCause` (most likely first); a family
     counts as a cause only where its bar passes its threshold mark.
     """
-    fig, (ax,) = _figure(6.4, 3.6)
+    fig, ((ax,),) = new_figure(6.4, 3.6)
     names = [c.name for c in ranked]
     gain = 100 * np.array([c.gain for c in ranked])
     thr = 100 * np.array([c.threshold for c in ranked])
@@ -128,4 +106,4 @@ def plot_family_gains(ranked, path=None):
     ax.set_yticks(y, names)
     ax.set(xlabel="gain on the test runs [% of weighted residual SSE]", title="diagnosis: families")
     ax.legend(loc="lower right", fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)

@@ -23,9 +23,31 @@ import numpy as np
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_text
 from groundfloor.progress import progress
+from identification.preprocessing.figures import (
+    plot_baseline,
+    plot_baseline_vs_speed,
+    plot_body_frame,
+    plot_body_states,
+    plot_clock_residuals,
+    plot_gap_signal,
+    plot_hub_model,
+    plot_network,
+    plot_offset_fit,
+    plot_poses,
+    plot_xcorr,
+)
+from identification.sindy.figures import (
+    plot_error_curves,
+    plot_error_vs_complexity,
+    plot_grid,
+    plot_term_prevalence,
+)
+from sindy_ekf.benchmark.figures import plot_nees, plot_outage_errors, plot_trajectories
+from sindy_ekf.diagnose.figures import plot_lag_profile, plot_residual_structure
 from sindy_ekf.report.chain import QUICK, STAGES, ChainResult, run_chain
 from sindy_ekf.report.figures import (
     plot_driven_paths,
+    plot_family_gains,
     plot_input_coverage,
     png_base64_from_figure,
     run_overview,
@@ -181,11 +203,7 @@ def section_calibration(chain: ChainResult) -> Section:
     sec = Section("calibration", "Calibration")
     if _absent_or_failed(sec, chain, ("calibration",)):
         return sec
-    from identification.preprocessing.calibration import (
-        ARCSEC_PER_RAD,
-        plot_body_frame,
-        plot_network,
-    )
+    from identification.preprocessing.calibration import ARCSEC_PER_RAD
 
     cal, tf = chain.calibration, chain.calibration.transform
     std = tf.params_std
@@ -234,18 +252,15 @@ def section_synchronisation(chain: ChainResult) -> Section:
                         "baseline RMS before mm", "after", "after hub", "hub r1/r2 mm"], rows, left=2))
     if _absent_or_failed(sec, chain, ("synchronisation",)):
         return sec
-    from identification.preprocessing import sync_plots
-    from identification.preprocessing.hub import plot_hub_model
-
     raw, run = chain.showcase
     s = run.synced
     sec.note(f"Figures for test run {raw.name}.")
-    items = [(lambda: sync_plots.plot_gap_signal(raw, "ltd800"), "gap signals and detected gaps (fig. 5.1)"),
-             (lambda: sync_plots.plot_xcorr(raw, s), "cross-correlation of the gap signals (fig. 5.2)"),
-             (lambda: sync_plots.plot_clock_residuals(s), "clock fit residuals (fig. 5.4)"),
-             (lambda: sync_plots.plot_baseline(s), "baseline length before and after the offset (fig. 5.5)"),
-             (lambda: sync_plots.plot_offset_fit(s), "AT960 extra offset fit (fig. 5.6)"),
-             (lambda: sync_plots.plot_baseline_vs_speed(s), "baseline against forward speed")]
+    items = [(lambda: plot_gap_signal(raw, "ltd800"), "gap signals and detected gaps (fig. 5.1)"),
+             (lambda: plot_xcorr(raw, s), "cross-correlation of the gap signals (fig. 5.2)"),
+             (lambda: plot_clock_residuals(s), "clock fit residuals (fig. 5.4)"),
+             (lambda: plot_baseline(s), "baseline length before and after the offset (fig. 5.5)"),
+             (lambda: plot_offset_fit(s), "AT960 extra offset fit (fig. 5.6)"),
+             (lambda: plot_baseline_vs_speed(s), "baseline against forward speed")]
     if run.hub is not None:
         items.append((lambda: plot_hub_model(run.hub), "turning-hub model, eq. 5.25 (fig. 5.7)"))
     sec.figures(items)
@@ -255,9 +270,6 @@ def section_synchronisation(chain: ChainResult) -> Section:
 def section_poses(chain: ChainResult) -> Section:
     """Return the poses of one test run with their sigmas (figs. 7.2, 7.3) and its body states (7.9)."""
     sec = Section("poses", "Poses and body-frame states")
-    from identification.preprocessing.poses import plot_poses
-    from identification.preprocessing.states import plot_body_states
-
     run = chain.trajectory.split("test")[0]
     poses = chain.showcase[1].poses if chain.showcase is not None else run.poses
     items = [(lambda: plot_poses(poses), f"run {run.name}: position, attitude and their sigmas (figs. 7.2, 7.3)")]
@@ -283,9 +295,6 @@ def section_identification(chain: ChainResult) -> Section:
     sec.add(f"<pre>{html.escape(model.equations())}</pre>")
     if chain.search is None:
         return sec
-    from identification.sindy.model import plot_term_prevalence
-    from identification.sindy.search import plot_error_vs_complexity, plot_grid
-
     res = chain.search
     rows = [[i, f"{r['s']:g}", f"{r['tau']:g}", f"{r['alpha']:g}", f"{r['T']:g}", f"{r['complexity']:.0f}",
              f"{100 * r['pos_err_5s_m']:.2f}", f"{r['yaw_err_5s_deg']:.2f}"] for i, r in enumerate(res.ranking(8), 1)]
@@ -305,8 +314,6 @@ def section_evaluation(chain: ChainResult) -> Section:
     sec = Section("evaluation", "Evaluation")
     if _absent_or_failed(sec, chain, ("identification", "evaluation")):
         return sec
-    from identification.sindy.evaluate import plot_error_curves
-
     ev = chain.evaluation
     sindy = ev["sindy"]
     sec.note(f"{sindy.n_windows} windows of 5 s (50 % overlap) on the test runs, RK4 on eq. 5.75. "
@@ -323,8 +330,6 @@ def section_estimation(chain: ChainResult) -> Section:
     sec = Section("estimation", "Estimation")
     if _absent_or_failed(sec, chain, ("identification", "estimation")):
         return sec
-    from sindy_ekf.benchmark.run import plot_nees, plot_outage_errors, plot_trajectories
-
     b = chain.benchmark
     lo, hi = b.nees_bounds_95
     sec.note(f"GNSS profile {b.profile} on the test runs, outages as scheduled; the laser-tracker poses are the "
@@ -348,8 +353,6 @@ def section_diagnosis(chain: ChainResult) -> Section:
     sec = Section("diagnosis", "Diagnosis")
     if _absent_or_failed(sec, chain, ("identification", "diagnosis")):
         return sec
-    from sindy_ekf.report.figures import plot_family_gains
-
     d = chain.diagnosis
     b, a = d.before, d.after
     sec.note(f"Most likely cause: {d.verdict}. 5 s position error on the test runs {100 * b['pos_err_5s_m']:.2f} cm "
@@ -364,13 +367,11 @@ def section_diagnosis(chain: ChainResult) -> Section:
     for f in getattr(d, "measurement", []) or []:
         sec.note(f"measurement finding '{f.name}' ({f.runs} runs): {f.cause}; correction: {f.correction}")
     items = [(lambda: plot_family_gains(d.ranked), "out-of-sample gain of each family against its threshold")]
-    from sindy_ekf.diagnose import residuals
-
     if getattr(d, "structure", None):
-        items.insert(0, (lambda: residuals.plot_residual_structure(d.structure, title="test runs"),
+        items.insert(0, (lambda: plot_residual_structure(d.structure, title="test runs"),
                          "residual structure: binned window residuals (eq. 5.56) against each regressor"))
     if getattr(d, "lag", None):
-        items.insert(1, (lambda: residuals.plot_lag_profile(d.lag), "residual-input lag correlation"))
+        items.insert(1, (lambda: plot_lag_profile(d.lag), "residual-input lag correlation"))
     sec.figures(items)
     return sec
 

@@ -127,7 +127,7 @@ def test_same_rng_same_commands():
 
 
 def test_plots_of_fig_6_3_and_6_4(runs, tmp_path):
-    from simulation.driver import plot_driving_path, plot_input_density
+    from simulation.figures import plot_driving_path, plot_input_density
 
     fig = plot_input_density(runs, tmp_path / "fig_6_3.png")
     counts = fig.axes[0].collections[0].get_array()

@@ -24,10 +24,9 @@ from identification.preprocessing.calibration import (
     fit_body_frame,
     fit_circle_3d,
     fit_transform,
-    plot_body_frame,
-    plot_network,
     rotation_from_angles,
 )
+from identification.preprocessing.figures import plot_body_frame, plot_network
 from identification.preprocessing.io_survey import read_survey, survey_from_mapping
 from tests.support import REPO
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from groundfloor.errors import InputError
+from identification.preprocessing.figures import plot_hub_model
 from identification.preprocessing.hub import (
     HubModel,
     fit_hub_model,
     fit_hub_model_joint,
-    plot_hub_model,
 )
 from tests.support.pose_synth import LEVER_FRONT, LEVER_REAR, measurements
 

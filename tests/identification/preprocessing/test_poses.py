@@ -7,13 +7,13 @@ import pytest
 
 from groundfloor.errors import InputError
 from groundfloor.types import PoseTrack
+from identification.preprocessing.figures import plot_poses
 from identification.preprocessing.hub import fit_hub_model
 from identification.preprocessing.poses import (
     _prisms_and_jacobian,
     fit_poses,
     fit_poses_2d,
     fit_poses_full,
-    plot_poses,
 )
 from tests.support.pose_synth import LEVER_FRONT, LEVER_REAR, measurements
 

@@ -10,11 +10,11 @@ from scipy.interpolate import make_smoothing_spline
 
 from groundfloor.errors import InputError
 from groundfloor.types import InputSeries, PoseTrack
+from identification.preprocessing.figures import plot_body_states
 from identification.preprocessing.states import (
     body_states_from_poses,
     body_states_segments,
     noise_std_from_data,
-    plot_body_states,
     smoothing_spline,
 )
 from tests.support.pose_synth import trajectory

@@ -16,6 +16,7 @@ from identification.sindy.evaluate import (
     make_windows,
     rollout,
 )
+from identification.sindy.figures import plot_grid
 from identification.sindy.model import SindyModel, model_from_terms
 from identification.sindy.regression import fit_sindy
 from identification.sindy.search import (
@@ -23,7 +24,6 @@ from identification.sindy.search import (
     StackedSindy,
     admissible,
     fold_assignment,
-    plot_grid,
     search,
     select_one_se,
     select_parsimonious,

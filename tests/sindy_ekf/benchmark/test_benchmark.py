@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from sindy_ekf.benchmark.figures import write_benchmark_figures
 from sindy_ekf.benchmark.run import ate, benchmark_campaign, read_tum, write_benchmark
 
 
@@ -40,7 +41,8 @@ def mini(tmp_path_factory):
                                             "oracle_ekf", "sindy_graph", "sindy_ekf_lateral",
                                             "sindy_graph_lateral"),
                                 outage_warmup_s=10.0, outage_recovery_s=12.0)
-    out = write_benchmark(result, root.parent / "out", plots=True)
+    out = write_benchmark(result, root.parent / "out")
+    write_benchmark_figures(result, out)
     return root, model, result, out
 
 
@@ -131,3 +133,15 @@ def test_command_rejects_an_unknown_estimator(mini, tmp_path, capsys):
     path = model.to_json(tmp_path / "model.json")
     code = main(["benchmark", str(root), "--model", str(path), "--estimators", "sindy_ekf,kalman9", "--quiet"])
     assert code == 2 and "kalman9" in capsys.readouterr().err
+
+
+def test_nees_curve_of_the_figure_matches_the_score(mini):
+    """The NEES drawn in nees.png is the one scored: its mean over the one test run is nees_mean."""
+    from sindy_ekf.benchmark.run import pose_nees
+
+    _, _, result, _ = mini
+    curves = pose_nees(result, "run_c")
+    assert {"cv_ekf", "sindy_ekf", "sindy_graph"} <= set(curves)
+    for name, (t, nees) in curves.items():
+        assert t.shape == nees.shape and t[0] >= 0.0
+        assert np.mean(nees) == pytest.approx(result.scores[name].nees_mean, rel=1e-12)

@@ -177,8 +177,16 @@ def test_diagnose_command_on_a_trajectory_campaign(reference_model, tmp_path):
     (root / "campaign.yaml").write_text("\n".join(lines) + "\n")
     model_path = reference_model.to_json(tmp_path / "model.json")
     out = tmp_path / "d.json"
-    rc = main(["diagnose", str(root), "--model", str(model_path), "--json", str(out), "--no-ekf", "--quiet"])
+    plots = tmp_path / "plots"
+    rc = main(["diagnose", str(root), "--model", str(model_path), "--json", str(out), "--no-ekf", "--quiet",
+               "--plots", str(plots)])
     assert rc == 0
+    assert {p.name for p in plots.glob("*.png")} == {
+        "residual_structure.png", "multistep_structure.png", "lag_profile.png", "family_profiles.png",
+        "residual_map.png", "before_after.png"}
+    import matplotlib
+
+    assert dict.__getitem__(matplotlib.rcParams, "backend").lower() == "agg"  # the command line chose it
     js = json.loads(out.read_text())
     first = js["causes"][0]
     assert first["name"] == "input_delay", [(c["name"], c.get("gain")) for c in js["causes"][:3]]
