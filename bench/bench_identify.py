@@ -40,7 +40,6 @@ from identification.preprocessing.states import body_states_segments  # noqa: E4
 from identification.sindy.adjust import adjust_coefficients, subsampling_effect  # noqa: E402
 from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
 from identification.sindy.evaluate import (  # noqa: E402
-    PoseDependentDynamics,
     evaluate_model,
     evaluate_reference,
     make_windows,
@@ -134,7 +133,7 @@ def main() -> None:
     test_states = test_states[float(hp["s"])]
     windows = make_windows(test_states, names=test_names)
     dyn = TrueDynamics()
-    oracle = PoseDependentDynamics(dyn.f, name="oracle")
+    oracle = dyn
     uni = UnicycleModel().fit(train_states[float(hp["s"])])
     res = {
         "SINDy (RK4)": evaluate_model(model, windows, "rk4"),

@@ -91,7 +91,7 @@ def delay_from_train(train, delays=np.arange(0.0, 1.01, 0.05)) -> float:
     for d in delays:
         st = delayed(train, d)
         uni = UnicycleModel().fit(st)
-        v = uni.velocities(np.zeros((1, 3)), np.vstack([s.inputs for s in st]))
+        v = uni.pose_velocity(np.zeros((1, 6)), np.vstack([s.inputs for s in st]))
         x = np.vstack([s.state for s in st])
         sse.append(np.sum((x[:, 0] - v[:, 0]) ** 2) / np.var(x[:, 0]) + np.sum((x[:, 2] - v[:, 2]) ** 2) / np.var(x[:, 2]))
     return float(delays[int(np.argmin(sse))])

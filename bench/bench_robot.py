@@ -41,9 +41,7 @@ def predict_5s_error(run, horizon_s=5.0, step_s=2.5, dt=0.01):
         u = dyn.motor_inputs(t0 + i * dt, run.t_joy, run.u_joy)
 
         def rhs(s):
-            c, sn = np.cos(s[:, 2]), np.sin(s[:, 2])
-            kin = np.column_stack([s[:, 3] * c - s[:, 4] * sn, s[:, 3] * sn + s[:, 4] * c, s[:, 5]])
-            return np.column_stack([kin, dyn.f(s, u)])
+            return dyn.derivative(s, u)
 
         k1 = rhs(x)
         k2 = rhs(x + 0.5 * dt * k1)

@@ -21,7 +21,7 @@ from simulation.robot import TrueDynamics  # noqa: E402
 def main() -> int:
     dyn = TrueDynamics()
     rng = np.random.default_rng(0)
-    print("| batch (states) | loop us | vectorised us | speed-up | jacobians() us (both, limiters, effect) |")
+    print("| batch (states) | loop us | vectorised us | speed-up | accel_and_jacobians() us |")
     print("|---|---|---|---|---|")
     for n in (1, 9, 100, 1000):
         z = rng.uniform(-1, 1, (n, 5))
@@ -31,7 +31,7 @@ def main() -> int:
         t = {}
         for name, fn in (("loop", lambda: _loop_poly_jacobian(dyn, z)),
                          ("vec", lambda: dyn._poly_jacobian(z)),
-                         ("full", lambda: dyn.jacobians(x6, u))):
+                         ("full", lambda: dyn.accel_and_jacobians(x6, u))):
             t[name] = min(timeit.repeat(fn, number=200, repeat=5)) / 200 * 1e6
         print(f"| {n} | {t['loop']:.0f} | {t['vec']:.0f} | {t['loop'] / t['vec']:.1f} | {t['full']:.0f} |")
     return 0

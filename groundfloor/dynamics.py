@@ -23,9 +23,13 @@ Time ``t`` (s) is the time since the start of the run; no model of the project r
 
 from __future__ import annotations
 
+import logging
+import warnings
 from abc import ABC, abstractmethod
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 STATE_NAMES = ("x", "y", "psi", "vx", "vy", "omega")  # the six estimated states, eq. 5.60
 BODY_STATE_NAMES = ("vx", "vy", "omega")  # the body velocities a dynamics model predicts
@@ -34,9 +38,18 @@ N_X = len(STATE_NAMES)
 N_U = len(INPUT_NAMES)
 
 
-def broadcast_inputs(x6: np.ndarray, u) -> np.ndarray:
-    """Return ``u`` broadcast to the leading shape of ``x6`` plus ``(2,)``."""
-    return np.broadcast_to(np.asarray(u, dtype=float), np.shape(x6)[:-1] + (N_U,))
+class EnvelopeWarning(UserWarning):
+    """States or inputs outside the range a model was trained on."""
+
+
+def broadcast_inputs(x6: np.ndarray, u) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``x6 (..., 6)`` and ``u (..., 2)`` as float arrays broadcast to one leading shape."""
+    x6 = np.asarray(x6, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if u.shape[:-1] != x6.shape[:-1]:  # the common case (same leading shape) costs nothing
+        lead = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1])
+        x6, u = np.broadcast_to(x6, lead + (N_X,)), np.broadcast_to(u, lead + (N_U,))
+    return x6, u
 
 
 def pose_rate(psi: np.ndarray, v_body: np.ndarray) -> np.ndarray:
@@ -81,6 +94,17 @@ class Dynamics(ABC):
         """Return True per sample where ``(x6, u)`` lies where the model may be trusted."""
         return np.ones(np.shape(x6)[:-1], dtype=bool)
 
+    def warn_outside_envelope(self, x6: np.ndarray, u: np.ndarray, name: str = "data") -> float:
+        """Return the fraction of samples outside :meth:`in_envelope`; warn (:class:`EnvelopeWarning`)
+        naming ``name`` when there are any. Models that know their variables name them too."""
+        inside = np.asarray(self.in_envelope(x6, u)).reshape(-1)
+        frac = float(np.mean(~inside)) if inside.size else 0.0
+        if frac > 0:
+            msg = f"{name}: {100 * frac:.1f} % of samples outside the model's training envelope"
+            log.warning(msg)
+            warnings.warn(msg, EnvelopeWarning, stacklevel=2)
+        return frac
+
     # -- the six-state derivative, written once -------------------------------------------------
     def pose_velocity(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Return the body velocities that move the pose ``(..., 3)``."""
@@ -88,39 +112,44 @@ class Dynamics(ABC):
 
     def derivative(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
         """Return the six-state derivative ``(..., 6)`` of eq. 5.75."""
-        x6 = np.asarray(x6, dtype=float)
-        u = broadcast_inputs(x6, u)
+        x6, u = broadcast_inputs(x6, u)
         return np.concatenate([pose_rate(x6[..., 2], self.pose_velocity(x6, u)), self.accel(x6, u, t)], axis=-1)
 
-    def derivative_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0
-                                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Return the derivative ``(..., 6)`` and its Jacobians ``(..., 6, 6)``, ``(..., 6, 2)``.
+    def derivative_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0, input_jacobian: bool = True
+                                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Return the derivative ``(..., 6)`` and its Jacobians ``J_f_x (..., 6, 6)``, ``J_f_u (..., 6, 2)``.
 
         Implements eqs. 5.61 and 5.75: the kinematics' Jacobian (rotation of the body
         velocities, its derivative in ``psi``) stacked on the model's acceleration Jacobians.
+        ``input_jacobian=False`` returns ``None`` for ``J_f_u`` (the EKF's prediction needs only
+        ``J_f_x``). Written with few numpy calls: the filters call it four times per step on
+        small batches, where the per-call overhead, not the arithmetic, is the cost.
         """
-        x6 = np.asarray(x6, dtype=float)
-        u = broadcast_inputs(x6, u)
+        x6, u = broadcast_inputs(x6, u)
         a, J_a_x, J_a_u = self.accel_and_jacobians(x6, u, t)
         v, J_v_x, J_v_u = self.pose_velocity_and_jacobians(x6, u)
-        lead = np.broadcast_shapes(x6.shape[:-1], np.shape(a)[:-1])
+        lead = x6.shape[:-1]
         psi = x6[..., 2]
         c, s = np.cos(psi), np.sin(psi)
-        rate = pose_rate(psi, v)
-        R = np.zeros(lead + (3, 3))  # d pose_rate / d v_pose
-        R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+        vx, vy = v[..., 0], v[..., 1]
+        x_dot = c * vx - s * vy
+        y_dot = s * vx + c * vy
+        f = np.empty(lead + (N_X,))
+        f[..., 0], f[..., 1], f[..., 2], f[..., 3:] = x_dot, y_dot, v[..., 2], a
         J_x = np.zeros(lead + (N_X, N_X))
-        J_x[..., 0, 2] = -rate[..., 1]
-        J_x[..., 1, 2] = rate[..., 0]
-        J_u = np.zeros(lead + (N_X, N_U))
-        if J_v_x is None:
-            J_x[..., :3, 3:] = R
-        else:
-            J_x[..., :3, :] += R @ J_v_x
-            J_u[..., :3, :] = R @ J_v_u
+        J_x[..., 0, 2], J_x[..., 1, 2] = -y_dot, x_dot
         J_x[..., 3:, :] = J_a_x
-        J_u[..., 3:, :] = J_a_u
-        f = np.concatenate([np.broadcast_to(rate, lead + (3,)), np.broadcast_to(a, lead + (3,))], axis=-1)
+        J_u = np.zeros(lead + (N_X, N_U)) if input_jacobian else None
+        if J_v_x is None:  # the pose moves with the velocity states
+            J_x[..., 0, 3], J_x[..., 0, 4], J_x[..., 1, 3], J_x[..., 1, 4], J_x[..., 2, 5] = c, -s, s, c, 1.0
+        else:  # d pose_rate / d v_pose is the rotation R(psi) on (vx, vy), 1 on omega
+            R = np.zeros(lead + (3, 3))
+            R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+            J_x[..., :3, :] += R @ J_v_x
+            if input_jacobian:
+                J_u[..., :3, :] = R @ J_v_u
+        if input_jacobian:
+            J_u[..., 3:, :] = J_a_u
         return f, J_x, J_u
 
 

@@ -32,7 +32,7 @@ them):
   psi``, ``psi_dot = omega`` in the local (AT960) frame.
 
 Effects (:mod:`simulation.effects`) act either on the motor inputs (:meth:`motor_inputs`) or on
-``f`` (heading, position, lateral slip). Integration: classical RK4 at ``dt`` with the motor
+:meth:`TrueDynamics.accel` (heading, position, lateral slip). Integration: classical RK4 at ``dt`` with the motor
 inputs and the noise held over each step (the motor controller updates at ``1/dt``), written on
 Python floats because the 6-state step is far cheaper that way than through numpy calls; the
 driver (:mod:`simulation.driver`) closes the loop at each joystick message.
@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
 from simulation.driver import DrivingArea, HumanDriver, simulate_joy_stamps
 from simulation.effects import EFFECTS, Effect
@@ -237,7 +238,7 @@ def _compile_stepper(params: RobotParams, effect: Effect | None):
 
 def _compile_acc(params: RobotParams, effect: Effect | None, vectorised: bool):
     """Return ``acc(x, y, psi, vx, vy, om, u1, u2) -> (ax, ay, aw)`` generated from the term
-    table: on numpy arrays (``vectorised``, for :meth:`TrueDynamics.f`) or on floats."""
+    table: on numpy arrays (``vectorised``, for :meth:`TrueDynamics.accel`) or on floats."""
     coef, coef_lines = _collect_by_state(params)
     src = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
     src += ["    " + ln for ln in coef_lines]
@@ -249,8 +250,12 @@ def _compile_acc(params: RobotParams, effect: Effect | None, vectorised: bool):
     return namespace["acc"]
 
 
-class TrueDynamics:
+class TrueDynamics(Dynamics):
     """The simulator's true body dynamics with an optional effect (the estimation oracle).
+
+    A :class:`groundfloor.dynamics.Dynamics`: accelerations depend on the pose too (effects);
+    the pose follows the inherited eq. 5.75 kinematics. (:func:`simulate_run` integrates the
+    same accelerations through code generated on Python floats, its own RK4 for the inner loop.)
 
     Parameters
     ----------
@@ -259,6 +264,8 @@ class TrueDynamics:
     effect
         At most one :class:`simulation.effects.Effect`.
     """
+
+    name = "oracle"
 
     def __init__(self, params: RobotParams | None = None, effect: Effect | None = None):
         self.params = params or RobotParams()
@@ -279,7 +286,7 @@ class TrueDynamics:
             raise ValueError("TrueDynamics: monomials of degree > 4 in one variable are not supported")
 
     # -- dynamics --------------------------------------------------------------------------
-    def f(self, x6, u, t=0.0) -> np.ndarray:
+    def accel(self, x6, u, t=0.0) -> np.ndarray:
         """Return the body accelerations ``[vx_dot, vy_dot, omega_dot]``, shape ``(..., 3)``.
 
         Implements eqs. 7.7 and 7.9 (model B), the lateral law and the speed limiter of the
@@ -302,19 +309,13 @@ class TrueDynamics:
         mono = np.prod(powers[..., np.arange(5), self._dexp], axis=-1)      # (..., K)
         return ((mono * self._dcoef) @ self._dscatter).reshape(z.shape[:-1] + (3, 5))
 
-    def J_f_x(self, x6, u, t=0.0) -> np.ndarray:
-        """Return the analytic Jacobian of :meth:`f` with respect to ``x6``, shape ``(..., 3, 6)``."""
-        return self._jac(x6, u)[0]
+    def accel_and_jacobians(self, x6, u, t=0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return :meth:`accel` and its analytic Jacobians ``J_a_x (..., 3, 6)``, ``J_a_u (..., 3, 2)``."""
+        J_x, J_u = self._jacobians(x6, u)
+        return self.accel(x6, u, t), J_x, J_u
 
-    def J_f_u(self, x6, u, t=0.0) -> np.ndarray:
-        """Return the analytic Jacobian of :meth:`f` with respect to ``u``, shape ``(..., 3, 2)``."""
-        return self._jac(x6, u)[1]
-
-    def jacobians(self, x6, u, t=0.0) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``(J_f_x, J_f_u)``, shapes ``(..., 3, 6)`` and ``(..., 3, 2)``, in one pass."""
-        return self._jac(x6, u)
-
-    def _jac(self, x6, u):
+    def _jacobians(self, x6, u) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``J_a_x`` and ``J_a_u``: polynomial, limiters and the effect's mechanism."""
         x6, u = np.asarray(x6, float), np.asarray(u, float)
         shape = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1])
         x6 = np.broadcast_to(x6, shape + (6,))
@@ -448,7 +449,7 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
 
     The driver (:class:`simulation.driver.HumanDriver`) decides a command at each joystick
     message from the state then; the motors see it through :meth:`TrueDynamics.motor_inputs`;
-    the body dynamics (:meth:`TrueDynamics.f` plus OU process noise) and the eq. 5.75 pose
+    the body dynamics (:meth:`TrueDynamics.accel` plus OU process noise) and the eq. 5.75 pose
     kinematics are integrated by RK4 at ``dt``.
 
     Parameters
@@ -512,7 +513,7 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
         state = integrate(k0, k1, state, um.tolist(), n1, n2, n3, rows, dt)
     out = np.array(rows)
     xs, ys, psis, vxs, vys, oms = out.T
-    a_body = dyn.f(out, u_motor, t) + noise
+    a_body = dyn.accel(out, u_motor, t) + noise
     ax = a_body[:, 0] - vys * oms
     pitch = pitch_from_accel(ax, dt, params)
     z = np.zeros(n)

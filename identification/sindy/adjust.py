@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundfloor.errors import InputError
-from identification.sindy.library import STATE_NAMES
+from identification.sindy.library import LIBRARY_STATE_NAMES
 from identification.sindy.model import SindyModel
 from identification.sindy.regression import IntegralProblem, condition_number
 
@@ -81,7 +81,7 @@ def adjust_coefficients(model: SindyModel, problem: IntegralProblem, rows: np.nd
     theta = problem.theta_int if rows is None else problem.theta_int[rows]
     dx = problem.delta_x if rows is None else problem.delta_x[rows]
     terms, coefs, blocks, sigma0, cond = [], [], [], {}, {}
-    for i, eq in enumerate(STATE_NAMES):
+    for i, eq in enumerate(LIBRARY_STATE_NAMES):
         active = np.flatnonzero(model.coef[i])
         if not len(active):
             continue

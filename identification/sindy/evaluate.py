@@ -2,13 +2,10 @@
 
 The test runs are cut into windows of ``window_s`` (5 s) overlapping by 50 %. Each window
 starts from the data (pose and body velocities at a sample), is driven by the recorded inputs
-interpolated linearly, and is integrated over the combined local-frame ODE of eq. 5.75:
-
-.. math::  \\dot x = v_x\\cos\\psi - v_y\\sin\\psi,\\quad \\dot y = v_x\\sin\\psi + v_y\\cos\\psi,
-           \\quad \\dot\\psi = \\omega,\\quad \\dot{\\mathbf v}^b = \\mathbf f(\\mathbf v^b, \\mathbf u)
-
-(eq. 5.75 written with the body velocities as state, which is exact; with local-frame
-velocities as state the literal form of eq. 5.75 omits the rotation term ``omega x v``.)
+interpolated linearly, and is integrated over the combined local-frame ODE of eq. 5.75, the
+six-state derivative of the model (any :class:`groundfloor.dynamics.Dynamics`: the SINDy model,
+the baselines, the simulator's true dynamics as the oracle), with time counted from the start of
+each window's run.
 
 All windows (and, in the search, all candidate models) form one array ``(..., n_windows, 6)``
 integrated by one fixed-step RK4 loop over time (eqs. 5.70, 5.71); the thesis's two-step method
@@ -27,6 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
+from groundfloor.dynamics import Dynamics, pose_rate, rk4_rollout_step
 from groundfloor.errors import InputError
 from groundfloor.types import BodyStates
 from identification.preprocessing.trajectory import gap_threshold_s
@@ -40,7 +38,8 @@ class Windows:
 
     Attributes
     ----------
-    run : (W,) index of the run of each window; ``t0`` (W,) start time (a sample time).
+    run : (W,) index of the run of each window; ``t0`` (W,) start time (a sample time);
+    ``t0_run`` (W,) the start time of the window in seconds since the start of its run.
     x0 : (W, 6) initial ``[x, y, psi, vx, vy, omega]`` from the data.
     t_rel : (n,) relative times ``0, dt, ..., window_s``.
     u_half : (W, 2n - 1, 2) inputs at ``t_rel`` and the midpoints between (for RK4).
@@ -54,6 +53,7 @@ class Windows:
     u_half: np.ndarray
     pose_truth: np.ndarray
     run_names: tuple[str, ...] = ()
+    t0_run: np.ndarray | None = None
 
     @property
     def n_windows(self) -> int:
@@ -95,24 +95,6 @@ class EvaluationResult:
                 "n_windows": int(self.n_windows)}
 
 
-class PoseDependentDynamics:
-    """Adapter for dynamics that need the full state and time, e.g. the simulator's truth.
-
-    ``f6(x6, u, t) -> (..., 3)`` with ``x6 = [x, y, psi, vx, vy, omega]``; ``t`` is the
-    absolute time of the data minus ``t_offset``.
-    """
-
-    uses_pose = True
-    kinematic = False
-
-    def __init__(self, f6, name: str = "oracle", t_offset: float = 0.0):
-        self.f6, self.name, self.t_offset = f6, name, t_offset
-
-    def f_full(self, x6: np.ndarray, u: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """Return body accelerations ``(..., 3)``."""
-        return self.f6(x6, u, t - self.t_offset)
-
-
 def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: float = 0.5, dt: float = 0.02,
                  names: Sequence[str] | None = None, max_gap_s: float | None = None) -> Windows:
     """Return the windows of ``window_s`` with ``overlap`` over all runs (thesis 5.3.8).
@@ -133,7 +115,7 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
     n = int(round(window_s / dt))
     t_rel = np.arange(n + 1) * dt
     t_half = np.arange(2 * n + 1) * (dt / 2)
-    runs, t0s, x0s, us, truths = [], [], [], [], []
+    runs, t0s, t0_runs, x0s, us, truths = [], [], [], [], [], []
     for i, st in enumerate(states):
         t = np.asarray(st.t, dtype=float)
         if len(t) < 2 or t[-1] - t[0] < window_s:
@@ -155,73 +137,50 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
         x0s.append(np.column_stack([st.x[k], st.y[k], st.yaw[k], st.vx[k], st.vy[k], st.omega[k]]))
         runs.append(np.full(len(k), i))
         t0s.append(t[k])
+        t0_runs.append(t[k] - t[0])
     if not t0s:
         raise InputError(f"runs {', '.join(names)}: none is longer than one {window_s:g} s window")
     return Windows(run=np.concatenate(runs), t0=np.concatenate(t0s), x0=np.vstack(x0s), t_rel=t_rel,
-                   u_half=np.concatenate(us), pose_truth=np.concatenate(truths), run_names=names)
+                   u_half=np.concatenate(us), pose_truth=np.concatenate(truths), run_names=names,
+                   t0_run=np.concatenate(t0_runs))
 
 
-def _body_rate(model, s: np.ndarray, u: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Return ``d v_body / dt`` ``(..., 3)`` of any supported model at states ``s (..., 6)``."""
-    if getattr(model, "kinematic", False):
-        return np.zeros(s.shape[:-1] + (3,))
-    if getattr(model, "uses_pose", False):
-        return model.f_full(s, u, t)
-    return model.f(s[..., 3:], u)
-
-
-def _pose_rate(s: np.ndarray, v_body: np.ndarray) -> np.ndarray:
-    """Return ``[x_dot, y_dot, psi_dot]`` in the local frame (eq. 5.75, kinematic part)."""
-    c, sn = np.cos(s[..., 2]), np.sin(s[..., 2])
-    vx, vy, om = v_body[..., 0], v_body[..., 1], v_body[..., 2]
-    return np.stack([vx * c - vy * sn, vx * sn + vy * c, om], axis=-1)
-
-
-def _velocities(model, s: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Return the body velocities driving the pose: the state's, or a kinematic model's ``velocities``."""
-    return model.velocities(s[..., 3:], u) if getattr(model, "kinematic", False) else s[..., 3:]
-
-
-def rollout(model, windows: Windows, method: str = "rk4", batch_shape: tuple[int, ...] = ()) -> np.ndarray:
+def rollout(model: Dynamics, windows: Windows, method: str = "rk4", batch_shape: tuple[int, ...] = ()) -> np.ndarray:
     """Return predicted states ``(*batch_shape, W, n, 6)`` of all windows integrated together.
 
-    ``method="rk4"`` integrates the combined ODE of eq. 5.75 with classical RK4 (eqs. 5.70,
-    5.71); ``"euler2"`` is the thesis's two-step method: body velocities by RK4 on their own,
-    then the pose by explicit Euler with the current heading (eqs. 5.72 to 5.74).
+    ``method="rk4"`` integrates the model's six-state derivative (eq. 5.75) with classical RK4
+    (:func:`groundfloor.dynamics.rk4_rollout_step`, eqs. 5.70, 5.71); ``"euler2"`` is the thesis's
+    two-step method: body velocities by RK4 on their own (the pose held), then the pose by
+    explicit Euler with the velocities that move it at the step's start (eqs. 5.72 to 5.74).
     ``batch_shape`` lets a model with stacked coefficients predict for many models at once.
+    Time passed to the model: seconds since the start of each window's run.
     """
     if method not in ("rk4", "euler2"):
         raise InputError(f"method {method!r}: expected 'rk4' or 'euler2'")
     dt = windows.t_rel[1] - windows.t_rel[0]
     n = len(windows.t_rel)
     s = np.broadcast_to(windows.x0, batch_shape + windows.x0.shape).copy()
-    if getattr(model, "kinematic", False):
-        s[..., 3:] = _velocities(model, s, windows.u_half[:, 0])
+    t0 = windows.t0_run if windows.t0_run is not None else np.zeros_like(windows.t0)
     out = np.empty(s.shape[:-1] + (n, 6))
     out[..., 0, :] = s
     with np.errstate(over="ignore", invalid="ignore"):
         for i in range(n - 1):
             u0, um, u1 = (windows.u_half[:, 2 * i + j] for j in range(3))
-            t = windows.t0 + windows.t_rel[i]
+            t = t0 + windows.t_rel[i]
             if method == "rk4":
-                def g(x, u, tt):
-                    return np.concatenate([_pose_rate(x, _velocities(model, x, u)), _body_rate(model, x, u, tt)], -1)
-
-                k1 = g(s, u0, t)
-                k2 = g(s + dt / 2 * k1, um, t + dt / 2)
-                k3 = g(s + dt / 2 * k2, um, t + dt / 2)
-                k4 = g(s + dt * k3, u1, t + dt)
-                s = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+                s = rk4_rollout_step(model, s, u0, um, u1, t, dt)
             else:
-                pose_next = s[..., :3] + dt * _pose_rate(s, _velocities(model, s, u0))
+                pose_next = s[..., :3] + dt * pose_rate(s[..., 2], model.pose_velocity(s, u0))
                 v = s[..., 3:]
-                k1 = _body_rate(model, s, u0, t)
-                k2 = _body_rate(model, np.concatenate([s[..., :3], v + dt / 2 * k1], -1), um, t + dt / 2)
-                k3 = _body_rate(model, np.concatenate([s[..., :3], v + dt / 2 * k2], -1), um, t + dt / 2)
-                k4 = _body_rate(model, np.concatenate([s[..., :3], v + dt * k3], -1), u1, t + dt)
+
+                def accel(v_stage, u, tt):
+                    return model.accel(np.concatenate([s[..., :3], v_stage], -1), u, tt)
+
+                k1 = accel(v, u0, t)
+                k2 = accel(v + dt / 2 * k1, um, t + dt / 2)
+                k3 = accel(v + dt / 2 * k2, um, t + dt / 2)
+                k4 = accel(v + dt * k3, u1, t + dt)
                 s = np.concatenate([pose_next, v + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)], -1)
-            if getattr(model, "kinematic", False):
-                s[..., 3:] = _velocities(model, s, u1)
             out[..., i + 1, :] = s
     return out
 
@@ -243,26 +202,29 @@ def rms_over_windows(eps: np.ndarray) -> np.ndarray:
         return np.sqrt(np.mean(np.square(eps), axis=-2))
 
 
-def evaluate_model(model, states: Sequence[BodyStates] | Windows, method: str = "rk4", names=None,
+def _six_states(states: Sequence[BodyStates]) -> tuple[np.ndarray, np.ndarray]:
+    """Return the six states ``(n, 6)`` and inputs ``(n, 2)`` of all samples of ``states``."""
+    x6 = np.vstack([np.column_stack([st.x, st.y, st.yaw, st.vx, st.vy, st.omega]) for st in states])
+    return x6, np.vstack([st.inputs for st in states])
+
+
+def evaluate_model(model: Dynamics, states: Sequence[BodyStates] | Windows, method: str = "rk4", names=None,
                    window_s: float = 5.0, overlap: float = 0.5, dt: float = 0.02, name: str = "") -> EvaluationResult:
     """Return the multi-step prediction errors of ``model`` on ``states`` (thesis 5.3.8).
 
-    ``model`` is anything with ``f(x, u)`` (a :class:`~identification.sindy.model.SindyModel`, a
-    constant-velocity model), a kinematic model (``kinematic = True`` and ``velocities(x, u)``),
-    or a :class:`PoseDependentDynamics`. A model with ``check_envelope`` warns when the test
-    data leave its training envelope.
+    ``model`` is any :class:`groundfloor.dynamics.Dynamics`. Given runs (not windows), warns
+    when the test data leave the model's training envelope (``model.warn_outside_envelope``).
     """
     windows = states if isinstance(states, Windows) else make_windows(states, window_s, overlap, dt, names)
-    if hasattr(model, "check_envelope") and not isinstance(states, Windows):
-        model.check_envelope(np.vstack([st.state for st in states]), np.vstack([st.inputs for st in states]),
-                             name="test runs")
+    if not isinstance(states, Windows):
+        model.warn_outside_envelope(*_six_states(states), name="test runs")
     pred = rollout(model, windows, method)
     eps_p, eps_h = errors_from_rollout(pred, windows)
     return EvaluationResult(t_rel=windows.t_rel, s_p=rms_over_windows(eps_p), s_h=rms_over_windows(eps_h),
-                            eps_p=eps_p, eps_h=eps_h, method=method, name=name or getattr(model, "name", ""))
+                            eps_p=eps_p, eps_h=eps_h, method=method, name=name or model.name)
 
 
-def evaluate_reference(model, states: Sequence[BodyStates], names=None, window_s: float = 5.0,
+def evaluate_reference(model: Dynamics, states: Sequence[BodyStates], names=None, window_s: float = 5.0,
                        overlap: float = 0.5, dt: float = 0.02, rtol: float = 1e-8,
                        atol: float = 1e-10) -> EvaluationResult:
     """Return the same errors as :func:`evaluate_model` with one ``solve_ivp`` (RK45) per window.
@@ -283,8 +245,7 @@ def evaluate_reference(model, states: Sequence[BodyStates], names=None, window_s
 
         def rhs(tt, s, st=st, t_run=t_run, t0=t0):
             u = np.array([np.interp(t0 + tt, t_run, st.u1), np.interp(t0 + tt, t_run, st.u2)])
-            v = _velocities(model, s, u)
-            return np.concatenate([_pose_rate(s, v), _body_rate(model, s, u, windows.t0[w] + tt)])
+            return model.derivative(s, u, t0 + tt)
 
         sol = solve_ivp(rhs, (0.0, windows.t_rel[-1]), windows.x0[w], t_eval=windows.t_rel, rtol=rtol,
                         atol=atol, method="RK45")
@@ -292,7 +253,7 @@ def evaluate_reference(model, states: Sequence[BodyStates], names=None, window_s
         pred[w, sol.y.shape[1]:] = np.nan
     eps_p, eps_h = errors_from_rollout(pred, windows)
     return EvaluationResult(t_rel=windows.t_rel, s_p=rms_over_windows(eps_p), s_h=rms_over_windows(eps_h),
-                            eps_p=eps_p, eps_h=eps_h, method="solve_ivp", name=getattr(model, "name", ""))
+                            eps_p=eps_p, eps_h=eps_h, method="solve_ivp", name=model.name)
 
 
 def evaluate_on_runs(models: dict, runs, smoothing: float, methods=("rk4",)) -> dict[str, dict[str, EvaluationResult]]:
@@ -308,8 +269,6 @@ def evaluate_on_runs(models: dict, runs, smoothing: float, methods=("rk4",)) -> 
     windows = make_windows(segs, names=names)
     out = {}
     for name, model in models.items():
-        if hasattr(model, "check_envelope"):
-            model.check_envelope(np.vstack([s.state for s in segs]), np.vstack([s.inputs for s in segs]),
-                                 name=f"test runs ({name})")
+        model.warn_outside_envelope(*_six_states(segs), name=f"test runs ({name})")
         out[name] = {m: evaluate_model(model, windows, method=m, name=name) for m in methods}
     return out

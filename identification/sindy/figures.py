@@ -15,7 +15,7 @@ import numpy as np
 from groundfloor.figures import new_figure, save_figure
 from identification.sindy.adjust import Adjustment
 from identification.sindy.evaluate import EvaluationResult
-from identification.sindy.library import STATE_NAMES
+from identification.sindy.library import LIBRARY_STATE_NAMES
 from identification.sindy.model import SindyModel, term_prevalence
 from identification.sindy.search import SearchResult
 
@@ -63,7 +63,7 @@ def plot_error_vs_complexity(result: SearchResult, path=None):
 def plot_term_prevalence(models: list[SindyModel], path: str | Path | None = None, top: int = 15):
     """Return a bar chart of the ``top`` most prevalent terms per equation (fig. 7.11)."""
     prev = term_prevalence(models)
-    eqs = [eq for eq in STATE_NAMES if prev[eq]]
+    eqs = [eq for eq in LIBRARY_STATE_NAMES if prev[eq]]
     fig, axes = new_figure(5 * max(len(eqs), 1), 4.5, ncols=max(len(eqs), 1))
     for ax, eq in zip(axes[0], eqs):
         items = list(prev[eq].items())[:top]
@@ -92,7 +92,7 @@ def plot_error_curves(results: Sequence[EvaluationResult], path=None, stacked: b
 
 def plot_correlation(adj: Adjustment, path=None):
     """Return the correlation matrix of the adjusted coefficients per equation (fig. 7.12)."""
-    eqs = [eq for eq in STATE_NAMES if any(t[0] == eq for t in adj.terms)]
+    eqs = [eq for eq in LIBRARY_STATE_NAMES if any(t[0] == eq for t in adj.terms)]
     fig, axes = new_figure(6 * len(eqs), 5.5, ncols=len(eqs))
     for ax, eq in zip(axes[0], eqs):
         idx = [i for i, t in enumerate(adj.terms) if t[0] == eq]

@@ -29,9 +29,11 @@ import numpy as np
 
 from groundfloor.errors import InputError
 
-STATE_NAMES = ("vx", "vy", "omega")
-INPUT_NAMES = ("u1", "u2")
-VARIABLE_NAMES = STATE_NAMES + INPUT_NAMES
+# The library's variables: the body states its equations predict and the inputs (not the six
+# estimated states of groundfloor.dynamics.STATE_NAMES).
+LIBRARY_STATE_NAMES = ("vx", "vy", "omega")
+LIBRARY_INPUT_NAMES = ("u1", "u2")
+LIBRARY_VARIABLE_NAMES = LIBRARY_STATE_NAMES + LIBRARY_INPUT_NAMES
 LIBRARY_NAMES = ("poly1", "poly2", "poly3", "poly3_absu", "poly3_signsq")
 
 # Atom codes per variable: powers 1..3, absolute value, sign-keeping square.
@@ -40,7 +42,7 @@ _N_CODES = len(_ATOM_CODES)
 _TOKEN = re.compile(r"^(?:\|(?P<abs>\w+)\||(?P<sq>\w+)\|(?P=sq)\||(?P<var>\w+)(?:\^(?P<pow>\d))?)$")
 
 
-def parse_term(name: str, variables: tuple[str, ...] = VARIABLE_NAMES) -> tuple[tuple[int, int], ...]:
+def parse_term(name: str, variables: tuple[str, ...] = LIBRARY_VARIABLE_NAMES) -> tuple[tuple[int, int], ...]:
     """Return a feature name as sorted ``(variable index, atom code)`` pairs.
 
     ``"vx omega^2"`` gives ``((0, 0), (2, 1))``; ``"1"`` gives ``()``. The order of the factors
@@ -77,7 +79,7 @@ def parse_term(name: str, variables: tuple[str, ...] = VARIABLE_NAMES) -> tuple[
     return tuple(sorted(atoms))
 
 
-def term_name(atoms: tuple[tuple[int, int], ...], variables: tuple[str, ...] = VARIABLE_NAMES) -> str:
+def term_name(atoms: tuple[tuple[int, int], ...], variables: tuple[str, ...] = LIBRARY_VARIABLE_NAMES) -> str:
     """Return the pysindy-style name of a term given as ``(variable index, atom code)`` pairs."""
     if not atoms:
         return "1"
@@ -121,7 +123,7 @@ class FeatureLibrary:
 
     name: str
     feature_names: tuple[str, ...]
-    variables: tuple[str, ...] = VARIABLE_NAMES
+    variables: tuple[str, ...] = LIBRARY_VARIABLE_NAMES
     atoms: tuple[tuple[tuple[int, int], ...], ...] = field(init=False, repr=False)
 
     def __post_init__(self):
@@ -206,5 +208,5 @@ def make_library(name: str = "poly3") -> FeatureLibrary:
         If ``name`` is not a known library.
     """
     lib = _pysindy_library(name)
-    lib.fit(np.zeros((4, len(VARIABLE_NAMES))))
-    return FeatureLibrary(name=name, feature_names=tuple(lib.get_feature_names(list(VARIABLE_NAMES))))
+    lib.fit(np.zeros((4, len(LIBRARY_VARIABLE_NAMES))))
+    return FeatureLibrary(name=name, feature_names=tuple(lib.get_feature_names(list(LIBRARY_VARIABLE_NAMES))))

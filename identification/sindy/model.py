@@ -2,7 +2,10 @@
 
 :class:`SindyModel` holds the library and the coefficients ``Xi`` of eq. 5.53 and evaluates
 the body dynamics ``x_dot = Theta(x, u) Xi`` with its analytic Jacobians, vectorised over any
-leading axes (the EKF and the factor graph call these at every step). The JSON file records
+leading axes. It speaks SINDy's own terms (``f(x3, u)`` on the body states, used by the search,
+the diagnosis and the adjustment) and is a :class:`groundfloor.dynamics.Dynamics` (six states,
+used by the evaluation and the filters, which call it at every step: there only the model's
+active terms are evaluated, :class:`ActiveTerms`). The JSON file records
 everything needed to rebuild it and to judge where it may be trusted: feature names,
 coefficients per equation, library, hyperparameters ``s, tau, alpha, T``, the envelope of
 states and inputs seen in training, the package version and a format version.
@@ -18,11 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from groundfloor.dynamics import Dynamics, EnvelopeWarning
 from groundfloor.errors import InputError
 from identification.sindy.library import (
-    INPUT_NAMES,
-    STATE_NAMES,
-    VARIABLE_NAMES,
+    LIBRARY_INPUT_NAMES,
+    LIBRARY_STATE_NAMES,
+    LIBRARY_VARIABLE_NAMES,
     FeatureLibrary,
     make_library,
     parse_term,
@@ -34,18 +38,74 @@ FORMAT = "sindy-ekf-model"
 FORMAT_VERSION = 1
 
 
-class EnvelopeWarning(UserWarning):
-    """States or inputs outside the range the model was trained on."""
-
-
 def envelope_from_data(x_body: np.ndarray, u: np.ndarray) -> dict[str, list[float]]:
     """Return the per-variable ``[min, max]`` of training states ``(n, 3)`` and inputs ``(n, 2)``."""
     z = np.column_stack([x_body, u])
-    return {name: [float(np.nanmin(z[:, i])), float(np.nanmax(z[:, i]))] for i, name in enumerate(VARIABLE_NAMES)}
+    return {name: [float(np.nanmin(z[:, i])), float(np.nanmax(z[:, i]))]
+            for i, name in enumerate(LIBRARY_VARIABLE_NAMES)}
+
+
+class ActiveTerms:
+    """The active terms of coefficients ``coef (3, k)`` of a library, evaluated with their Jacobian.
+
+    One gather and one product over a table of atom values and atom derivatives give every
+    active monomial and every partial derivative of one (product rule: the derivative of one
+    factor times the other factors), and one matrix product with the coefficients sums them into
+    ``[a (3), J_a_z (3 x 5)]``. Only the model's own terms are touched, in a constant number of
+    numpy calls whatever the model's size: the filters evaluate it four times per step on a few
+    runs at a time, where numpy's per-call overhead is the cost.
+    """
+
+    # atom table: column 0 is the constant 1 (also the derivative of z), then blocks of one column
+    # per variable; the |z| blocks only for libraries that use them
+    _VALUE_BLOCK = ("z", "z2", "z3", "abs", "zabs")  # by atom code: ^1, ^2, ^3, abs, signsq
+    _DERIV_BLOCK = (None, "2z", "3z2", "sign", "2abs")  # their derivatives (None: the constant 1)
+
+    def __init__(self, library: FeatureLibrary, coef: np.ndarray):
+        nv = len(library.variables)
+        self.n_vars = nv
+        self.uses_abs = any(code >= 3 for atoms in library.atoms for _, code in atoms)
+        self.blocks = (("z", "z2", "z3", "abs", "zabs", "2z", "3z2", "sign", "2abs") if self.uses_abs
+                       else ("z", "z2", "z3", "2z", "3z2"))
+
+        def col(block: str | None, var: int) -> int:
+            return 0 if block is None else 1 + self.blocks.index(block) * nv + var
+
+        index, weight = [], []
+        for j, atoms in enumerate(library.atoms):
+            c = coef[:, j]
+            if not np.any(c):
+                continue
+            cols = [col(self._VALUE_BLOCK[code], v) for v, code in atoms]
+            index.append(cols + [0] * (3 - len(cols)))
+            w = np.zeros(3 + 3 * nv)
+            w[:3] = c
+            weight.append(w)
+            for m, (v, code) in enumerate(atoms):  # product rule: one row per factor
+                rest = cols[:m] + cols[m + 1:]
+                index.append([col(self._DERIV_BLOCK[code], v)] + rest + [0] * (2 - len(rest)))
+                w = np.zeros(3 + 3 * nv)
+                w[3 + v::nv] = c  # J_a_z row-major (3, nv): equation e, variable v at 3 + e * nv + v
+                weight.append(w)
+        self.index = np.array(index, dtype=np.intp).reshape(-1, 3)
+        self.weight = np.array(weight, dtype=float).reshape(-1, 3 + 3 * nv)
+
+    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Return ``a (..., 3)`` and ``J_a_z (..., 3, nv)`` at variables ``z (..., nv)``."""
+        z2 = z * z
+        parts = [np.ones(z.shape[:-1] + (1,)), z, z2, z2 * z]
+        if self.uses_abs:
+            az = np.abs(z)
+            parts += [az, z * az, 2.0 * z, 3.0 * z2, np.sign(z), 2.0 * az]
+        else:
+            parts += [2.0 * z, 3.0 * z2]
+        table = np.concatenate(parts, axis=-1)
+        out = table[..., self.index].prod(axis=-1) @ self.weight
+        return out[..., :3], out[..., 3:].reshape(z.shape[:-1] + (3, self.n_vars))
 
 
 @dataclass
-class SindyModel:
+class SindyModel(Dynamics):
     """Identified body dynamics ``[vx, vy, omega]_dot = f(x, u)`` (eqs. 5.53, 5.63, 5.66).
 
     Parameters
@@ -68,13 +128,14 @@ class SindyModel:
     envelope: dict = field(default_factory=dict)
     training: dict = field(default_factory=dict)
     version: str = ""
-    kinematic = False
+    name = "sindy"
+    _active: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         self.coef = np.asarray(self.coef, dtype=float)
-        if self.coef.shape != (len(STATE_NAMES), self.library.n_features):
+        if self.coef.shape != (len(LIBRARY_STATE_NAMES), self.library.n_features):
             raise InputError(f"model coefficients: shape {self.coef.shape}, expected "
-                             f"{(len(STATE_NAMES), self.library.n_features)} for library {self.library.name!r}")
+                             f"{(len(LIBRARY_STATE_NAMES), self.library.n_features)} for library {self.library.name!r}")
         if not self.version:
             from groundfloor import __version__
 
@@ -99,11 +160,52 @@ class SindyModel:
         """Return the analytic Jacobian ``d f / d u`` ``(..., 3, 2)``."""
         return self.f_and_jacobians(x, u)[2]
 
+    # the dynamics protocol (six states) -------------------------------------------------------
+    def accel(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
+        """Return :meth:`f` at the body velocities of ``x6 (..., 6)``: ``(..., 3)``."""
+        return self.f(np.asarray(x6, dtype=float)[..., 3:], u)
+
+    def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
+        """Return :meth:`f` and its Jacobians padded to the six states, ``(..., 3, 6)`` and ``(..., 3, 2)``.
+
+        Evaluates only the active terms (:class:`ActiveTerms`, rebuilt when ``coef`` changes);
+        equal to :meth:`f_and_jacobians` up to the order of summation.
+        """
+        x6 = np.asarray(x6, dtype=float)
+        key = self.coef.tobytes()
+        if self._active is None or self._active[0] != key:
+            self._active = (key, ActiveTerms(self.library, self.coef))
+        z = np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (2,))], axis=-1)
+        a, J_a_z = self._active[1](z)
+        J_a_x = np.zeros(x6.shape[:-1] + (3, 6))
+        J_a_x[..., 3:] = J_a_z[..., :3]
+        return a, J_a_x, J_a_z[..., 3:]
+
+    def in_envelope(self, x6: np.ndarray, u: np.ndarray, margin: float = 0.1) -> np.ndarray:
+        """Return True per sample where ``[vx, vy, omega, u1, u2]`` lies in the training envelope
+        widened by ``margin`` times its width on both sides (the rule of :meth:`check_envelope`)."""
+        x6 = np.asarray(x6, dtype=float)
+        z = np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (2,))], axis=-1)
+        return ~self._outside(z, margin).any(axis=-1)
+
+    def warn_outside_envelope(self, x6: np.ndarray, u: np.ndarray, name: str = "data") -> float:
+        """Return :meth:`check_envelope` of the body velocities of ``x6``: warns naming the variables."""
+        return self.check_envelope(np.asarray(x6, dtype=float)[..., 3:], u, name=name)
+
+    def _outside(self, z: np.ndarray, margin: float) -> np.ndarray:
+        """Return per variable whether ``z (..., 5)`` lies outside the widened envelope (unknown
+        variables and an empty envelope: never outside)."""
+        env = self.envelope or {}
+        lo = np.array([env[v][0] if v in env else -np.inf for v in LIBRARY_VARIABLE_NAMES])
+        hi = np.array([env[v][1] if v in env else np.inf for v in LIBRARY_VARIABLE_NAMES])
+        pad = margin * np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        return (z < lo - pad) | (z > hi + pad)
+
     # description ----------------------------------------------------------------------------
     def active_terms(self, tol: float = 0.0) -> dict[str, dict[str, float]]:
         """Return ``{equation: {feature name: coefficient}}`` of the non-zero terms."""
         return {eq: {n: float(c) for n, c in zip(self.library.feature_names, row) if abs(c) > tol}
-                for eq, row in zip(STATE_NAMES, self.coef)}
+                for eq, row in zip(LIBRARY_STATE_NAMES, self.coef)}
 
     @property
     def complexity(self) -> int:
@@ -132,14 +234,12 @@ class SindyModel:
         """
         if not self.envelope:
             return 0.0
-        z = np.concatenate(_stack_xu(x, u), axis=-1).reshape(-1, len(VARIABLE_NAMES))
-        lo = np.array([self.envelope[v][0] for v in VARIABLE_NAMES])
-        hi = np.array([self.envelope[v][1] for v in VARIABLE_NAMES])
-        pad = margin * (hi - lo)
-        out = (z < lo - pad) | (z > hi + pad)
+        z = np.concatenate(_stack_xu(x, u), axis=-1).reshape(-1, len(LIBRARY_VARIABLE_NAMES))
+        out = self._outside(z, margin)
         frac = float(out.any(axis=1).mean()) if len(z) else 0.0
         if frac > 0:
-            worst = [f"{v} ({100 * out[:, i].mean():.1f} %)" for i, v in enumerate(VARIABLE_NAMES) if out[:, i].any()]
+            worst = [f"{v} ({100 * out[:, i].mean():.1f} %)" for i, v in enumerate(LIBRARY_VARIABLE_NAMES)
+                     if out[:, i].any()]
             msg = (f"{name}: {100 * frac:.1f} % of samples outside the model's training envelope: "
                    + ", ".join(worst))
             log.warning(msg)
@@ -154,10 +254,10 @@ class SindyModel:
             "format_version": FORMAT_VERSION,
             "package_version": self.version,
             "library": self.library.params,
-            "state_names": list(STATE_NAMES),
-            "input_names": list(INPUT_NAMES),
+            "state_names": list(LIBRARY_STATE_NAMES),
+            "input_names": list(LIBRARY_INPUT_NAMES),
             "feature_names": list(self.library.feature_names),
-            "coefficients": {eq: [float(c) for c in row] for eq, row in zip(STATE_NAMES, self.coef)},
+            "coefficients": {eq: [float(c) for c in row] for eq, row in zip(LIBRARY_STATE_NAMES, self.coef)},
             "equations": self.equations().splitlines(),
             "hyperparameters": self.hyperparameters,
             "envelope": self.envelope,
@@ -190,7 +290,7 @@ class SindyModel:
                        f"{len(names or [])} features, expected {library.n_features}")
             raise InputError(f"{source}: feature_names do not match library {lib_name!r}: {bad}")
         try:
-            coef = np.array([d["coefficients"][eq] for eq in STATE_NAMES], dtype=float)
+            coef = np.array([d["coefficients"][eq] for eq in LIBRARY_STATE_NAMES], dtype=float)
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{source}: key coefficients is missing or malformed ({exc})") from None
         if not np.all(np.isfinite(coef)):
@@ -239,13 +339,13 @@ def model_from_terms(terms: dict[str, dict[str, float]], library: str | FeatureL
     index = {a: j for j, a in enumerate(lib.atoms)}
     coef = np.zeros((3, lib.n_features))
     for eq, row in terms.items():
-        if eq not in STATE_NAMES:
-            raise InputError(f"terms: unknown equation {eq!r} (expected one of {', '.join(STATE_NAMES)})")
+        if eq not in LIBRARY_STATE_NAMES:
+            raise InputError(f"terms: unknown equation {eq!r} (expected one of {', '.join(LIBRARY_STATE_NAMES)})")
         for name, c in row.items():
             j = index.get(parse_term(name))
             if j is None:
                 raise InputError(f"terms: {eq}: term {name!r} is not in library {lib.name!r}")
-            coef[STATE_NAMES.index(eq), j] = c
+            coef[LIBRARY_STATE_NAMES.index(eq), j] = c
     return SindyModel(library=lib, coef=coef, **kw)
 
 
@@ -255,7 +355,7 @@ def term_prevalence(models: list[SindyModel]) -> dict[str, dict[str, float]]:
     used = np.stack([m.coef != 0 for m in models])  # (n_models, 3, k)
     frac = used.mean(axis=0)
     out = {}
-    for i, eq in enumerate(STATE_NAMES):
+    for i, eq in enumerate(LIBRARY_STATE_NAMES):
         order = np.argsort(-frac[i], kind="stable")
         out[eq] = {lib.feature_names[j]: float(frac[i, j]) for j in order if frac[i, j] > 0}
     return out

@@ -32,8 +32,8 @@ from threadpoolctl import threadpool_limits
 from groundfloor.errors import InputError
 from groundfloor.types import BodyStates
 from identification.sindy.library import (
-    INPUT_NAMES,
-    STATE_NAMES,
+    LIBRARY_INPUT_NAMES,
+    LIBRARY_STATE_NAMES,
     FeatureLibrary,
     make_library,
 )
@@ -95,7 +95,7 @@ def check_states(states: Sequence[BodyStates], names: Sequence[str]) -> None:
     if not states:
         raise InputError("identification: no training runs")
     for st, name in zip(states, names):
-        for col in ("t",) + STATE_NAMES + INPUT_NAMES:
+        for col in ("t",) + LIBRARY_STATE_NAMES + LIBRARY_INPUT_NAMES:
             v = np.asarray(getattr(st, col), dtype=float)
             if len(v) != len(st.t):
                 raise InputError(f"run {name}: column {col} has {len(v)} values for {len(st.t)} times")
@@ -104,7 +104,7 @@ def check_states(states: Sequence[BodyStates], names: Sequence[str]) -> None:
                                  "or non-finite values")
         if len(st.t) > 1 and np.any(np.diff(st.t) <= 0):
             raise InputError(f"run {name}: times are not strictly increasing")
-    for col in INPUT_NAMES:
+    for col in LIBRARY_INPUT_NAMES:
         u = np.concatenate([np.asarray(getattr(st, col), dtype=float) for st in states])
         if np.ptp(u) < 1e-6:
             raise InputError(f"input {col}: constant ({u[0]:.3g}) over all training runs "

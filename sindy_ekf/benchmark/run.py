@@ -31,6 +31,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from groundfloor.errors import InputError
+from identification.sindy.baselines import ConstantVelocityModel, LagModel
 from sindy_ekf.estimation.ekf import (
     GRID_TOL_S,
     EkfRun,
@@ -39,13 +40,10 @@ from sindy_ekf.estimation.ekf import (
     run_ekf_batch,
 )
 from sindy_ekf.estimation.process_models import (
-    BodyModelProcess,
-    ConstantVelocityProcess,
     ProcessModel,
     StateSeries,
-    TrueDynamicsProcess,
+    body_states_from_state_series,
     fit_process_noise,
-    fit_unicycle,
     state_series_from_body_states,
 )
 
@@ -164,10 +162,13 @@ def fit_models(train_runs, sindy_body, oracle_dynamics=None, smoothing: float | 
     """Return the process models of the EKFs, each with ``Q`` fitted on the train runs' states
     (``series``: those states if already computed by :func:`train_series`)."""
     series = train_series(train_runs, smoothing) if series is None else series
-    models = {"cv_ekf": ConstantVelocityProcess(), "unicycle_ekf": fit_unicycle(series),
-              "sindy_ekf": BodyModelProcess(sindy_body, name="sindy")}
+    # unicycle_ekf runs the first-order lag model (what it always ran); issue 13 gives lag_ekf a
+    # lag model with dead time and unicycle_ekf the kinematic unicycle of the baselines
+    lag = LagModel().fit([body_states_from_state_series(s) for s in series])
+    models = {"cv_ekf": ProcessModel(ConstantVelocityModel(), "cv"), "unicycle_ekf": ProcessModel(lag, "lag"),
+              "sindy_ekf": ProcessModel(sindy_body, "sindy")}
     if oracle_dynamics is not None:
-        models["oracle_ekf"] = TrueDynamicsProcess(oracle_dynamics)
+        models["oracle_ekf"] = ProcessModel(oracle_dynamics, "oracle")
     for m in models.values():
         fit_process_noise(m, series)
     return models

@@ -30,14 +30,13 @@ def oracle_for(campaign_dir: Path):
     """
     if not (Path(campaign_dir) / "truth" / "truth.yaml").is_file():
         return None
-    from identification.sindy.evaluate import PoseDependentDynamics
     from simulation.effects import Effect
     from simulation.robot import TrueDynamics
     from simulation.truth import read_truth
 
     truth = read_truth(campaign_dir, states=False)
     effect = Effect(*truth.effects[0]) if truth.effects else None
-    return PoseDependentDynamics(TrueDynamics(effect=effect).f, name="oracle")
+    return TrueDynamics(effect=effect)
 
 
 def run(args) -> int:

@@ -2,11 +2,10 @@
 
 :class:`ExtendedModel` is the given SINDy model's library with re-identified coefficients plus
 the mechanism: an input transform (the motors see ``T_theta(u)``) and/or additive columns
-``C(x6, u) beta`` (pose-dependent). It has the interface of the simulator's true dynamics,
-``f(x6, u, t) -> (..., 3)``, ``J_f_x -> (..., 3, 6)``, ``J_f_u -> (..., 3, 2)``, so the
-estimation code takes it like the oracle (``process_models.TrueDynamicsProcess``), and
-``uses_pose``/``f_full`` for the batched multi-step evaluation. It is saved as JSON (the base
-model's own file format nested, plus the mechanism).
+``C(x6, u) beta`` (pose-dependent). It is a :class:`groundfloor.dynamics.Dynamics` like every
+motion model, so the evaluation and the filters take it as they take the SINDy model or the
+simulator's true dynamics. It is saved as JSON (the base model's own file format nested, plus
+the mechanism).
 
 Re-identification (eqs. 5.55 to 5.59 on the model's support): the integral regression of the
 train runs with the inputs the motors see, the columns of the library the model uses per
@@ -28,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
+from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
 from groundfloor.types import BodyStates
 from identification.sindy.model import SindyModel
@@ -40,8 +40,11 @@ FORMAT = "sindy-ekf-extended-model"
 
 
 @dataclass
-class ExtendedModel:
-    """A SINDy model plus one mechanism (input transform and/or additive pose-dependent columns)."""
+class ExtendedModel(Dynamics):
+    """A SINDy model plus one mechanism (input transform and/or additive pose-dependent columns).
+
+    Its inputs are the motor inputs (:meth:`motor_inputs`), time counts from the run's start.
+    """
 
     base: SindyModel
     family: str
@@ -49,8 +52,6 @@ class ExtendedModel:
     beta: np.ndarray
     estimate: dict = field(default_factory=dict)
     vy_scale: float = 1.0  # the vx and omega equations see vy / vy_scale (see :meth:`added`)
-    uses_pose = True
-    kinematic = False
 
     def __post_init__(self):
         self.theta = np.asarray(self.theta, float).reshape(-1)
@@ -121,7 +122,7 @@ class ExtendedModel:
             a = np.concatenate([a_other[..., :1], a[..., 1:2], a_other[..., 2:]], axis=-1)
         return a
 
-    def f(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
+    def accel(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
         """Return body accelerations ``(..., 3)`` at full states ``x6 (..., 6)`` and motor inputs ``u``."""
         x6 = np.asarray(x6, float)
         a = self._base_f(x6[..., 3:], u)
@@ -130,12 +131,9 @@ class ExtendedModel:
             a = a + cols @ self.beta
         return a
 
-    def f_full(self, x6: np.ndarray, u: np.ndarray, t) -> np.ndarray:
-        """Return :meth:`f` (the interface of ``identification.sindy.evaluate`` for pose-dependent models)."""
-        return self.f(x6, u, t)
-
-    def f_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
-        """Return ``f (..., 3)``, ``J_f_x (..., 3, 6)`` and ``J_f_u (..., 3, 2)``."""
+    def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
+        """Return the accelerations ``(..., 3)``, ``J_a_x (..., 3, 6)`` (pose columns included) and
+        ``J_a_u (..., 3, 2)`` with respect to the motor inputs."""
         x6 = np.asarray(x6, float)
         a, J3, J_u = self.base.f_and_jacobians(x6[..., 3:], u)
         if self.vy_scale != 1.0:  # vx and omega rows at vy / vy_scale (chain rule on the vy column)
@@ -156,13 +154,9 @@ class ExtendedModel:
             J_x = J_x + np.einsum("...emk,m->...ek", J, self.beta)
         return a, J_x, J_u
 
-    def J_f_x(self, x6, u, t=0.0) -> np.ndarray:
-        """Return ``d f / d x6`` ``(..., 3, 6)`` (analytic; pose columns included)."""
-        return self.f_and_jacobians(x6, u, t)[1]
-
-    def J_f_u(self, x6, u, t=0.0) -> np.ndarray:
-        """Return ``d f / d u`` ``(..., 3, 2)`` with respect to the motor inputs."""
-        return self.f_and_jacobians(x6, u, t)[2]
+    def in_envelope(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return the base model's :meth:`SindyModel.in_envelope`."""
+        return self.base.in_envelope(x6, u)
 
     def as_sindy(self) -> SindyModel:
         """Return the extended model as a plain :class:`SindyModel` when its mechanism is library terms.
@@ -272,7 +266,7 @@ def check_extended(ext: ExtendedModel, model: SindyModel, train: Split) -> float
     """Return the relative change of the train residual of ``ext`` against ``model`` (negative: better)."""
     r0 = train.delta_v - null_prediction(model, train)
     u_m = ext.spec.motor_inputs(train.t_run, train.u, train.runs_slices(), ext.theta[None])[0]
-    r1 = train.delta_v - train.integrate(ext.f(train.x6, u_m))
+    r1 = train.delta_v - train.integrate(ext.accel(train.x6, u_m))
     return float(np.sum(r1 ** 2) / np.sum(r0 ** 2) - 1.0)
 
 
@@ -327,8 +321,7 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
     from sindy_ekf.benchmark.run import outage_ekf_run
     from sindy_ekf.estimation.ekf import run_ekf_batch
     from sindy_ekf.estimation.process_models import (
-        BodyModelProcess,
-        TrueDynamicsProcess,
+        ProcessModel,
         fit_process_noise,
         state_series_from_body_states,
     )
@@ -340,7 +333,7 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
 
     errors = {}
     for name, model in models.items():
-        proc = TrueDynamicsProcess(model, name) if isinstance(model, ExtendedModel) else BodyModelProcess(model, name)
+        proc = ProcessModel(model, name)
         fit_process_noise(proc, [state_series_from_body_states(st, f"train{i}")
                                  for i, st in enumerate(prepared(model, train))])
         runs, ends = [], []

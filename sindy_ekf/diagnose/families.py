@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from identification.sindy.library import STATE_NAMES, parse_term
+from identification.sindy.library import LIBRARY_STATE_NAMES, parse_term
 from identification.sindy.search import (
     STABILITY_TOL,
     max_re_eig_at_rest,
@@ -229,7 +229,7 @@ def model_coefficient(model, equation: str, term: str) -> float:
     atoms = parse_term(term, lib.variables)
     for j, a in enumerate(lib.atoms):
         if a == atoms:
-            return float(model.coef[STATE_NAMES.index(equation), j])
+            return float(model.coef[LIBRARY_STATE_NAMES.index(equation), j])
     return 0.0
 
 

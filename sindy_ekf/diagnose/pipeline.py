@@ -20,7 +20,7 @@ import numpy as np
 from groundfloor.errors import InputError
 from groundfloor.progress import progress
 from groundfloor.types import BodyStates
-from identification.sindy.library import INPUT_NAMES, STATE_NAMES
+from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
 from identification.sindy.model import SindyModel
 from identification.sindy.search import stable_at_rest
 from sindy_ekf.diagnose.data import split_from_states
@@ -139,9 +139,9 @@ def errors_5s(before, after) -> tuple[dict, dict]:
 def check_model_inputs(model, source: str = "model") -> None:
     """Raise InputError unless ``model`` works on ``[vx, vy, omega]`` and inputs ``[u1, u2]``."""
     variables = tuple(getattr(getattr(model, "library", None), "variables", ()))
-    if variables != STATE_NAMES + INPUT_NAMES:
+    if variables != LIBRARY_STATE_NAMES + LIBRARY_INPUT_NAMES:
         raise InputError(f"{source}: trained on variables {list(variables)}, but a campaign provides "
-                         f"states {list(STATE_NAMES)} and inputs {list(INPUT_NAMES)}")
+                         f"states {list(LIBRARY_STATE_NAMES)} and inputs {list(LIBRARY_INPUT_NAMES)}")
 
 
 def load_model(path) -> SindyModel:
@@ -152,11 +152,11 @@ def load_model(path) -> SindyModel:
     d = read_model_json(path)
     if isinstance(d, dict):
         ins, sts = d.get("input_names"), d.get("state_names")
-        if ins is not None and list(ins) != list(INPUT_NAMES):
+        if ins is not None and list(ins) != list(LIBRARY_INPUT_NAMES):
             raise InputError(f"{path}: model trained on inputs {list(ins)}, but a campaign provides "
-                             f"{list(INPUT_NAMES)}")
-        if sts is not None and list(sts) != list(STATE_NAMES):
-            raise InputError(f"{path}: model trained on states {list(sts)}, expected {list(STATE_NAMES)}")
+                             f"{list(LIBRARY_INPUT_NAMES)}")
+        if sts is not None and list(sts) != list(LIBRARY_STATE_NAMES):
+            raise InputError(f"{path}: model trained on states {list(sts)}, expected {list(LIBRARY_STATE_NAMES)}")
     model = SindyModel.from_dict(d, source=str(path))
     check_model_inputs(model, str(path))
     return model
@@ -251,7 +251,7 @@ def in_envelope(model, split, margin: float = 0.1):
     if not env:
         return split
     z = np.concatenate([split.v_body, split.u], axis=-1)
-    names = STATE_NAMES + INPUT_NAMES
+    names = LIBRARY_STATE_NAMES + LIBRARY_INPUT_NAMES
     lo = np.array([env.get(v, [-np.inf, np.inf])[0] for v in names])
     hi = np.array([env.get(v, [-np.inf, np.inf])[1] for v in names])
     pad = margin * (hi - lo)

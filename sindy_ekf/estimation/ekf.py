@@ -178,7 +178,7 @@ class ModelEKF(ExtendedKalmanFilter):
 
         Overrides filterpy's linear ``predict`` (eqs. 5.70, 5.71 with the chain-rule Jacobian).
         """
-        x, F, _ = self.model.step_and_jac(self.x, u, t, dt)
+        x, F, _ = self.model.step_and_jac(self.x, u, t, dt, input_jacobian=False)
         self.x = x
         self.P, repaired = repair_covariance(F @ self.P @ F.T + self.model.Q(dt))
         if repaired:
@@ -256,7 +256,8 @@ class EkfRun:
 
 
 class _RunState:
-    """Per-run bookkeeping of the lockstep driver: storage, pending fixes, the filterpy object."""
+    """Per-run bookkeeping of the lockstep driver: pending fixes, the filterpy object, and views
+    ``X``, ``P``, ``M`` of this run's column of the batch's stacked storage (:meth:`attach`)."""
 
     def __init__(self, run: EkfRun, model: ProcessModel, gate_prob: float):
         name, t = run.name, np.asarray(run.t, dtype=float)
@@ -294,12 +295,15 @@ class _RunState:
             self.kv = self.ka = np.empty(0, dtype=int)
             lever = (0.0, 0.0)
         self.ekf = ModelEKF(model, run.x0, P0, lever, gate_prob)
-        self.X = np.empty((n, N_X))
-        self.P = np.empty((n, N_X, N_X))
-        self.M = np.empty((n, N_X, N_X))  # error transition k -> k+1 (updates at k+1 folded in)
-        self.X[0], self.P[0] = self.ekf.x, self.ekf.P
         self.j = 0
         self.nis, self.nis_t, self.accepted = [], [], []
+
+    def attach(self, X: np.ndarray, P: np.ndarray, M: np.ndarray) -> None:
+        """Keep ``X (n_max, 6)``, ``P``, ``M (n_max, 6, 6)`` (views into the batch's storage) as
+        this run's estimates, covariances and error transitions ``k -> k+1`` (updates at ``k+1``
+        folded in); store the initial estimate."""
+        self.X, self.P, self.M = X, P, M
+        self.X[0], self.P[0] = self.ekf.x, self.ekf.P
 
     def apply_fixes(self, k1: int) -> None:
         """Apply every fix that has arrived by step ``k1`` at its time of validity."""
@@ -331,43 +335,66 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
     """Return the EKF (or, without GNSS, dead-reckoning) estimates of several runs.
 
     The runs are filtered independently but in lockstep over the step index, so that one
-    vectorised model call predicts all of them (the model step dominates the cost; a loop over
-    time is inherent to a filter). Each run keeps its own :class:`ModelEKF` for its updates.
+    vectorised model call predicts all of them (a loop over time is inherent to a filter). The
+    runs' states, covariances and error transitions live in stacked arrays (longest run first, so
+    the runs still going at a step are a leading slice); each run keeps its own
+    :class:`ModelEKF` for its GNSS updates, which touch a run only at the steps a fix arrives.
     ``lateral``: optional ``v_y = 0`` pseudo-measurement (module docstring), off by default.
     """
     start = time.perf_counter()
     states = [_RunState(r, model, gate_prob) for r in runs]
-    n_max = max(s.n for s in states)
-    for s in states:
+    order = sorted(range(len(states)), key=lambda i: -states[i].n)  # longest first
+    ss = [states[i] for i in order]
+    m, n_max = len(ss), ss[0].n
+    X = np.empty((n_max, m, N_X))
+    P = np.empty((n_max, m, N_X, N_X))
+    M = np.empty((n_max, m, N_X, N_X))
+    t_rel = np.zeros((n_max, m))  # s since each run's start
+    dt = np.ones((n_max, m))
+    u = np.zeros((n_max, m, 2))
+    fixes_at: dict[int, list[int]] = {}  # step -> runs (slots) with a fix arriving then
+    for i, s in enumerate(ss):
+        s.attach(X[:, i], P[:, i], M[:, i])
+        t_rel[:s.n, i] = s.t - s.t[0]
+        dt[:s.n - 1, i] = np.diff(s.t)
+        u[:s.n, i] = s.u
+        for k1 in np.unique(s.ka):
+            fixes_at.setdefault(int(k1), []).append(i)
         s.apply_fixes(0)
+    n_going = np.searchsorted(-np.array([s.n - 1 for s in ss]), -np.arange(n_max - 1), side="right")
     for k in progress(range(n_max - 1), desc="EKF", total=n_max - 1):
-        active = [s for s in states if k < s.n - 1]
-        t_k = np.array([s.t[k] - s.t[0] for s in active])
-        dt = np.array([s.t[k + 1] - s.t[k] for s in active])
-        x = np.stack([s.ekf.x for s in active])
-        u = np.stack([s.u[k] for s in active])
-        P = np.stack([s.ekf.P for s in active])
-        x_next, F, _ = model.step_and_jac(x, u, t_k, dt)
-        P_next = F @ P @ np.swapaxes(F, -1, -2) + model.Q(dt)
+        a = n_going[k]
+        x_next, F, _ = model.step_and_jac(X[k, :a], u[k, :a], t_rel[k, :a], dt[k, :a], input_jacobian=False)
+        P_next = F @ P[k, :a] @ np.swapaxes(F, -1, -2) + model.Q(dt[k, :a])
         if lateral is not None and (k + 1) % lateral.every == 0:
             x_next, P_next, IKH = lateral_update(x_next, P_next, lateral.vy_std_m_s)
             F = IKH @ F  # error transition of the step with the pseudo-measurement folded in
-        for i, s in enumerate(active):
-            if not (np.all(np.isfinite(x_next[i])) and np.all(np.isfinite(P_next[i]))):
-                raise InputError(f"{s.name}: state or covariance became non-finite at t={t_k[i] + dt[i]:.2f} s "
-                                 f"(model {model.name!r} diverged)")
-            Pi, repaired = repair_covariance(P_next[i])
-            if repaired:
-                s.ekf.pd_repairs += 1
-                log.warning("%s: predicted covariance lost positive definiteness at t=%.2f s; "
-                            "eigenvalues clipped (repair %d)", s.name, t_k[i] + dt[i], s.ekf.pd_repairs)
-            s.ekf.x, s.ekf.P, s.ekf.F = x_next[i], Pi, F[i]
-            s.M[k] = F[i]
+        if not np.isfinite(x_next.sum() + P_next.sum()):  # one test for all runs; then find the culprit
+            for i in range(a):
+                if not (np.all(np.isfinite(x_next[i])) and np.all(np.isfinite(P_next[i]))):
+                    raise InputError(f"{ss[i].name}: state or covariance became non-finite at "
+                                     f"t={t_rel[k + 1, i]:.2f} s (model {model.name!r} diverged)")
+        P_next = 0.5 * (P_next + np.swapaxes(P_next, -1, -2))
+        try:  # one factorisation for all runs; repair run by run only when one fails
+            np.linalg.cholesky(P_next)
+        except np.linalg.LinAlgError:
+            for i in range(a):
+                P_next[i], repaired = repair_covariance(P_next[i])
+                if repaired:
+                    s = ss[i]
+                    s.ekf.pd_repairs += 1
+                    log.warning("%s: predicted covariance lost positive definiteness at t=%.2f s; "
+                                "eigenvalues clipped (repair %d)", s.name, t_rel[k + 1, i], s.ekf.pd_repairs)
+        X[k + 1, :a], P[k + 1, :a], M[k, :a] = x_next, P_next, F
+        for i in fixes_at.get(k + 1, ()):
+            s = ss[i]
+            s.ekf.x, s.ekf.P = X[k + 1, i].copy(), P[k + 1, i].copy()
             s.apply_fixes(k + 1)
     runtime = time.perf_counter() - start
     results = []
     for s in states:
-        outside = ~model.in_envelope(s.X, s.u)
+        s_X, s_P = np.ascontiguousarray(s.X[:s.n]), np.ascontiguousarray(s.P[:s.n])
+        outside = ~model.in_envelope(s_X, s.u)
         if outside.any():
             log.warning("%s: state outside the model's training envelope for %.1f %% of the run "
                         "(first at t=%.2f s)", s.name, 100 * outside.mean(),
@@ -375,7 +402,7 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
         if s.ekf.n_gated:
             log.info("%s: %d of %d GNSS fixes rejected by the chi-square gate (dof %d, p %.4f)",
                      s.name, s.ekf.n_gated, len(s.ka), GATE_DOF, gate_prob)
-        results.append(EkfResult(s.name, s.t, s.X, s.P, np.array(s.nis), np.array(s.nis_t),
+        results.append(EkfResult(s.name, s.t, s_X, s_P, np.array(s.nis), np.array(s.nis_t),
                                  np.array(s.accepted, bool), s.ekf.gate_nis, s.ekf.pd_repairs,
                                  outside, runtime * s.n / sum(x.n for x in states), s.repairs))
     return results

@@ -84,7 +84,7 @@ class DynamicsFactors:
         x = np.column_stack([poses[:m], vels[:m]])
         self._x[:m] = x
         self._pred[:m], self._F[:m], _ = self.model.step_and_jac(x, self.u[:m], self.t_rel[:m],
-                                                                 self.dt[:m])
+                                                                 self.dt[:m], input_jacobian=False)
         self.n_batch += 1
 
     def factor(self, k: int, noise) -> gtsam.CustomFactor:
@@ -103,7 +103,7 @@ class DynamicsFactors:
                 if not (x0 == self._x[k]).all():
                     self._x[k] = x0
                     self._pred[k], self._F[k], _ = self.model.step_and_jac(
-                        x0, self.u[k], self.t_rel[k], self.dt[k])
+                        x0, self.u[k], self.t_rel[k], self.dt[k], input_jacobian=False)
                     self.n_single += 1
             pred, F = self._pred[k], self._F[k]
             v1 = values.atVector(kv1)

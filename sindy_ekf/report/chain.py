@@ -182,12 +182,7 @@ def oracle_for(campaign_dir: Path):
     Only the dynamics are used (the best any model can do); input-side effects (delay,
     deadband, ...) are not applied to the recorded inputs.
     """
-    dynamics = true_dynamics_of(campaign_dir)
-    if dynamics is None:
-        return None
-    from identification.sindy.evaluate import PoseDependentDynamics
-
-    return PoseDependentDynamics(dynamics.f, name="oracle")
+    return true_dynamics_of(campaign_dir)
 
 
 def stage_evaluation(chain: ChainResult) -> None:

@@ -84,7 +84,7 @@ def test_neutral_rest_keeps_model_b_inside_its_envelope():
     u_ss = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     x = np.zeros((len(u_ss), 6))
     for _ in range(1500):
-        x[:, 3:] += 0.004 * dyn.f(x, u_ss)
+        x[:, 3:] += 0.004 * dyn.accel(x, u_ss)
     i, j = np.meshgrid(np.arange(len(u_ss)), np.arange(len(u_ss)), indexing="ij")
     u_old, u_new, x0 = u_ss[i.ravel()], u_ss[j.ravel()], x[i.ravel()]
     flip = (u_old * u_new) < 0
@@ -94,7 +94,7 @@ def test_neutral_rest_keeps_model_b_inside_its_envelope():
         top = np.zeros((len(xs), 2))
         for k in range(1000):  # 4 s at 4 ms
             u = np.where(flip & (k * 0.004 < rest_s), 0.0, u_new)
-            xs[:, 3:] += 0.004 * dyn.f(xs, u)
+            xs[:, 3:] += 0.004 * dyn.accel(xs, u)
             track = np.abs(xs[:, 3]) + p.track_half_width_m * np.abs(xs[:, 5])
             top = np.maximum(top, np.column_stack([track, np.abs(xs[:, 5])]))
         peak[rest_s] = top.max(axis=0)

@@ -104,7 +104,7 @@ def test_heading_dependence_is_gravity_along_a_tilted_floor():
     psi = np.linspace(-3, 3, 13)
     x6 = np.zeros((13, 6))
     x6[:, 2] = psi
-    df = dyn_e.f(x6, [0, 0]) - dyn.f(x6, [0, 0])
+    df = dyn_e.accel(x6, [0, 0]) - dyn.accel(x6, [0, 0])
     th = math.radians(tilt)
     # floor normal tilted so that the floor descends towards local +x; gravity in the floor plane
     n = np.array([math.sin(th), 0.0, math.cos(th)])
@@ -124,7 +124,7 @@ def test_position_dependence_damps_inside_the_patch_only():
     dyn_e, dyn = TrueDynamics(effect=Effect("position_dependence", v)), TrueDynamics()
     pts = np.array([c, c + [r, 0], c + [r + 1.0, 0], c + [0, r - 1.0]])
     x6 = np.column_stack([pts, np.zeros(4), np.full(4, 0.5), np.zeros(4), np.full(4, 0.4)])
-    df = dyn_e.f(x6, [0.5, 0.2]) - dyn.f(x6, [0.5, 0.2])
+    df = dyn_e.accel(x6, [0.5, 0.2]) - dyn.accel(x6, [0.5, 0.2])
     share = df[:, 0] / (-v * 7.770 * 0.5)
     np.testing.assert_allclose(share, [1.0, 0.5, 0.0, 1.0], atol=1e-6)
     np.testing.assert_allclose(df[:, 2] / (-v * 6.951 * 0.4), share, atol=1e-6)
@@ -135,7 +135,7 @@ def test_lateral_slip_multiplies_the_steady_sideways_drift():
     for effect, gain in ((None, 1.0), (Effect("lateral_slip", v), v)):
         dyn = TrueDynamics(effect=effect)
         vy_ss = -gain * 0.6 * 0.5 / 15.0  # -gain vx omega / k_y
-        assert dyn.f([0, 0, 0, 0.6, vy_ss, 0.5], [0.6, 0.4])[1] == pytest.approx(0.0, abs=1e-12)
+        assert dyn.accel([0, 0, 0, 0.6, vy_ss, 0.5], [0.6, 0.4])[1] == pytest.approx(0.0, abs=1e-12)
 
 
 # --- every effect changes a run, visibly but moderately -----------------------------------

@@ -76,7 +76,7 @@ def test_true_terms_reproduce_f_through_pysindy_features():
     theta = lib.transform(np.column_stack([x6[:, 3:], u]))
     names = lib.get_feature_names(["vx", "vy", "omega", "u1", "u2"])
     dyn = TrueDynamics()
-    f = dyn.f(x6, u, 0.0)
+    f = dyn.accel(x6, u, 0.0)
     for i, key in enumerate(("vx", "vy", "omega")):
         xi = np.array([dyn.true_terms()[key].get(n, 0.0) for n in names])
         assert set(dyn.true_terms()[key]) <= set(names)
@@ -90,8 +90,8 @@ def test_model_b_steady_states_match_table_3_1():
     u = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     x6 = np.zeros((len(u), 6))
     for _ in range(5000):  # 10 s of explicit Euler, 2 ms (slow near the fold at u1 = +-1)
-        x6[:, 3:] += 0.002 * dyn.f(x6, u)
-    assert np.abs(dyn.f(x6, u)).max() < 1e-5  # settled
+        x6[:, 3:] += 0.002 * dyn.accel(x6, u)
+    assert np.abs(dyn.accel(x6, u)).max() < 1e-5  # settled
     assert 0.75 < np.abs(x6[:, 3]).max() <= RobotParams().max_speed_m_s
     assert np.all(np.sign(x6[:, 3]) == np.sign(np.round(u[:, 0], 9)))  # throttle sign -> direction
     assert np.all(np.sign(x6[:, 5]) == np.sign(np.round(u[:, 1], 9)))  # steering left -> omega > 0
@@ -105,7 +105,7 @@ def test_speed_limiter_bounds_states_model_b_would_blow_up():
     x6 = np.array([[0, 0, 0, -0.3, 0, -1.0]], float)
     u = np.array([[1.0, 1.0]])
     for _ in range(3000):
-        x6[:, 3:] += 0.002 * dyn.f(x6, u)
+        x6[:, 3:] += 0.002 * dyn.accel(x6, u)
     assert np.abs(x6[0, 3]) < 1.5 and np.abs(x6[0, 5]) < 1.8
 
 
@@ -122,22 +122,23 @@ def test_jacobians_match_central_differences(effect):
     u = rng.uniform(-1, 1, (60, 2))
     dyn = TrueDynamics(effect=effect)
     h = 1e-6
-    J_num_x = np.stack([(dyn.f(x6 + h * e, u) - dyn.f(x6 - h * e, u)) / (2 * h) for e in np.eye(6)], -1)
-    J_num_u = np.stack([(dyn.f(x6, u + h * e) - dyn.f(x6, u - h * e)) / (2 * h) for e in np.eye(2)], -1)
-    np.testing.assert_allclose(dyn.J_f_x(x6, u, 0.0), J_num_x, rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose(dyn.J_f_u(x6, u, 0.0), J_num_u, rtol=1e-6, atol=1e-6)
-    assert dyn.J_f_x(x6, u).shape == (60, 3, 6) and dyn.J_f_u(x6, u).shape == (60, 3, 2)
+    J_num_x = np.stack([(dyn.accel(x6 + h * e, u) - dyn.accel(x6 - h * e, u)) / (2 * h) for e in np.eye(6)], -1)
+    J_num_u = np.stack([(dyn.accel(x6, u + h * e) - dyn.accel(x6, u - h * e)) / (2 * h) for e in np.eye(2)], -1)
+    _, J_x, J_u = dyn.accel_and_jacobians(x6, u, 0.0)
+    np.testing.assert_allclose(J_x, J_num_x, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(J_u, J_num_u, rtol=1e-6, atol=1e-6)
+    assert J_x.shape == (60, 3, 6) and J_u.shape == (60, 3, 2)
 
 
-def test_f_and_jacobians_broadcast_over_leading_axes():
+def test_accel_and_jacobians_broadcast_over_leading_axes():
     dyn = TrueDynamics()
     rng = np.random.default_rng(0)
     x6 = _random_states(rng, 12).reshape(3, 4, 6)
     u = np.array([0.3, -0.2])
-    assert dyn.f(x6, u).shape == (3, 4, 3)
-    assert dyn.J_f_x(x6, u).shape == (3, 4, 3, 6)
-    np.testing.assert_allclose(dyn.f(x6, u)[1, 2], dyn.f(x6[1, 2], u))
-    assert dyn.f(np.zeros(6), np.zeros(2)).shape == (3,)
+    assert dyn.accel(x6, u).shape == (3, 4, 3)
+    assert dyn.accel_and_jacobians(x6, u)[1].shape == (3, 4, 3, 6)
+    np.testing.assert_allclose(dyn.accel(x6, u)[1, 2], dyn.accel(x6[1, 2], u))
+    assert dyn.accel(np.zeros(6), np.zeros(2)).shape == (3,)
 
 
 # --- integrator ------------------------------------------------------------------------------
@@ -151,7 +152,7 @@ def test_float_stepper_matches_numpy_f_and_scipy_ode(effect):
     x6 = _random_states(rng, 50, track_max=1.3, w_max=1.6)
     u = rng.uniform(-1, 1, (50, 2))
     a_float = np.array([acc(*s, *v) for s, v in zip(x6.tolist(), u.tolist())])
-    np.testing.assert_allclose(a_float, dyn.f(x6, u), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(a_float, dyn.accel(x6, u), rtol=1e-12, atol=1e-12)
 
     u_step, n = [0.7, -0.4], 1000
     x0 = (3.0, 2.5, 0.4, 0.2, 0.0, -0.3)
@@ -160,7 +161,7 @@ def test_float_stepper_matches_numpy_f_and_scipy_ode(effect):
 
     def rhs(_, s):
         c, sn = math.cos(s[2]), math.sin(s[2])
-        return [s[3] * c - s[4] * sn, s[3] * sn + s[4] * c, s[5], *dyn.f(s, u_step)]
+        return [s[3] * c - s[4] * sn, s[3] * sn + s[4] * c, s[5], *dyn.accel(s, u_step)]
 
     ref = solve_ivp(rhs, (0, 2.0), x0, rtol=1e-11, atol=1e-12).y[:, -1]
     np.testing.assert_allclose(end, ref, atol=1e-8)
@@ -216,7 +217,7 @@ def test_run_velocity_follows_f_plus_small_noise(run):
     dyn = TrueDynamics()
     x6 = np.column_stack([run.x, run.y, run.psi, run.vx, run.vy, run.omega])
     a_fd = np.diff(x6[:, 3:], axis=0) / 0.002
-    resid = a_fd - dyn.f(0.5 * (x6[1:] + x6[:-1]), run.u_motor[:-1])
+    resid = a_fd - dyn.accel(0.5 * (x6[1:] + x6[:-1]), run.u_motor[:-1])
     std = np.asarray(RobotParams().accel_noise_std)
     np.testing.assert_allclose(resid.std(axis=0), std, rtol=0.25)
     assert np.all(np.abs(resid.mean(axis=0)) < 0.2 * std)

@@ -33,7 +33,7 @@ def test_vectorised_jacobian_equals_the_loop(effect):
     J_ref = _loop_poly_jacobian(dyn, z)
     np.testing.assert_allclose(dyn._poly_jacobian(z), J_ref, rtol=1e-13, atol=1e-13)
     # the full Jacobians carry the polynomial part where no limiter or effect adds to it
-    J_x, J_u = dyn.J_f_x(x6, u), dyn.J_f_u(x6, u)
+    _, J_x, J_u = dyn.accel_and_jacobians(x6, u)
     np.testing.assert_allclose(J_u, J_ref[..., 3:], rtol=1e-13, atol=1e-13)
     assert J_x.shape == (200, 3, 6) and np.abs(J_ref).max() > 0.1
     # leading axes and broadcasting of one input against many states
@@ -41,12 +41,12 @@ def test_vectorised_jacobian_equals_the_loop(effect):
                                rtol=1e-13, atol=1e-13)
 
 
-def test_jacobians_in_one_pass_equal_the_separate_methods():
+def test_accelerations_with_jacobians_equal_the_accelerations_alone():
     from simulation.effects import Effect
 
     rng = np.random.default_rng(8)
     dyn = TrueDynamics(effect=Effect("heading_dependence", EFFECTS["heading_dependence"].moderate))
     x6, u = rng.uniform(-1, 1, (30, 6)), rng.uniform(-1, 1, (30, 2))
-    J_x, J_u = dyn.jacobians(x6, u, 1.0)
-    np.testing.assert_array_equal(J_x, dyn.J_f_x(x6, u, 1.0))
-    np.testing.assert_array_equal(J_u, dyn.J_f_u(x6, u, 1.0))
+    a, J_x, J_u = dyn.accel_and_jacobians(x6, u, 1.0)
+    np.testing.assert_array_equal(a, dyn.accel(x6, u, 1.0))
+    assert J_x.shape == (30, 3, 6) and J_u.shape == (30, 3, 2)

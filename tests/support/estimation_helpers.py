@@ -1,4 +1,5 @@
-"""Shared by the estimation tests: a small body model and a noisy truth simulator.
+"""Shared by the estimation tests: a small body model, a linear-Gaussian reference and a noisy
+truth simulator.
 
 The truth is generated with known process noise, so that an oracle filter (same dynamics, Q
 fitted from one-step residuals of a separate training simulation) must be consistent.
@@ -8,15 +9,32 @@ from __future__ import annotations
 
 import numpy as np
 
+from groundfloor.dynamics import N_U, N_X, Dynamics
 from sindy_ekf.estimation.process_models import StateSeries
 
 ACCEL_STD = np.array([0.05, 0.02, 0.05])  # white acceleration noise density of the truth, SI/sqrt(s)
 
 
-class PolyBody:
-    """Stand-in body model ``f(x3, u)`` with analytic Jacobians (SindyModel interface)."""
+class PolyBody(Dynamics):
+    """Stand-in body model: SINDy-style ``f_and_jacobians(x3, u)`` with analytic Jacobians, a
+    :class:`groundfloor.dynamics.Dynamics` through :meth:`accel_and_jacobians` (subclasses change
+    ``f_and_jacobians`` only); trusted inside ``envelope`` widened by 10 % as the SINDy model."""
 
+    name = "poly_body"
     envelope = {"vx": [-1.0, 1.0], "vy": [-0.3, 0.3], "omega": [-1.0, 1.0], "u1": [-1, 1], "u2": [-1, 1]}
+
+    def accel_and_jacobians(self, x6, u, t=0.0):
+        x6 = np.asarray(x6, dtype=float)
+        f, J3, J_u = self.f_and_jacobians(x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (N_U,)))
+        J_x = np.zeros(np.shape(f)[:-1] + (3, N_X))
+        J_x[..., 3:] = J3
+        return f, J_x, J_u
+
+    def in_envelope(self, x6, u):
+        z = np.concatenate([np.asarray(x6, float)[..., 3:], np.broadcast_to(u, np.shape(x6)[:-1] + (N_U,))], -1)
+        lo, hi = np.array([self.envelope[v] for v in ("vx", "vy", "omega", "u1", "u2")]).T
+        pad = 0.1 * (hi - lo)
+        return np.all((z >= lo - pad) & (z <= hi + pad), axis=-1)
 
     def f_and_jacobians(self, x, u):
         vx, vy, w = x[..., 0], x[..., 1], x[..., 2]
@@ -40,6 +58,33 @@ class PolyBody:
 
     def J_f_u(self, x, u):
         return self.f_and_jacobians(x, u)[2]
+
+
+class LinearDynamics(Dynamics):
+    """Linear continuous dynamics ``x_dot = A x + B u`` on all six states (the linear-Gaussian
+    reference of the tests). Not a vehicle model: the pose rows are whatever ``A`` says, so it
+    overrides the six-state derivative instead of inheriting the kinematics; the EKF and the
+    factor graph can then be compared on an exactly linear-Gaussian problem."""
+
+    name = "linear"
+
+    def __init__(self, A: np.ndarray, B: np.ndarray):
+        self.A = np.asarray(A, dtype=float)
+        self.B = np.asarray(B, dtype=float)
+
+    def accel_and_jacobians(self, x6, u, t=0.0):
+        f, J_x, J_u = self.derivative_and_jacobians(x6, u, t)
+        return f[..., 3:], J_x[..., 3:, :], J_u[..., 3:, :]
+
+    def derivative(self, x6, u, t=0.0):
+        return self.derivative_and_jacobians(x6, u, t, input_jacobian=False)[0]
+
+    def derivative_and_jacobians(self, x6, u, t=0.0, input_jacobian=True):
+        x6 = np.asarray(x6, dtype=float)
+        lead = x6.shape[:-1]
+        f = x6 @ self.A.T + np.broadcast_to(u, lead + (N_U,)) @ self.B.T
+        J_u = np.broadcast_to(self.B, lead + (N_X, N_U)) if input_jacobian else None
+        return f, np.broadcast_to(self.A, lead + (N_X, N_X)), J_u
 
 
 def smooth_inputs(t: np.ndarray, rng) -> np.ndarray:

@@ -114,7 +114,8 @@ def test_effect_free_campaign_says_none(reference_model):
 
 
 def test_extended_model_jacobians_match_numerical_derivatives(reference_model, tmp_path):
-    """The EKF linearises the extended model: analytic J_f_x (pose columns included) vs central differences."""
+    """The EKF linearises the extended model: analytic Jacobians (pose columns included) vs central
+    differences, of the accelerations and of the six-state derivative with its kinematics."""
     from sindy_ekf.diagnose.extend import ExtendedModel
 
     rng = np.random.default_rng(3)
@@ -127,13 +128,20 @@ def test_extended_model_jacobians_match_numerical_derivatives(reference_model, t
         ext = ExtendedModel.added(reference_model, family, theta, beta)
         # lateral_slip keeps the forward and yaw equations at the base's drift: vy / slip gain there
         assert (ext.vy_scale != 1.0) == (family == "lateral_slip"), family
-        J = ext.J_f_x(x6, u)
+        J = ext.accel_and_jacobians(x6, u)[1]
         h = 1e-6
-        num = np.stack([(ext.f(x6 + h * np.eye(6)[k], u) - ext.f(x6 - h * np.eye(6)[k], u)) / (2 * h)
+        num = np.stack([(ext.accel(x6 + h * np.eye(6)[k], u) - ext.accel(x6 - h * np.eye(6)[k], u)) / (2 * h)
                         for k in range(6)], axis=-1)
         np.testing.assert_allclose(J, num, rtol=1e-5, atol=1e-6, err_msg=family)
+        _, F_x, F_u = ext.derivative_and_jacobians(x6, u)
+        num_x = np.stack([(ext.derivative(x6 + h * e, u) - ext.derivative(x6 - h * e, u)) / (2 * h)
+                          for e in np.eye(6)], axis=-1)
+        num_u = np.stack([(ext.derivative(x6, u + h * e) - ext.derivative(x6, u - h * e)) / (2 * h)
+                          for e in np.eye(2)], axis=-1)
+        np.testing.assert_allclose(F_x, num_x, rtol=1e-5, atol=1e-6, err_msg=family)
+        np.testing.assert_allclose(F_u, num_u, rtol=1e-5, atol=1e-6, err_msg=family)
         back = ExtendedModel.load(ext.to_json(tmp_path / f"{family}.json"))
-        np.testing.assert_allclose(back.f(x6, u), ext.f(x6, u), err_msg=family)
+        np.testing.assert_allclose(back.accel(x6, u), ext.accel(x6, u), err_msg=family)
 
 
 def test_model_trained_on_other_inputs_is_refused(reference_model, tmp_path):

@@ -13,12 +13,9 @@ from scipy.stats import chi2
 from groundfloor.errors import InputError
 from simulation.gnss import FLAG_OUTLIER, PROFILES, simulate_gnss
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf, run_ekf_batch
-from sindy_ekf.estimation.process_models import (
-    BodyModelProcess,
-    LinearProcess,
-    fit_process_noise,
-)
+from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
 from tests.support.estimation_helpers import (
+    LinearDynamics,
     PolyBody,
     inputs_at,
     nees_at_epochs,
@@ -37,7 +34,7 @@ def _grid(truth, gnss):
 
 @pytest.fixture(scope="module")
 def oracle():
-    model = BodyModelProcess(PolyBody(), name="oracle")
+    model = ProcessModel(PolyBody(), name="oracle")
     rng = np.random.default_rng(100)
     return fit_process_noise(model, simulate_truths(model, 30.0, rng, n_runs=4))
 
@@ -82,7 +79,7 @@ def test_latency_at_time_of_validity_equals_the_filter_without_latency():
     A[3:, 3:] = -np.diag([1.0, 4.0, 2.0])
     B = np.zeros((6, 2))
     B[3, 0], B[5, 1] = 1.0, 0.8
-    model = LinearProcess(A, B)
+    model = ProcessModel(LinearDynamics(A, B))
     model.Q_rate_ = np.diag([1e-4, 1e-4, 1e-4, 1e-2, 1e-3, 1e-2])
     truth = simulate_truth(model, 30.0, rng)
     gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2],
@@ -114,7 +111,7 @@ def test_envelope_warning_names_the_run(oracle, caplog):
 
 
 def test_covariance_losing_positive_definiteness_is_repaired_and_counted(caplog):
-    model = BodyModelProcess(PolyBody())
+    model = ProcessModel(PolyBody())
     model.Q_rate_ = np.diag([1e-4, 1e-4, -5e-2, 1e-3, 1e-3, 1e-3])  # an indefinite Q
     t = np.arange(0, 2.0, 0.02)
     with caplog.at_level(logging.WARNING):
@@ -130,7 +127,7 @@ def test_diverging_model_is_an_error_naming_the_time():
             f, J_x, J_u = super().f_and_jacobians(x, u)
             return f + 50.0 * x ** 3, J_x + np.eye(3) * 150.0 * x[..., None] ** 2, J_u
 
-    model = BodyModelProcess(Exploding(), name="bad_model")
+    model = ProcessModel(Exploding(), name="bad_model")
     model.Q_rate_ = np.eye(6) * 1e-4
     t = np.arange(0, 20.0, 0.02)
     with np.errstate(all="ignore"), pytest.raises(InputError, match=r"bad_model.*non-finite at t="):

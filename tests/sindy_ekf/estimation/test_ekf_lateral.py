@@ -16,7 +16,7 @@ from sindy_ekf.estimation.ekf import (
     lateral_update,
     run_ekf_batch,
 )
-from sindy_ekf.estimation.process_models import BodyModelProcess, fit_process_noise
+from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
 from tests.support.estimation_helpers import (
     PolyBody,
     inputs_at,
@@ -44,7 +44,7 @@ class SpuriousVyBody(PolyBody):
 @pytest.fixture(scope="module")
 def trained():
     """Return the oracle process (Q fitted) and the lateral constraint fitted on train truths."""
-    model = BodyModelProcess(PolyBody(), name="oracle")
+    model = ProcessModel(PolyBody(), name="oracle")
     train = simulate_truths(model, 30.0, np.random.default_rng(100), n_runs=4)
     fit_process_noise(model, train)
     return model, fit_lateral_constraint([s.x6[:, 4] for s in train], every=10), train
@@ -101,7 +101,7 @@ def test_constraint_bounds_vy_drift_in_dead_reckoning(trained):
     """A model with a spurious lateral acceleration drifts in v_y without GNSS; the constraint
     keeps v_y near the truth and the position drift far smaller."""
     model, lateral, _ = trained
-    bad = BodyModelProcess(SpuriousVyBody(), name="spurious_vy")
+    bad = ProcessModel(SpuriousVyBody(), name="spurious_vy")
     bad.Q_rate_ = copy.deepcopy(model.Q_rate_)
     truth = simulate_truths(model, 30.0, np.random.default_rng(7), n_runs=1)[0]
     t = estimation_grid(truth.t, None)

@@ -13,12 +13,8 @@ import pytest
 from simulation.gnss import PROFILES, simulate_gnss
 from sindy_ekf.estimation.ekf import estimation_grid, run_ekf
 from sindy_ekf.estimation.graph import DynamicsFactors, V, X, smooth_batch, smooth_isam2
-from sindy_ekf.estimation.process_models import (
-    BodyModelProcess,
-    LinearProcess,
-    fit_process_noise,
-)
-from tests.support.estimation_helpers import PolyBody, simulate_truth, simulate_truths
+from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
+from tests.support.estimation_helpers import LinearDynamics, PolyBody, simulate_truth, simulate_truths
 
 P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
 
@@ -32,7 +28,7 @@ def _setup(truth, gnss):
 
 @pytest.fixture(scope="module")
 def oracle():
-    model = BodyModelProcess(PolyBody(), name="oracle")
+    model = ProcessModel(PolyBody(), name="oracle")
     return fit_process_noise(model, simulate_truths(model, 30.0, np.random.default_rng(100), n_runs=4))
 
 
@@ -44,7 +40,7 @@ def test_graph_marginal_of_last_state_equals_the_ekf_on_a_linear_gaussian_case()
     A[3, 5] = 0.3
     B = np.zeros((6, 2))
     B[3, 0], B[5, 1] = 1.0, 0.8
-    model = LinearProcess(A, B)
+    model = ProcessModel(LinearDynamics(A, B))
     model.Q_rate_ = np.diag([1e-4, 1e-4, 1e-4, 1e-2, 1e-3, 1e-2])
     truth = simulate_truth(model, 12.0, rng)
     prof = replace(PROFILES["dgnss"], outlier_prob=0.0, latency_jitter_s=0.01)

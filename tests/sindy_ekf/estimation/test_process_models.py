@@ -1,5 +1,5 @@
 """Process models: exact RK4 Jacobians against numerical derivatives, integration against scipy,
-process noise and unicycle gains recovered from data generated with known values."""
+process noise and lag-model gains recovered from data generated with known values."""
 
 from __future__ import annotations
 
@@ -7,29 +7,34 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from groundfloor.dynamics import Dynamics
+from identification.sindy.baselines import ConstantVelocityModel, LagModel, UnicycleModel
+from identification.sindy.model import model_from_terms
+from simulation.robot import RobotParams, TrueDynamics
 from sindy_ekf.estimation.process_models import (
-    BodyModelProcess,
-    ConstantVelocityProcess,
-    LinearProcess,
+    ProcessModel,
     StateSeries,
-    TrueDynamicsProcess,
-    UnicycleProcess,
+    body_states_from_state_series,
     fit_process_noise,
-    fit_unicycle,
 )
+from tests.support.estimation_helpers import LinearDynamics
 
 
-class PolyBody:
-    """Stand-in for identification.sindy.model.SindyModel: a small polynomial body model."""
+class PolyBody(Dynamics):
+    """A small polynomial body model with hand-written Jacobians."""
 
-    def f(self, x, u):
+    name = "poly_body"
+
+    @staticmethod
+    def f(x, u):
         vx, vy, w = x[..., 0], x[..., 1], x[..., 2]
         u1, u2 = u[..., 0], u[..., 1]
         return np.stack([2.0 * u1 - 3.0 * vx + 0.4 * w * vy - 0.2 * vx * u2 ** 2,
                          -5.0 * vy - 0.3 * vx * w,
                          1.5 * u2 - 2.5 * w + 0.1 * vx * u2], axis=-1)
 
-    def J_f_x(self, x, u):
+    @staticmethod
+    def J_f_x(x, u):
         vx, vy, w = x[..., 0], x[..., 1], x[..., 2]
         u2 = u[..., 1]
         z = np.zeros_like(vx)
@@ -37,7 +42,8 @@ class PolyBody:
                          np.stack([-0.3 * w, -5.0 + z, -0.3 * vx], -1),
                          np.stack([0.1 * u2, z, -2.5 + z], -1)], axis=-2)
 
-    def J_f_u(self, x, u):
+    @staticmethod
+    def J_f_u(x, u):
         vx = x[..., 0]
         u1, u2 = u[..., 0], u[..., 1]
         z = np.zeros_like(vx)
@@ -45,49 +51,38 @@ class PolyBody:
                          np.stack([z, z], -1),
                          np.stack([z, 1.5 + 0.1 * vx], -1)], axis=-2)
 
+    def accel_and_jacobians(self, x6, u, t=0.0):
+        x3 = x6[..., 3:]
+        J_x = np.zeros(x6.shape[:-1] + (3, 6))
+        J_x[..., 3:] = self.J_f_x(x3, u)
+        return self.f(x3, u), J_x, self.J_f_u(x3, u)
 
-class PoseTimeDynamics:
+
+class PoseTimeDynamics(PolyBody):
     """Stand-in for simulation.robot.TrueDynamics: depends on pose and time as effects may."""
 
-    def f(self, x, u, t):
-        a = PolyBody().f(x[..., 3:], u)
+    name = "pose_time"
+
+    def accel_and_jacobians(self, x, u, t=0.0):
+        a, J, J_u = super().accel_and_jacobians(x, u, t)
         a[..., 0] += 0.3 * np.sin(x[..., 2]) + 0.05 * x[..., 0] * np.cos(0.5 * t)
         a[..., 2] += 0.02 * x[..., 1] ** 2
-        return a
-
-    def J_f_x(self, x, u, t):
-        J = np.zeros(x.shape[:-1] + (3, 6))
-        J[..., :, 3:] = PolyBody().J_f_x(x[..., 3:], u)
         J[..., 0, 2] = 0.3 * np.cos(x[..., 2])
         J[..., 0, 0] = 0.05 * np.cos(0.5 * t)
         J[..., 2, 1] = 0.04 * x[..., 1]
-        return J
-
-    def J_f_u(self, x, u, t):
-        return PolyBody().J_f_u(x[..., 3:], u)
+        return a, J, J_u
 
 
 def _models():
     A = np.random.default_rng(3).normal(size=(6, 6)) * 0.5
     B = np.random.default_rng(4).normal(size=(6, 2))
-    models = [BodyModelProcess(PolyBody()), TrueDynamicsProcess(PoseTimeDynamics()),
-              ConstantVelocityProcess(), UnicycleProcess(0.9, 0.3, 0.7, 0.15), LinearProcess(A, B)]
-    try:  # the real identified-model class (helper H6), poly3 library
-        from identification.sindy.model import model_from_terms
-
-        sindy = model_from_terms({"vx": {"u1": 2.0, "vx": -3.0, "omega vy": 0.4, "u2^2 vx": -0.2},
-                                  "vy": {"vy": -5.0, "omega vx": -0.3},
-                                  "omega": {"u2": 1.5, "omega": -2.5, "u2 vx": 0.1}})
-        models.append(BodyModelProcess(sindy, name="sindy_model"))
-    except ImportError:
-        pass
-    try:  # the real oracle when the simulator provides it
-        from simulation.robot import RobotParams, TrueDynamics
-
-        models.append(TrueDynamicsProcess(TrueDynamics(RobotParams()), name="real_oracle"))
-    except (ImportError, TypeError):
-        pass
-    return models
+    sindy = model_from_terms({"vx": {"u1": 2.0, "vx": -3.0, "omega vy": 0.4, "u2^2 vx": -0.2},
+                              "vy": {"vy": -5.0, "omega vx": -0.3},
+                              "omega": {"u2": 1.5, "omega": -2.5, "u2 vx": 0.1}})
+    return [ProcessModel(PolyBody()), ProcessModel(PoseTimeDynamics()), ProcessModel(ConstantVelocityModel(), "cv"),
+            ProcessModel(LagModel(0.9, 0.3, 0.7, 0.15)), ProcessModel(UnicycleModel(0.9, 1.2)),
+            ProcessModel(LinearDynamics(A, B)), ProcessModel(sindy, name="sindy_model"),
+            ProcessModel(TrueDynamics(RobotParams()), name="real_oracle")]
 
 
 def _numerical_jacobian(fun, x, eps=1e-6):
@@ -112,13 +107,13 @@ def test_step_jacobians_match_numerical_derivatives(model):
         np.testing.assert_allclose(F, F_num, atol=1e-7, rtol=1e-6)
         np.testing.assert_allclose(G, G_num, atol=1e-7, rtol=1e-6)
         # the continuous Jacobian too (the chain through the stages builds on it)
-        _, Jx, Ju = model.f_and_jac(x, u, t)
+        _, Jx, Ju = model.dynamics.derivative_and_jacobians(x, u, t)
         np.testing.assert_allclose(Jx, _numerical_jacobian(lambda xx: model.f(xx, u, t), x), atol=1e-6)
         np.testing.assert_allclose(Ju, _numerical_jacobian(lambda uu: model.f(x, uu, t), u), atol=1e-6)
 
 
 def test_vectorised_step_equals_single_steps():
-    model = TrueDynamicsProcess(PoseTimeDynamics())
+    model = ProcessModel(PoseTimeDynamics())
     rng = np.random.default_rng(1)
     x = rng.normal(size=(7, 6))
     u = rng.uniform(-1, 1, (7, 2))
@@ -132,7 +127,7 @@ def test_vectorised_step_equals_single_steps():
 
 
 def test_rk4_propagation_matches_scipy_dop853():
-    model = BodyModelProcess(PolyBody())
+    model = ProcessModel(PolyBody())
     t = np.arange(0.0, 5.0 + 1e-9, 0.02)
     u = np.column_stack([0.8 * np.ones_like(t), 0.5 * np.ones_like(t)])
     x0 = np.array([1.0, -2.0, 0.3, 0.1, 0.0, 0.0])
@@ -155,7 +150,7 @@ def _simulate_series(model, Q_rate, rng, n=4000, dt=0.02):
 def test_process_noise_recovers_the_generating_density():
     rng = np.random.default_rng(7)
     Q_rate = np.diag([1e-4, 2e-4, 5e-5, 4e-3, 1e-3, 2e-3])
-    model = UnicycleProcess(1.0, 0.25, 0.8, 0.2)
+    model = ProcessModel(LagModel(1.0, 0.25, 0.8, 0.2))
     series = [_simulate_series(model, Q_rate, rng) for _ in range(2)]
     fit_process_noise(model, series, floor_std=0.0)
     # 8000 samples: relative standard error of a variance is sqrt(2/8000) = 1.6 %
@@ -163,33 +158,31 @@ def test_process_noise_recovers_the_generating_density():
     assert np.all(np.linalg.eigvalsh(model.Q_rate_) > 0)
 
 
-def test_unicycle_fit_recovers_known_gains():
+def test_lag_fit_recovers_known_gains():
     rng = np.random.default_rng(8)
-    truth = UnicycleProcess(1.2, 0.3, 0.9, 0.12)
+    truth = ProcessModel(LagModel(1.2, 0.3, 0.9, 0.12))
     series = [_simulate_series(truth, np.diag([1e-8] * 3 + [1e-6] * 3), rng, n=3000)]
-    fit = fit_unicycle(series)
-    assert fit.k_v == pytest.approx(1.2, rel=0.03)
-    assert fit.tau_v == pytest.approx(0.3, rel=0.05)
-    assert fit.k_w == pytest.approx(0.9, rel=0.03)
-    assert fit.tau_w == pytest.approx(0.12, rel=0.08)
+    fit = LagModel().fit([body_states_from_state_series(s) for s in series])
+    assert fit.k_v_ == pytest.approx(1.2, rel=0.03)
+    assert fit.tau_v_ == pytest.approx(0.3, rel=0.05)
+    assert fit.k_w_ == pytest.approx(0.9, rel=0.03)
+    assert fit.tau_w_ == pytest.approx(0.12, rel=0.08)
 
 
 def test_missing_process_noise_is_named():
     with pytest.raises(Exception, match="'cv'.*fit_process_noise"):
-        ConstantVelocityProcess().Q(0.02)
+        ProcessModel(ConstantVelocityModel(), "cv").Q(0.02)
 
 
 def test_non_increasing_state_times_name_the_run():
     s = StateSeries("run_07", np.array([0.0, 0.02, 0.02, 0.04]), np.zeros((4, 6)), np.zeros((4, 2)))
     with pytest.raises(Exception, match="run_07"):
-        fit_process_noise(ConstantVelocityProcess(), [s])
+        fit_process_noise(ProcessModel(ConstantVelocityModel()), [s])
 
 
 def test_envelope_flags_states_outside_the_training_range():
-    class Enveloped(PolyBody):
-        envelope = {"vx": [-0.5, 1.0], "vy": [-0.1, 0.1], "omega": [-1.0, 1.0], "u1": [-1, 1], "u2": [-1, 1]}
-
-    model = BodyModelProcess(Enveloped())
+    envelope = {"vx": [-0.5, 1.0], "vy": [-0.1, 0.1], "omega": [-1.0, 1.0], "u1": [-1, 1], "u2": [-1, 1]}
+    model = ProcessModel(model_from_terms({"vx": {"vx": -1.0}}, envelope=envelope))
     x = np.zeros((3, 6))
     x[1, 3] = 1.2  # beyond 1.0 + 10 % of the 1.5 m/s width = 1.15
     x[2, 3] = 1.1  # inside the widened envelope
