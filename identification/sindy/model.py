@@ -46,29 +46,52 @@ def envelope_from_data(x_body: np.ndarray, u: np.ndarray) -> dict[str, list[floa
 
 
 class ActiveTerms:
-    """The active terms of coefficients ``coef (3, k)`` of a library, evaluated with their Jacobian.
+    """The active terms of coefficients ``coef (3, k)`` of a library, evaluated with their Jacobians.
 
-    One gather and one product over a table of atom values and atom derivatives give every
-    active monomial and every partial derivative of one (product rule: the derivative of one
-    factor times the other factors), and one matrix product with the coefficients sums them into
-    ``[a (3), J_a_z (3 x 5)]``. Only the model's own terms are touched, in a constant number of
-    numpy calls whatever the model's size: the filters evaluate it four times per step on a few
-    runs at a time, where numpy's per-call overhead is the cost.
+    Returns the accelerations and their Jacobians in the six-state layout from one matrix
+    product of a table of monomials with a fixed weight matrix ``(columns, 3 + 18 + 6)``: every
+    active term adds its coefficient to the column of its monomial (accelerations) and, for each
+    of its variables, exponent times coefficient to the column of the monomial one degree lower
+    (product rule; Jacobians). Polynomial libraries take the table of all monomials of the five
+    variables up to degree 3 as two outer products, so the whole evaluation is a handful of numpy
+    calls whatever the model's size; libraries with ``|x|`` atoms gather each active term's
+    (at most three) atoms from a table of atom values and their derivatives instead. The filters
+    evaluate the model four times per step on a few runs at a time, where numpy's per-call
+    overhead, not the arithmetic, is the cost.
     """
 
-    # atom table: column 0 is the constant 1 (also the derivative of z), then blocks of one column
-    # per variable; the |z| blocks only for libraries that use them
-    _VALUE_BLOCK = ("z", "z2", "z3", "abs", "zabs")  # by atom code: ^1, ^2, ^3, abs, signsq
-    _DERIV_BLOCK = (None, "2z", "3z2", "sign", "2abs")  # their derivatives (None: the constant 1)
+    # atom code (^1, ^2, ^3, abs, signsq) -> table block of its value; of its derivative and factor
+    _VALUE = ("z", "z2", "z3", "abs", "zabs")
+    _DERIV = ((None, 1.0), ("z", 2.0), ("z2", 3.0), ("sign", 1.0), ("abs", 2.0))
 
     def __init__(self, library: FeatureLibrary, coef: np.ndarray):
-        nv = len(library.variables)
+        nv = len(library.variables)  # [vx, vy, omega, u1, u2]
         self.n_vars = nv
-        self.uses_abs = any(code >= 3 for atoms in library.atoms for _, code in atoms)
-        self.blocks = (("z", "z2", "z3", "abs", "zabs", "2z", "3z2", "sign", "2abs") if self.uses_abs
-                       else ("z", "z2", "z3", "2z", "3z2"))
+        self.monomials = all(code <= 2 for atoms in library.atoms for _, code in atoms) and \
+            all(sum(code + 1 for _, code in atoms) <= 3 for atoms in library.atoms)
 
-        def col(block: str | None, var: int) -> int:
+        def out(e: int, v: int) -> int:  # output column of d a_e / d z_v: J_a_x (3, 6), J_a_u (3, 2)
+            return 3 + 6 * e + 3 + v if v < 3 else 3 + 18 + 2 * e + (v - 3)
+
+        if self.monomials:
+            def col(factors: list[int]) -> int:  # column of the monomial prod z[factors] (sorted)
+                return sum(nv ** d for d in range(len(factors))) + sum(
+                    f * nv ** (len(factors) - 1 - i) for i, f in enumerate(factors))
+
+            self.weight = np.zeros((sum(nv ** d for d in range(4)), 27))
+            for j, atoms in enumerate(library.atoms):
+                c = coef[:, j]
+                factors = sorted(v for v, code in atoms for _ in range(code + 1))
+                self.weight[col(factors), :3] += c
+                for v in set(factors):
+                    rest = list(factors)
+                    rest.remove(v)
+                    self.weight[col(rest), [out(e, v) for e in range(3)]] += factors.count(v) * c
+            return
+
+        self.blocks = ("z", "z2", "z3", "abs", "zabs", "sign")
+
+        def col_atom(block: str | None, var: int) -> int:  # column 0 is the constant 1
             return 0 if block is None else 1 + self.blocks.index(block) * nv + var
 
         index, weight = [], []
@@ -76,32 +99,36 @@ class ActiveTerms:
             c = coef[:, j]
             if not np.any(c):
                 continue
-            cols = [col(self._VALUE_BLOCK[code], v) for v, code in atoms]
+            cols = [col_atom(self._VALUE[code], v) for v, code in atoms]
             index.append(cols + [0] * (3 - len(cols)))
-            w = np.zeros(3 + 3 * nv)
+            w = np.zeros(27)
             w[:3] = c
             weight.append(w)
             for m, (v, code) in enumerate(atoms):  # product rule: one row per factor
+                block, factor = self._DERIV[code]
                 rest = cols[:m] + cols[m + 1:]
-                index.append([col(self._DERIV_BLOCK[code], v)] + rest + [0] * (2 - len(rest)))
-                w = np.zeros(3 + 3 * nv)
-                w[3 + v::nv] = c  # J_a_z row-major (3, nv): equation e, variable v at 3 + e * nv + v
+                index.append([col_atom(block, v)] + rest + [0] * (2 - len(rest)))
+                w = np.zeros(27)
+                w[[out(e, v) for e in range(3)]] = factor * c
                 weight.append(w)
-        self.index = np.array(index, dtype=np.intp).reshape(-1, 3)
-        self.weight = np.array(weight, dtype=float).reshape(-1, 3 + 3 * nv)
+        self.index = np.array(index, dtype=np.intp).reshape(-1, 3).T.copy()  # (3, rows)
+        self.weight = np.array(weight, dtype=float).reshape(-1, 27)
 
-    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Return ``a (..., 3)`` and ``J_a_z (..., 3, nv)`` at variables ``z (..., nv)``."""
-        z2 = z * z
-        parts = [np.ones(z.shape[:-1] + (1,)), z, z2, z2 * z]
-        if self.uses_abs:
-            az = np.abs(z)
-            parts += [az, z * az, 2.0 * z, 3.0 * z2, np.sign(z), 2.0 * az]
+    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return ``a (..., 3)``, ``J_a_x (..., 3, 6)`` and ``J_a_u (..., 3, 2)`` at ``z = [v_body, u] (..., 5)``."""
+        lead = z.shape[:-1]
+        weight = self.weight
+        if self.monomials:
+            z2 = z[..., :, None] * z[..., None, :]
+            z3 = z2[..., None] * z[..., None, None, :]
+            table = np.concatenate([z, z2.reshape(lead + (-1,)), z3.reshape(lead + (-1,))], axis=-1)
+            out = table @ weight[1:] + weight[0]  # row 0: the constant monomial
         else:
-            parts += [2.0 * z, 3.0 * z2]
-        table = np.concatenate(parts, axis=-1)
-        out = table[..., self.index].prod(axis=-1) @ self.weight
-        return out[..., :3], out[..., 3:].reshape(z.shape[:-1] + (3, self.n_vars))
+            z2, az = z * z, np.abs(z)
+            parts = [np.ones(lead + (1,)), z, z2, z2 * z, az, z * az, np.sign(z)]
+            g = np.take(np.concatenate(parts, axis=-1), self.index, axis=-1)  # (..., 3, rows)
+            out = (g[..., 0, :] * g[..., 1, :] * g[..., 2, :]) @ weight
+        return out[..., :3], out[..., 3:21].reshape(lead + (3, 6)), out[..., 21:].reshape(lead + (3, 2))
 
 
 @dataclass
@@ -172,14 +199,14 @@ class SindyModel(Dynamics):
         equal to :meth:`f_and_jacobians` up to the order of summation.
         """
         x6 = np.asarray(x6, dtype=float)
+        u = np.asarray(u, dtype=float)
         key = self.coef.tobytes()
         if self._active is None or self._active[0] != key:
             self._active = (key, ActiveTerms(self.library, self.coef))
-        z = np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (2,))], axis=-1)
-        a, J_a_z = self._active[1](z)
-        J_a_x = np.zeros(x6.shape[:-1] + (3, 6))
-        J_a_x[..., 3:] = J_a_z[..., :3]
-        return a, J_a_x, J_a_z[..., 3:]
+        if u.shape[:-1] != x6.shape[:-1]:
+            lead = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1])
+            x6, u = np.broadcast_to(x6, lead + (6,)), np.broadcast_to(u, lead + (2,))
+        return self._active[1](np.concatenate([x6[..., 3:], u], axis=-1))
 
     def in_envelope(self, x6: np.ndarray, u: np.ndarray, margin: float = 0.1) -> np.ndarray:
         """Return True per sample where ``[vx, vy, omega, u1, u2]`` lies in the training envelope

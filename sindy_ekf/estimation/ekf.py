@@ -44,6 +44,7 @@ GATE_DOF = 2  # horizontal GNSS position
 GATE_PROB = 0.999
 GRID_TOL_S = 1e-6  # stamps closer than this are the same instant
 DT_MAX_S = 0.025  # longest step of the estimation grid (50 Hz poses with a skipped pulse: split)
+PD_MARGIN = 1e-9  # Q's smallest eigenvalue above this times P's largest entry: F P F^T + Q is PD
 
 
 @dataclass(frozen=True)
@@ -140,6 +141,14 @@ def h_gnss(x6: np.ndarray, lever_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.array([x6[0] + dx, x6[1] + dy]), J_h_x
 
 
+def inverse_2x2(S: np.ndarray) -> np.ndarray:
+    """Return the inverse of the 2 x 2 matrix ``S`` in closed form (the innovation covariance of a
+    horizontal fix: cheaper than a general solve, called at every fix)."""
+    (a, b), (c, d) = S.tolist()
+    det = a * d - b * c
+    return np.array([[d / det, -b / det], [-c / det, a / det]])
+
+
 def repair_covariance(P: np.ndarray, min_eig: float = 1e-12) -> tuple[np.ndarray, bool]:
     """Return ``P`` symmetrised and, if not positive definite, with eigenvalues clipped; and
     whether a repair was needed."""
@@ -201,7 +210,8 @@ class ModelEKF(ExtendedKalmanFilter):
         y = z - h
         PHt = P_v @ H.T
         S = H @ PHt + R
-        nis = float(y @ np.linalg.solve(S, y))
+        S_inv = inverse_2x2(S)
+        nis = float(y @ S_inv @ y)
         self.y, self.S = y, S
         if not np.isfinite(nis):
             raise InputError(f"GNSS fix {z}: non-finite innovation (state {self.x})")
@@ -209,7 +219,7 @@ class ModelEKF(ExtendedKalmanFilter):
             self.n_gated += 1
             return nis, False, np.zeros((N_X, N_X))
         C = Phi @ PHt  # cov(x_a error, H x_v error)
-        K = np.linalg.solve(S, C.T).T  # solve instead of inverting S
+        K = C @ S_inv
         KH = K @ H
         # Joseph form of the stacked update, x_a block: stays symmetric PD under round-off
         KHC = KH @ (Phi @ P_v).T
@@ -362,6 +372,8 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
             fixes_at.setdefault(int(k1), []).append(i)
         s.apply_fixes(0)
     n_going = np.searchsorted(-np.array([s.n - 1 for s in ss]), -np.arange(n_max - 1), side="right")
+    q_min = float(np.linalg.eigvalsh(model.Q(1.0)).min())  # Q(dt) = Q_rate dt
+    dt_min = dt.min(axis=1)
     for k in progress(range(n_max - 1), desc="EKF", total=n_max - 1):
         a = n_going[k]
         x_next, F, _ = model.step_and_jac(X[k, :a], u[k, :a], t_rel[k, :a], dt[k, :a], input_jacobian=False)
@@ -369,22 +381,26 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
         if lateral is not None and (k + 1) % lateral.every == 0:
             x_next, P_next, IKH = lateral_update(x_next, P_next, lateral.vy_std_m_s)
             F = IKH @ F  # error transition of the step with the pseudo-measurement folded in
-        if not np.isfinite(x_next.sum() + P_next.sum()):  # one test for all runs; then find the culprit
+        P_max = np.abs(P_next).max()  # NaN or inf for a non-finite covariance
+        if not (np.isfinite(x_next.sum()) and P_max < np.inf):  # one test for all runs; then the culprit
             for i in range(a):
                 if not (np.all(np.isfinite(x_next[i])) and np.all(np.isfinite(P_next[i]))):
                     raise InputError(f"{ss[i].name}: state or covariance became non-finite at "
                                      f"t={t_rel[k + 1, i]:.2f} s (model {model.name!r} diverged)")
         P_next = 0.5 * (P_next + np.swapaxes(P_next, -1, -2))
-        try:  # one factorisation for all runs; repair run by run only when one fails
-            np.linalg.cholesky(P_next)
-        except np.linalg.LinAlgError:
-            for i in range(a):
-                P_next[i], repaired = repair_covariance(P_next[i])
-                if repaired:
-                    s = ss[i]
-                    s.ekf.pd_repairs += 1
-                    log.warning("%s: predicted covariance lost positive definiteness at t=%.2f s; "
-                                "eigenvalues clipped (repair %d)", s.name, t_rel[k + 1, i], s.ekf.pd_repairs)
+        # F P F^T + Q is positive definite when Q's smallest eigenvalue is far above the round-off
+        # of F P F^T (relative 1e-16 of P's largest entry): then no factorisation is needed
+        if lateral is not None or q_min * dt_min[k] <= PD_MARGIN * P_max:
+            try:  # one factorisation for all runs; repair run by run only when one fails
+                np.linalg.cholesky(P_next)
+            except np.linalg.LinAlgError:
+                for i in range(a):
+                    P_next[i], repaired = repair_covariance(P_next[i])
+                    if repaired:
+                        s = ss[i]
+                        s.ekf.pd_repairs += 1
+                        log.warning("%s: predicted covariance lost positive definiteness at t=%.2f s; "
+                                    "eigenvalues clipped (repair %d)", s.name, t_rel[k + 1, i], s.ekf.pd_repairs)
         X[k + 1, :a], P[k + 1, :a], M[k, :a] = x_next, P_next, F
         for i in fixes_at.get(k + 1, ()):
             s = ss[i]

@@ -25,6 +25,8 @@ from groundfloor.types import BodyStates
 
 log = logging.getLogger(__name__)
 
+_EYE = np.eye(N_X)
+
 __all__ = ["N_X", "N_U", "ProcessModel", "StateSeries", "fit_process_noise", "one_step_residuals",
            "state_series_from_body_states", "body_states_from_state_series"]
 
@@ -84,25 +86,26 @@ class ProcessModel:
         h = np.asarray(dt, dtype=float)
         t = np.asarray(t, dtype=float)
         hb = h[..., None]
-        h2 = 0.5 * h[..., None, None]
+        hh = 0.5 * hb
+        h2 = hh[..., None]
+        t_mid = t + 0.5 * h
         dj = self.dynamics.derivative_and_jacobians
-        with_u = input_jacobian
-        k1, A1, B1 = dj(x6, u, t, with_u)
-        k2, A2, B2 = dj(x6 + 0.5 * hb * k1, u, t + 0.5 * h, with_u)
-        A2D1 = A2 @ A1
-        D2x = A2 + h2 * A2D1
-        k3, A3, B3 = dj(x6 + 0.5 * hb * k2, u, t + 0.5 * h, with_u)
+        k1, A1, B1 = dj(x6, u, t, input_jacobian)
+        k2, A2, B2 = dj(x6 + hh * k1, u, t_mid, input_jacobian)
+        k3, A3, B3 = dj(x6 + hh * k2, u, t_mid, input_jacobian)
+        k4, A4, B4 = dj(x6 + hb * k3, u, t + h, input_jacobian)
+        D2x = A2 + h2 * (A2 @ A1)
         D3x = A3 + h2 * (A3 @ D2x)
-        k4, A4, B4 = dj(x6 + hb * k3, u, t + h, with_u)
-        D4x = A4 + (2.0 * h2) * (A4 @ D3x)
+        D4x = A4 + (h2 + h2) * (A4 @ D3x)
         h6 = h2 / 3.0
-        x_next = x6 + hb / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        F = np.eye(N_X) + h6 * (A1 + 2.0 * (D2x + D3x) + D4x)
+        x_next = x6 + (hh / 3.0) * (k1 + 2.0 * (k2 + k3) + k4)
+        F = h6 * (A1 + 2.0 * (D2x + D3x) + D4x)
+        F += _EYE
         G = None
         if input_jacobian:
             D2u = h2 * (A2 @ B1) + B2
             D3u = h2 * (A3 @ D2u) + B3
-            D4u = (2.0 * h2) * (A4 @ D3u) + B4
+            D4u = (h2 + h2) * (A4 @ D3u) + B4
             G = h6 * (B1 + 2.0 * (D2u + D3u) + D4u)
         return x_next, F, G
 
