@@ -105,8 +105,12 @@ def main() -> int:
 
     def child(tree: Path, npz: Path) -> dict:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--measure", "--tree", str(tree), "--campaign",
-               str(campaign_dir), "--model", str(model_path), "--repeat", str(args.repeat), "--npz", str(npz)]
-        return json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=tree).stdout)
+               str(campaign_dir.resolve()), "--model", str(model_path.resolve()), "--repeat", str(args.repeat),
+               "--npz", str(npz)]
+        done = subprocess.run(cmd, capture_output=True, text=True, cwd=tree)
+        if done.returncode:
+            sys.exit(f"measuring {tree} failed:\n{done.stderr}")
+        return json.loads(done.stdout.strip().splitlines()[-1])  # the JSON is the last line
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
