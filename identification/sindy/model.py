@@ -5,7 +5,8 @@ the body dynamics ``x_dot = Theta(x, u) Xi`` with its analytic Jacobians, vector
 leading axes. It speaks SINDy's own terms (``f(x3, u)`` on the body states, used by the search,
 the diagnosis and the adjustment) and is a :class:`groundfloor.dynamics.Dynamics` (six states,
 used by the evaluation and the filters, which call it at every step: there only the model's
-active terms are evaluated, :class:`ActiveTerms`). The JSON file records
+active terms are evaluated, :class:`ActiveTerms`); :class:`StackedSindy` is many such models as
+one dynamics, for the search's rollout of all grid points at once. The JSON file records
 everything needed to rebuild it and to judge where it may be trusted: feature names,
 coefficients per equation, library, hyperparameters ``s, tau, alpha, T``, the envelope of
 states and inputs seen in training, the package version and a format version.
@@ -341,6 +342,36 @@ class SindyModel(Dynamics):
             unknown library, or its feature names differ from that library's.
         """
         return cls.from_dict(read_model_json(path), source=str(path))
+
+
+class StackedSindy(Dynamics):
+    """Many SINDy models of one library as one dynamics: ``coef (M, 3, k)``, states ``(M, W, 6)``.
+
+    The search's rollout predicts the held-out windows ``(W,)`` of all ``M`` models at once;
+    inputs ``(W, 2)`` are shared by the models.
+    """
+
+    name = "stacked_sindy"
+
+    def __init__(self, library: FeatureLibrary, coef: np.ndarray):
+        self.library, self.coef = library, coef
+
+    def _features(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return the library's variables ``(M, W, 5)`` at states ``(M, W, 6)`` and inputs ``(W, 2)``."""
+        return np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (2,))], axis=-1)
+
+    def accel(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
+        """Return accelerations ``(M, W, 3)``."""
+        theta = self.library.transform(self._features(x6, u))
+        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False)
+
+    def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
+        """Return accelerations ``(M, W, 3)`` and their Jacobians ``(M, W, 3, 6)``, ``(M, W, 3, 2)``."""
+        theta, d_theta = self.library.transform_with_jacobian(self._features(x6, u))
+        J_a_z = np.einsum("mwvk,mek->mwev", d_theta, self.coef, optimize=False)
+        J_a_x = np.zeros(J_a_z.shape[:-1] + (6,))
+        J_a_x[..., 3:] = J_a_z[..., :3]
+        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False), J_a_x, J_a_z[..., 3:]
 
 
 def _stack_xu(x, u) -> tuple[np.ndarray, np.ndarray]:

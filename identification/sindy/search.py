@@ -24,13 +24,12 @@ from typing import Sequence
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
 from groundfloor.progress import progress
 from groundfloor.types import BodyStates, TrajectoryRun
 from identification.sindy.evaluate import errors_from_rollout, make_windows, rollout
 from identification.sindy.library import FeatureLibrary, make_library
-from identification.sindy.model import SindyModel, envelope_from_data
+from identification.sindy.model import SindyModel, StackedSindy, envelope_from_data
 from identification.sindy.regression import (
     check_conditioning,
     fit_stlsq,
@@ -164,36 +163,6 @@ class SearchResult:
     def ranking(self, n: int = 10) -> list[dict]:
         """Return the ``n`` best rows by CV error as dicts (as table 7.6)."""
         return [self.row(i) for i in range(min(n, len(self.table["s"])))]
-
-
-class StackedSindy(Dynamics):
-    """Many SINDy models of one library as one dynamics: ``coef (M, 3, k)``, states ``(M, W, 6)``.
-
-    The search's rollout predicts the held-out windows ``(W,)`` of all ``M`` models at once;
-    inputs ``(W, 2)`` are shared by the models.
-    """
-
-    name = "stacked_sindy"
-
-    def __init__(self, library: FeatureLibrary, coef: np.ndarray):
-        self.library, self.coef = library, coef
-
-    def _features(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Return the library's variables ``(M, W, 5)`` at states ``(M, W, 6)`` and inputs ``(W, 2)``."""
-        return np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (2,))], axis=-1)
-
-    def accel(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
-        """Return accelerations ``(M, W, 3)``."""
-        theta = self.library.transform(self._features(x6, u))
-        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False)
-
-    def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
-        """Return accelerations ``(M, W, 3)`` and their Jacobians ``(M, W, 3, 6)``, ``(M, W, 3, 2)``."""
-        theta, d_theta = self.library.transform_with_jacobian(self._features(x6, u))
-        J_a_z = np.einsum("mwvk,mek->mwev", d_theta, self.coef, optimize=False)
-        J_a_x = np.zeros(J_a_z.shape[:-1] + (6,))
-        J_a_x[..., 3:] = J_a_z[..., :3]
-        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False), J_a_x, J_a_z[..., 3:]
 
 
 def body_states(run: TrajectoryRun, smoothing: float) -> list[BodyStates]:

@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 
 from groundfloor.dynamics import Dynamics, rk4_rollout_step
-from identification.sindy.baselines import ConstantVelocityModel, LagModel, UnicycleModel
+from identification.sindy.baselines import (
+    ConstantVelocityModel,
+    LagModel,
+    UnicycleModel,
+)
 from identification.sindy.library import make_library
-from identification.sindy.model import SindyModel, model_from_terms
-from identification.sindy.search import StackedSindy
+from identification.sindy.model import SindyModel, StackedSindy, model_from_terms
 from simulation.effects import EFFECTS, Effect
 from simulation.robot import TrueDynamics
 from sindy_ekf.diagnose.extend import ExtendedModel
