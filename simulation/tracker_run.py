@@ -156,7 +156,7 @@ def _reset_clock(setup: RunSetup, t_first: float, t_last: float) -> tuple[str, f
     tracker, fraction = setup.clock_reset
     t_reset = t_first + fraction * (t_last - t_first)
     # the restarted clock reads 1 s at the reset, so that no stamp noise makes one negative
-    d_ns = int(setup.t0_ns) + int(round(t_reset * NS)) - NS
+    d_ns = int(setup.t0_ns) + round(t_reset * NS) - NS
     return tracker, t_reset, TrackerClock(k=setup.clocks[tracker].k, d_ns=d_ns)
 
 
@@ -213,8 +213,8 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
         # the same instants on the restarted clock: stamps shifted back by whole clock ticks
         tracker, t_reset, clock = reset
         stamp, t_ev, spec = (stamp_at, t_at, AT960) if tracker == "at960" else (stamp_ltd, t_ltd, LTD800)
-        tick_ns = int(round(spec.resolution_s * NS))
-        shift_ns = int(round((clock.d_ns - setup.clocks[tracker].d_ns) / clock.k / tick_ns)) * tick_ns
+        tick_ns = round(spec.resolution_s * NS)
+        shift_ns = round((clock.d_ns - setup.clocks[tracker].d_ns) / clock.k / tick_ns) * tick_ns
         stamp[t_ev >= t_reset] -= shift_ns
     z_ltd, z_at = rng_meas.normal(size=(t_ltd.size, 3)), rng_meas.normal(size=(t_at.size, 3))
     arrive_ltd = _monotonic(t_ltd + rng_meas.uniform(3e-3, 12e-3, t_ltd.size))
@@ -322,7 +322,7 @@ def _reset_truth(reset, t0_ns: int, stamps_ns: dict, server: list) -> dict:
     data = next(t for t in server if t.topic == topic)
     stamp = np.asarray(stamps_ns[topic])[np.argsort(data.t_receive_ns, kind="stable")]
     i = int(np.argmin(np.diff(stamp))) + 1  # the reset is the one large backward step
-    return {"tracker": tracker, "topic": topic, "t_utc_ns": int(t0_ns) + int(round(t_reset * NS)),
+    return {"tracker": tracker, "topic": topic, "t_utc_ns": int(t0_ns) + round(t_reset * NS),
             "message": i, "jump_s": float((stamp[i] - stamp[i - 1]) * 1e-9),
             "clock_after": {"k": clock.k, "d_ns": int(clock.d_ns), "d_s": clock.d_ns * 1e-9,
                             "drift_ppm": clock.drift_ppm}}

@@ -16,6 +16,8 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+from lz4.frame import decompress as lz4_decompress  # rosbags' own dependency
+
 from groundfloor.errors import InputError
 
 MAGIC = b"#ROSBAG V2.0\n"
@@ -42,7 +44,7 @@ class Salvage:
     messages: list[SalvagedMessage]
     stopped_at_byte: int
     size_bytes: int
-    reason: str
+    reason: str  # where and why reading stopped; empty when the file ended cleanly (no index)
 
 
 def _fields(header: bytes) -> dict[str, bytes]:
@@ -129,7 +131,7 @@ def salvage_ros1(path: str | Path, topics: set[str]) -> Salvage:
             compression = fields.get("compression", b"none")
             try:
                 data = {b"none": lambda b: b, b"bz2": bz2.decompress,
-                        b"lz4": _lz4_decompress}[compression](buf[start:end])
+                        b"lz4": lz4_decompress}[compression](buf[start:end])
             except (KeyError, OSError, ValueError, RuntimeError) as exc:
                 reason = f"chunk at byte {pos} unreadable ({compression.decode()}: {exc})"
                 break
@@ -137,11 +139,4 @@ def salvage_ros1(path: str | Path, topics: set[str]) -> Salvage:
         elif op in (OP_CONNECTION, OP_MSGDATA):
             _records(buf[pos:end], conns, out, topics)
         pos = end
-    return Salvage(messages=out, stopped_at_byte=pos, size_bytes=len(buf),
-                   reason=reason or "no index (the recording was not closed)")
-
-
-def _lz4_decompress(data: bytes) -> bytes:
-    from lz4.frame import decompress  # rosbags' own dependency, needed only for lz4 chunks
-
-    return decompress(data)
+    return Salvage(messages=out, stopped_at_byte=pos, size_bytes=len(buf), reason=reason)

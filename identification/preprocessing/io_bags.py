@@ -118,7 +118,7 @@ def _salvage(bag: Path, run: str, error: str) -> tuple[dict[str, _Topic], Trunca
         topic.entries.append(m.raw)
         topic.t_bag_ns.append(m.t_bag_ns)
     cut = Truncation(bag=bag.name, messages=len(found.messages), stopped_at_byte=found.stopped_at_byte,
-                     size_bytes=found.size_bytes, reason=found.reason or error)
+                     size_bytes=found.size_bytes, reason=found.reason or f"no readable index: {error}")
     log.warning("run %s: %s", run, cut.describe())
     return out, cut
 

@@ -29,7 +29,7 @@ import yaml
 
 from groundfloor.errors import InputError
 from groundfloor.types import PointSeries, RawRun, TrackerCampaign
-from identification.preprocessing.io_bags import (  # noqa: F401 - topic names re-exported
+from identification.preprocessing.io_bags import (
     TOPIC_AT960,
     TOPIC_HUB,
     TOPIC_JOY,

@@ -125,8 +125,12 @@ def cut_at_resets(run: str, topics: dict[str, TopicColumns], resets: list[ClockR
 
     Every topic is cut at the bag time of each reset (module docstring). A part whose trigger
     stamps cover less than ``min_part_s`` cannot be synchronised and is dropped; its reason
-    names the run, the reset's topic, message index and jump, and is logged as a warning.
+    names the run, the reset's topic, message index and jump, and is logged as a warning. A
+    run without resets is one part, whatever its length (the synchroniser judges it).
     """
+    if not resets:
+        trig = topics[trigger_topic].stamp
+        return [RunPart(index=1, topics=topics, span_s=float(np.ptp(trig)) if trig.size else 0.0)], []
     cuts = sorted({r.t_receive_utc for r in resets})
     edges = [-np.inf, *cuts, np.inf]
     kept, dropped = [], []

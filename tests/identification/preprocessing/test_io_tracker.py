@@ -175,3 +175,11 @@ def test_fast_ros1_parser_agrees_with_rosbags_and_refuses_non_uniform_messages()
     odd = raw[:2] + [bytes(store.serialize_ros1(replace(msgs[2], header=replace(msgs[2].header, frame_id="x")),
                                                 "geometry_msgs/msg/PointStamped"))]
     assert _ros1_columns(odd, "geometry_msgs/msg/PointStamped") is None
+
+
+def test_a_short_run_without_clock_resets_is_read_whole(tmp_path):
+    short = synth_run(seed=3, minutes=0.1)[0]  # 6 s: shorter than a part cut at a reset may be
+    write_run_bags(tmp_path / "run_01", short)
+    back = read_tracker_run(tmp_path / "run_01")
+    _assert_same(short, back)
+    assert back.facts.parts_dropped == () and back.facts.clock_resets == ()
