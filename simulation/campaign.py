@@ -65,6 +65,10 @@ HUB_RADIUS_TABLE_7_5_M = {"front": 0.21e-3, "rear": 0.12e-3}
 BODY_ORIGIN_Z_LOCAL_M = -1.2505  # table 6.3 hub screw heads through table 7.2 (module docstring)
 CAMPAIGN_START = datetime(2022, 12, 21, 9, 30, tzinfo=timezone.utc)  # thesis 6: 21.12.2022
 CALIBRATION_YAML = Path(__file__).resolve().parent / "data" / "calibration.yaml"
+# independently generated campaigns: every message its own receive latency (issue 14)
+DEFAULT_RECEIVE_JITTER_S = (2e-3, 12e-3)
+MAX_RECEIVE_LATENCY_S = 1.0
+RESET_TRACKERS = ("at960", "ltd800")
 
 
 def rotation_from_deg(rx: float, ry: float, rz: float) -> np.ndarray:
@@ -121,6 +125,60 @@ def check_effects(effects) -> tuple:
     return tuple(out)
 
 
+def check_receive_jitter(value) -> tuple[float, float] | None:
+    """Return ``(lo, hi)`` receive latencies in seconds, or None; raise InputError if invalid.
+
+    ``True`` is :data:`DEFAULT_RECEIVE_JITTER_S`; text is ``"LO,HI"`` in milliseconds (the
+    command line's form).
+    """
+    if value is None or value is False:
+        return None
+    if value is True:
+        return DEFAULT_RECEIVE_JITTER_S
+    if isinstance(value, str):
+        try:
+            lo, hi = (float(v) * 1e-3 for v in value.split(","))
+        except ValueError:
+            raise InputError(f"receive jitter {value!r}: expected LO,HI in milliseconds, e.g. 2,12") from None
+    else:
+        lo, hi = (float(v) for v in value)
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 <= lo <= hi <= MAX_RECEIVE_LATENCY_S):
+        raise InputError(f"receive jitter ({lo * 1e3:g}, {hi * 1e3:g}) ms: need 0 <= lo <= hi <= "
+                         f"{MAX_RECEIVE_LATENCY_S * 1e3:g} ms")
+    return (lo, hi)
+
+
+def check_clock_resets(value) -> dict[str, tuple[str, float]]:
+    """Return ``{run: (tracker, fraction)}``: where a tracker clock restarts, checked.
+
+    Accepts that dict or texts ``RUN[:TRACKER[:FRACTION]]`` (tracker ``at960`` and fraction 0.5
+    of the run's trigger span by default); raises InputError naming what is wrong.
+    """
+    names = [r[0] for r in RUNS_TABLE_6_4]
+    items = value.items() if isinstance(value, dict) else [(v, None) for v in value or ()]
+    out = {}
+    for key, spec in items:
+        if spec is None:
+            parts = str(key).split(":")
+            if len(parts) > 3:
+                raise InputError(f"clock reset {key!r}: expected RUN[:TRACKER[:FRACTION]]")
+            run, tracker, fraction = parts + ["at960", "0.5"][len(parts) - 1:]
+        else:
+            run, (tracker, fraction) = key, spec
+        try:
+            fraction = float(fraction)
+        except ValueError:
+            raise InputError(f"clock reset {key!r}: fraction {fraction!r} is not a number") from None
+        if run not in names:
+            raise InputError(f"clock reset {key!r}: no run {run!r} (runs: {', '.join(names)})")
+        if tracker not in RESET_TRACKERS:
+            raise InputError(f"clock reset {key!r}: tracker {tracker!r} is not one of {', '.join(RESET_TRACKERS)}")
+        if not 0.0 < fraction < 1.0:
+            raise InputError(f"clock reset {key!r}: fraction {fraction:g} not inside (0, 1)")
+        out[run] = (tracker, fraction)
+    return out
+
+
 def _robot_summary() -> dict:
     from simulation import robot
 
@@ -139,7 +197,7 @@ def _bag_stamp(t_ns: int) -> str:
 
 
 def _run_setup(r: int, duration_s: float, t0_ns: int, t_boot_ns: dict, rng: np.random.Generator,
-               effect) -> RunSetup:
+               effect, receive_jitter_s=None, clock_reset=None) -> RunSetup:
     """Return the true parameters of run ``r``: thesis tables 7.1-7.5 plus small deviations."""
     name, _, split = RUNS_TABLE_6_4[r]
     levers = {k: np.array(v) for k, v in LEVER_ARMS_TABLE_7_1_M.items()}
@@ -154,6 +212,7 @@ def _run_setup(r: int, duration_s: float, t0_ns: int, t_boot_ns: dict, rng: np.r
         lever_arms_m=levers, R_at960_ltd800=np.array(transform["R"]),
         t_at960_ltd800=np.array(transform["translation_m"]), body_origin_z_m=BODY_ORIGIN_Z_LOCAL_M,
         ntp_offset_s=rng.choice([-1, 1]) * rng.uniform(1e-4, 1e-3), effect=effect,
+        receive_jitter_s=receive_jitter_s, clock_reset=clock_reset,
     )
 
 
@@ -178,9 +237,12 @@ def _campaign_truth(seed, minutes, effects, runs) -> truth_io.CampaignTruth:
     )
 
 
-def _campaign_yaml(seed, minutes, effects) -> str:
+def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=None) -> str:
     what = "table 6.4 durations" if minutes is None else f"{minutes:g} min"
     effect = "".join(f", effect {e.name}={e.value:g}" for e in effects)
+    if receive_jitter_s is not None:
+        effect += f", receive jitter {receive_jitter_s[0] * 1e3:g}-{receive_jitter_s[1] * 1e3:g} ms"
+    effect += "".join(f", {tr} clock reset in {run}" for run, (tr, _) in (clock_resets or {}).items())
     doc = {
         "name": f"husky-lab-sim-2022-12-21-seed{seed}",
         "runs": [{"name": n, "split": s} for n, _, s in RUNS_TABLE_6_4],
@@ -191,7 +253,8 @@ def _campaign_yaml(seed, minutes, effects) -> str:
 
 
 def simulate_campaign(
-    out: str | Path, seed: int = 0, minutes: float | None = None, effects=(), force: bool = False
+    out: str | Path, seed: int = 0, minutes: float | None = None, effects=(), force: bool = False,
+    receive_jitter_s=None, clock_resets=None,
 ) -> truth_io.CampaignTruth:
     """Return the truth of a simulated tracker campaign written to ``out``.
 
@@ -209,14 +272,26 @@ def simulate_campaign(
         At most one ``simulation.effects.Effect`` (or ``NAME=VALUE`` text) for the dynamics.
     force
         Replace an existing non-empty ``out``.
+    receive_jitter_s
+        ``(lo, hi)`` seconds, ``True`` for :data:`DEFAULT_RECEIVE_JITTER_S`, or ``"LO,HI"`` in
+        ms: every message gets its own receive latency, uniform in it, and the bags store each
+        topic in receive order, so messages closer than the spread (a spurious AT960 pulse
+        next to a real one) are stored out of stamp order. ``None``: each topic in order.
+        Everything else about the campaign is the same as without it.
+    clock_resets
+        ``{run: (tracker, fraction)}`` or texts ``RUN[:TRACKER[:FRACTION]]``: that tracker's
+        clock restarts at that fraction of the run (a backward jump of hours in its stamps).
 
     Raises
     ------
     InputError
-        Unknown effect or value out of range, ``minutes`` or ``seed`` out of range, output
-        folder not empty (without ``force``) or not writable. Nothing is left behind.
+        Unknown effect or value out of range, ``minutes`` or ``seed`` out of range, a bad
+        receive jitter or clock reset, output folder not empty (without ``force``) or not
+        writable. Nothing is left behind.
     """
     effects = check_effects(effects)
+    receive_jitter_s = check_receive_jitter(receive_jitter_s)
+    clock_resets = check_clock_resets(clock_resets)
     durations = run_durations(minutes)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed={seed!r}: must be a non-negative integer")
@@ -238,7 +313,8 @@ def simulate_campaign(
             tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
             for r in progress(range(len(RUNS_TABLE_6_4)), desc="simulate runs"):
                 rng = np.random.default_rng(seeds[r + 1])
-                setup = _run_setup(r, durations[r], t0_ns, t_boot_ns, rng, effect)
+                setup = _run_setup(r, durations[r], t0_ns, t_boot_ns, rng, effect, receive_jitter_s,
+                                   clock_resets.get(RUNS_TABLE_6_4[r][0]))
                 husky, server, run_truth = simulate_tracker_run(setup, rng)
                 run_dir = tmp / "runs" / setup.name
                 run_dir.mkdir(parents=True)
@@ -247,7 +323,8 @@ def simulate_campaign(
                 bags.write_bag(run_dir / f"server_{stamp}.bag", server)
                 runs.append(run_truth)
                 t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
-            (tmp / "campaign.yaml").write_text(_campaign_yaml(seed, minutes, effects))
+            (tmp / "campaign.yaml").write_text(_campaign_yaml(seed, minutes, effects, receive_jitter_s,
+                                                              clock_resets))
             shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
             truth = _campaign_truth(seed, minutes, effects, runs)
             truth_io.write_truth(tmp, truth)

@@ -7,9 +7,16 @@ the AT960's falling edges and the last joystick messages are covered.
 
 Latencies (bag time = receive time, UTC): trigger messages 0.2-1 ms after publishing, tracker
 measurements 1-5 ms after the measured instant (server), hub commands 1-3 ms after
-publishing, joystick 0.1-0.5 ms after its stamp. The hub node sees a tracker measurement
+publishing, joystick 0.1-0.5 ms after its stamp, each topic received in publishing order. With
+``RunSetup.receive_jitter_s`` every message gets its own latency instead (independent
+generators, a recorder merging connections): two messages closer than the spread of the
+latencies (a spurious AT960 pulse a few ms from a real one) are then received, and stored,
+out of stamp order, as the data contract allows. The hub node sees a tracker measurement
 3-12 ms after it was taken, publishes at ``HUB_RATE_HZ`` and a command moves the hub
 ``HUB_DELAY_S`` later.
+
+``RunSetup.clock_reset`` restarts one tracker's clock during the run (a controller reboot): from
+that instant its stamps come from a clock that read 1 s at the reset, a backward jump of hours.
 """
 
 from __future__ import annotations
@@ -20,7 +27,13 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
 from simulation import bags
-from simulation.clocks import NS, TRIGGER_PERIOD_S, simulate_trigger, stamp_tracker
+from simulation.clocks import (
+    NS,
+    TRIGGER_PERIOD_S,
+    TrackerClock,
+    simulate_trigger,
+    stamp_tracker,
+)
 from simulation.hubs import (
     baseline_geometry,
     eccentric_offset_body,
@@ -66,6 +79,8 @@ class RunSetup:
     body_origin_z_m: float
     ntp_offset_s: float
     effect: object = None
+    receive_jitter_s: tuple[float, float] | None = None  # (lo, hi) latency of every message
+    clock_reset: tuple[str, float] | None = None  # (tracker, fraction of the trigger span)
 
 
 class Trajectory:
@@ -122,6 +137,29 @@ def _ns(t0_ns: int, t_rel: np.ndarray) -> np.ndarray:
     return np.int64(t0_ns) + np.rint(np.asarray(t_rel) * NS).astype(np.int64)
 
 
+def count_reordered(stamp_ns: np.ndarray, t_receive_ns: np.ndarray) -> int:
+    """Return how many messages of a topic are stored right after one with a later stamp.
+
+    Stored order is receive order (ties in message order, as :func:`simulation.bags.write_bag`
+    writes them); only backward steps shorter than half a trigger period count (data contract:
+    a longer one is a clock reset).
+    """
+    order = np.argsort(np.asarray(t_receive_ns), kind="stable")
+    step = np.diff(np.asarray(stamp_ns, dtype=np.int64)[order])
+    return int(np.sum((step < 0) & (step > -0.5 * TRIGGER_PERIOD_S * NS)))
+
+
+def _reset_clock(setup: RunSetup, t_first: float, t_last: float) -> tuple[str, float, TrackerClock] | None:
+    """Return ``(tracker, t_reset_rel, clock after)`` of the run's clock reset, or None."""
+    if setup.clock_reset is None:
+        return None
+    tracker, fraction = setup.clock_reset
+    t_reset = t_first + fraction * (t_last - t_first)
+    # the restarted clock reads 1 s at the reset, so that no stamp noise makes one negative
+    d_ns = int(setup.t0_ns) + round(t_reset * NS) - NS
+    return tracker, t_reset, TrackerClock(k=setup.clocks[tracker].k, d_ns=d_ns)
+
+
 def _utc_intervals(t0_ns: int, intervals: np.ndarray) -> list:
     """Run-relative intervals (s) as UTC seconds (float, for truth.yaml)."""
     return (np.asarray(intervals) + t0_ns * 1e-9).tolist()
@@ -170,6 +208,14 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
                               timing_std_s=LTD800.timing_std_s, resolution_s=LTD800.resolution_s)
     stamp_at = stamp_tracker(setup.clocks["at960"], t_at, setup.t0_ns, rng_meas,
                              timing_std_s=AT960.timing_std_s, resolution_s=AT960.resolution_s)
+    reset = _reset_clock(setup, t_first, t_last)
+    if reset is not None:
+        # the same instants on the restarted clock: stamps shifted back by whole clock ticks
+        tracker, t_reset, clock = reset
+        stamp, t_ev, spec = (stamp_at, t_at, AT960) if tracker == "at960" else (stamp_ltd, t_ltd, LTD800)
+        tick_ns = round(spec.resolution_s * NS)
+        shift_ns = round((clock.d_ns - setup.clocks[tracker].d_ns) / clock.k / tick_ns) * tick_ns
+        stamp[t_ev >= t_reset] -= shift_ns
     z_ltd, z_at = rng_meas.normal(size=(t_ltd.size, 3)), rng_meas.normal(size=(t_at.size, 3))
     arrive_ltd = _monotonic(t_ltd + rng_meas.uniform(3e-3, 12e-3, t_ltd.size))
     arrive_at = _monotonic(t_at + rng_meas.uniform(3e-3, 12e-3, t_at.size))
@@ -210,18 +256,25 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
 
     # --- messages
     t0 = setup.t0_ns
+
+    def received(t_rel: np.ndarray, latency_s: tuple[float, float]) -> np.ndarray:
+        """Bag times (UTC ns): in publishing order, or each with its own latency (jitter)."""
+        if setup.receive_jitter_s is None:
+            return _ns(t0, _monotonic(t_rel + rng_meas.uniform(*latency_s, t_rel.size)))
+        return _ns(t0, t_rel + rng_meas.uniform(*setup.receive_jitter_s, t_rel.size))
+
     server = [
         bags.TopicData("/rpi/trigger", "sensor_msgs/msg/TimeReference", "/rpi_trigger",
-                       _ns(t0, _monotonic(trig.t_publish_rel + rng_meas.uniform(2e-4, 1e-3, n))),
+                       received(trig.t_publish_rel, (2e-4, 1e-3)),
                        bags.serialize_time_reference(_ns(t0, trig.t_publish_rel), trig.time_ref_ns, "gnss_pps")),
         bags.TopicData("/at960/measurement", "geometry_msgs/msg/PointStamped", "/at960_server",
-                       _ns(t0, _monotonic(t_at + rng_meas.uniform(1e-3, 5e-3, t_at.size))),
+                       received(t_at, (1e-3, 5e-3)),
                        bags.serialize_point_stamped(stamp_at, meas["at960"], "at960")),
         bags.TopicData("/ltd800/measurement", "geometry_msgs/msg/PointStamped", "/ltd800_server",
-                       _ns(t0, _monotonic(t_ltd + rng_meas.uniform(1e-3, 5e-3, t_ltd.size))),
+                       received(t_ltd, (1e-3, 5e-3)),
                        bags.serialize_point_stamped(stamp_ltd, meas["ltd800"], "ltd800")),
         bags.TopicData("/turning_hub/azimuth", "sensor_msgs/msg/JointState", "/turning_hub",
-                       _ns(t0, _monotonic(cmd["t"] + rng_meas.uniform(1e-3, 3e-3, cmd["t"].size))),
+                       received(cmd["t"], (1e-3, 3e-3)),
                        bags.serialize_joint_state(_ns(t0, cmd["t"]), ["front", "rear"],
                                                   np.column_stack([cmd["front"], cmd["rear"]]))),
     ]
@@ -229,8 +282,11 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
     u_joy = np.asarray(true.u_joy, float)
     stamp_joy = _monotonic(t_joy + setup.ntp_offset_s + rng_meas.normal(0.0, 30e-6, t_joy.size))
     husky = [bags.TopicData("/joy_teleop/joy", "sensor_msgs/msg/Joy", "/joy_teleop/joy_node",
-                            _ns(t0, _monotonic(stamp_joy + rng_meas.uniform(1e-4, 5e-4, t_joy.size))),
-                            bags.serialize_joy(_ns(t0, stamp_joy), u_joy))]
+                            received(stamp_joy, (1e-4, 5e-4)), bags.serialize_joy(_ns(t0, stamp_joy), u_joy))]
+    stamps_ns = {"/rpi/trigger": trig.time_ref_ns, "/at960/measurement": stamp_at,
+                 "/ltd800/measurement": stamp_ltd, "/turning_hub/azimuth": _ns(t0, cmd["t"]),
+                 "/joy_teleop/joy": _ns(t0, stamp_joy)}
+    reordered = {t.topic: count_reordered(stamps_ns[t.topic], t.t_receive_ns) for t in server + husky}
 
     # --- truth
     st = traj.states_at(trig.t_rise_rel)
@@ -252,5 +308,21 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
               "rear": {"phase_rad": float(setup.hub_phase_rad["rear"])}, "n_messages": int(cmd["t"].size)},
         joy={"ntp_offset_s": float(setup.ntp_offset_s), "n_messages": int(t_joy.size)},
         states=states,
+        bags={"receive_jitter_s": None if setup.receive_jitter_s is None else list(setup.receive_jitter_s),
+              "reordered": reordered},
+        clock_reset=None if reset is None else _reset_truth(reset, t0, stamps_ns, server),
     )
     return husky, server, run_truth
+
+
+def _reset_truth(reset, t0_ns: int, stamps_ns: dict, server: list) -> dict:
+    """Return the truth of a clock reset: when, the clock after it, where it is in the bag."""
+    tracker, t_reset, clock = reset
+    topic = f"/{tracker}/measurement"
+    data = next(t for t in server if t.topic == topic)
+    stamp = np.asarray(stamps_ns[topic])[np.argsort(data.t_receive_ns, kind="stable")]
+    i = int(np.argmin(np.diff(stamp))) + 1  # the reset is the one large backward step
+    return {"tracker": tracker, "topic": topic, "t_utc_ns": int(t0_ns) + round(t_reset * NS),
+            "message": i, "jump_s": float((stamp[i] - stamp[i - 1]) * 1e-9),
+            "clock_after": {"k": clock.k, "d_ns": int(clock.d_ns), "d_s": clock.d_ns * 1e-9,
+                            "drift_ppm": clock.drift_ppm}}

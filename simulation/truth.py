@@ -39,6 +39,15 @@ pipeline against the simulator. Layout::
         ltd800: {n_dropout_pulses, n_messages, dropouts_utc}
         hubs:   {front: {phase_rad}, rear: {phase_rad}, n_messages}   # Phi of eq. 5.25
         joy:    {ntp_offset_s, n_messages}
+        bags:   {receive_jitter_s: [lo, hi] or null,   # every message's own latency (simulate
+                                  #   --receive-jitter), null: each topic received in order
+                 reordered: {<topic>: n}}   # messages stored right after one with a later
+                                  #   stamp (backward steps < half a trigger period)
+        clock_reset:              # null, or the tracker clock restarted in this run
+          {tracker, topic, t_utc_ns,        # when (UTC) its clock restarted
+           message, jump_s,                 # first message on the new clock (stored order) and
+                                            #   the stamp step there
+           clock_after: {k, d_ns, d_s, drift_ppm}}
 
 Counting: pulses inside a dropout count in ``n_dropout_pulses`` whatever else happened to them;
 ``n_lost`` / ``n_spurious`` count only events outside dropouts, so that
@@ -108,6 +117,8 @@ class RunTruth:
     hubs: dict
     joy: dict
     states: TrueStates | None = None
+    bags: dict = field(default_factory=dict)  # receive_jitter_s, reordered per topic
+    clock_reset: dict | None = None  # the tracker clock restarted in this run, if any
 
     def to_yaml(self) -> dict:
         """Return the run's entry of ``truth.yaml``."""
@@ -115,6 +126,7 @@ class RunTruth:
             "split": self.split, "t0_utc_ns": int(self.t0_utc_ns), "duration_s": float(self.duration_s),
             "n_slots": int(self.n_slots), "n_trigger": int(self.n_trigger), "skip_phase": int(self.skip_phase),
             "clocks": self.clocks, "at960": self.at960, "ltd800": self.ltd800, "hubs": self.hubs, "joy": self.joy,
+            "bags": self.bags, "clock_reset": self.clock_reset,
         }
 
 

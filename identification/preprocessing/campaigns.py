@@ -28,8 +28,9 @@ log = logging.getLogger(__name__)
 CACHE_SUBDIR = Path(".sindy-ekf") / "preprocessed"
 KEY_FILE = "cache_key.json"
 # modules whose source decides what preprocessing writes: a change invalidates the cache
-_CODE_MODULES = ("io_tracker", "io_survey", "calibration", "sync", "hub", "poses", "states",
-                 "preprocess", "trajectory")
+_CODE_MODULES = ("io_tracker", "io_bags", "io_bag_salvage", "stamp_order", "io_survey", "calibration",
+                 "sync", "clock_sync", "extra_offset", "hub", "poses", "states", "preprocess",
+                 "trajectory")
 
 
 def campaign_kind(path: str | Path) -> str:

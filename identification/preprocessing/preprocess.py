@@ -13,8 +13,10 @@
 - the figures of each step, on request: :mod:`identification.preprocessing.figures`.
 
 A run that cannot go on (a missing topic, no gaps, trackers that disagree) is skipped with a
-warning and listed in the result, so that the other runs go on. Every count (matched, lost and
-spurious triggers, dropped samples, trigger times with only one prism) is in the result's JSON.
+warning and listed in the result, so that the other runs go on; a run cut at clock resets is
+processed part by part (``<run>.1``, ``<run>.2``). Every count (matched, lost and spurious
+triggers, dropped samples, trigger times with only one prism, messages stored out of stamp
+order, NaN points, truncated bags) is in the result's JSON.
 
 Where this departs from the thesis, and why (each measured on simulated campaigns against their
 truth, see ``bench/results/preprocess.md``):
@@ -76,6 +78,7 @@ class RunResult:
     n_one_prism: int  # trigger times where only one prism was seen (no pose)
     n_no_prism: int  # trigger times where neither was seen
     seconds: dict[str, float]  # stage -> wall time
+    facts: object | None = None  # identification.preprocessing.io_tracker.ReadFacts of a bag run
 
 
 @dataclass(frozen=True)
@@ -132,12 +135,29 @@ def run_json(r: RunResult) -> dict:
                    "one_prism_only": r.n_one_prism, "no_prism": r.n_no_prism,
                    **{k: c.to_dict() for k, c in s.counts.items()}},
         "seconds": {k: round(v, 4) for k, v in r.seconds.items()},
+        **reading_json(r),
     }
     if r.hub is not None:
         out["hub"] = hub_json(r.hub)
         rms_after = out["hub"].get("rms_after_m")
         if rms_after is not None:
             out["baseline_rms_m"]["after_hub_model"] = rms_after
+    return out
+
+
+def reading_json(r: RunResult) -> dict:
+    """Return what reading the bags found: reorderings, NaN points, truncation, clock resets.
+
+    ``reordered`` (topic -> messages stored right after one with a later stamp, sorted),
+    ``nan_points_dropped`` (topic -> tracker samples with NaN coordinates, kept for the clock
+    only), ``repeated_stamps_dropped``, ``truncated`` (bags read up to their damage),
+    ``clock_resets`` (of the run a part was cut from), ``part_of`` (that run, or null) and
+    ``parts_dropped`` (why a part too short was dropped).
+    """
+    out = {"nan_points_dropped": {f"/{k}/measurement": int(c.dropped_nan)
+                                  for k, c in r.synced.counts.items()}}
+    if r.facts is not None:
+        out.update(r.facts.to_json_dict())
     return out
 
 
@@ -229,30 +249,38 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
     sec["states"] = time.perf_counter() - tic
     return RunResult(synced=synced, hub=hub, poses=poses, states=states, inputs=inputs,
                      n_one_prism=int((seen == 1).sum()), n_no_prism=int((seen == 0).sum()),
-                     seconds=sec)
+                     seconds=sec, facts=getattr(raw, "facts", None))
 
 
-def _read_and_process(job: tuple) -> tuple[str, RunResult | None, str | None]:
-    """Read one run's bags and preprocess it (a worker: one run per call, in any process)."""
-    from identification.preprocessing.io_tracker import read_tracker_run
+def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | None]]:
+    """Read one run's bags and preprocess it, or each of its parts between clock resets (a
+    worker: one run per call, in any process); return ``(name, result, reason)`` per part."""
+    from identification.preprocessing.io_tracker import read_tracker_parts
 
     root, name, split, calibration, smoothing, hub_correction, plots_dir = job
     tic = time.perf_counter()
     try:
-        raw = read_tracker_run(Path(root) / "runs" / name, name, split)
-        t_read = time.perf_counter() - tic
-        result = preprocess_run(raw, calibration, smoothing, hub_correction)
+        parts = read_tracker_parts(Path(root) / "runs" / name, name, split)
     except InputError as exc:
-        return name, None, str(exc)
-    result.seconds["read"] = t_read
-    if plots_dir is not None:
-        tic = time.perf_counter()
-        # local: matplotlib is loaded only when figures are asked for
-        from identification.preprocessing.figures import plot_run
+        return [(name, None, str(exc))]
+    t_read = (time.perf_counter() - tic) / len(parts)
+    done = []
+    for raw in parts:
+        try:
+            result = preprocess_run(raw, calibration, smoothing, hub_correction)
+        except InputError as exc:
+            done.append((raw.name, None, str(exc)))
+            continue
+        result.seconds["read"] = t_read
+        if plots_dir is not None:
+            tic = time.perf_counter()
+            # local: matplotlib is loaded only when figures are asked for
+            from identification.preprocessing.figures import plot_run
 
-        plot_run(raw, result, Path(plots_dir) / name)
-        result.seconds["plots"] = time.perf_counter() - tic
-    return name, result, None
+            plot_run(raw, result, Path(plots_dir) / raw.name)
+            result.seconds["plots"] = time.perf_counter() - tic
+        done.append((raw.name, result, None))
+    return done
 
 
 def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
@@ -310,11 +338,12 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
 
         with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)),
                                  mp_context=mp.get_context("fork")) as pool:
-            done = list(progress(pool.map(_read_and_process, jobs_args), desc="preprocess",
-                                 total=len(jobs_args)))
+            done = [part for parts in progress(pool.map(_read_and_process, jobs_args),
+                                               desc="preprocess", total=len(jobs_args))
+                    for part in parts]
     else:
-        done = [_read_and_process(a)
-                for a in progress(jobs_args, desc="preprocess", total=len(jobs_args))]
+        done = [part for a in progress(jobs_args, desc="preprocess", total=len(jobs_args))
+                for part in _read_and_process(a)]
     seconds["runs_wall"] = time.perf_counter() - tic
     runs: dict[str, RunResult] = {}
     skipped: dict[str, str] = {}

@@ -32,24 +32,27 @@ def format_summary(result) -> str:
     """Return the per-run summary table printed by the command."""
     import numpy as np
 
-    from identification.preprocessing.preprocess import TIMING_ERROR_R
+    from identification.preprocessing.preprocess import TIMING_ERROR_R, reading_json
+    from sindy_ekf.report.bag_facts import bag_notes
 
     head = (f"{'run':<10} {'split':<5} {'LTD800 ppm':>11} {'AT960 ppm':>10} {'offset ms':>10} "
             f"{'r before':>8} {'r after':>8} {'base rms mm':>12} {'poses':>6} "
-            f"{'lost':>5} {'spur':>5} {'1-prism':>7}")
+            f"{'lost':>5} {'spur':>5} {'1-prism':>7} {'reord':>5} {'nan':>4}")
     lines = [head, "-" * len(head)]
     for name, r in result.runs.items():
         s = r.synced
         at, ltd = s.counts["at960"], s.counts["ltd800"]
+        reordered = sum(r.facts.reordered.values()) if r.facts is not None else 0
         lines.append(
             f"{name:<10} {s.split:<5} {s.clock['ltd800'].drift_ppm:>11.4f} "
             f"{s.clock['at960'].drift_ppm:>10.4f} {s.offset.dt * 1e3:>10.4f} "
             f"{s.r_speed_before:>8.2f} {s.r_speed_after:>8.2f} "
             f"{s.baseline_rms_m('before') * 1e3:>5.3f}->{s.baseline_rms_m('after') * 1e3:<6.3f} "
             f"{r.poses.t.size:>6d} {at.lost + ltd.lost:>5d} {at.spurious + ltd.spurious:>5d} "
-            f"{r.n_one_prism:>7d}")
+            f"{r.n_one_prism:>7d} {reordered:>5d} {at.dropped_nan + ltd.dropped_nan:>4d}")
     for name, why in result.skipped.items():
         lines.append(f"{name:<10} skipped: {why}")
+    lines += bag_notes({name: reading_json(r) for name, r in result.runs.items()})
     synced = [r.synced for r in result.runs.values()]
     r0 = np.array([s.r_speed_before for s in synced])
     if np.any(np.abs(r0) > TIMING_ERROR_R):

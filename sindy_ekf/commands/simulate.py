@@ -19,6 +19,16 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
                    help="total driving time (default: thesis table 6.4, 45.4 min)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="a dynamics effect of simulation.effects, e.g. input_delay=0.1")
+    p.add_argument("--receive-jitter", nargs="?", const="2,12", default=None, metavar="MS_LO,MS_HI",
+                   help="give every message its own receive latency, uniform in [MS_LO, MS_HI] ms "
+                        "(2,12 without a value), and store each topic in receive order, as "
+                        "independently generated campaigns do: a spurious AT960 pulse a few ms from "
+                        "a real one is then stored out of stamp order (default: every topic "
+                        "received in stamp order)")
+    p.add_argument("--clock-reset", action="append", default=[], metavar="RUN[:TRACKER[:FRACTION]]",
+                   help="restart a tracker's clock in that run (a backward jump of hours in its "
+                        "stamps), e.g. run_05 or run_05:ltd800:0.3 (default tracker at960, at 0.5 of "
+                        "the run); repeatable")
     p.add_argument("--force", action="store_true", help="replace a non-empty OUT")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
     return p
@@ -37,7 +47,8 @@ def summary(truth) -> dict:
                           "at960_extra_offset_s": r.at960["offset_s"],
                           "at960": {k: r.at960[k] for k in ("n_messages", "n_lost", "n_spurious", "n_dropout_pulses")},
                           "ltd800": {k: r.ltd800[k] for k in ("n_messages", "n_dropout_pulses")},
-                          "n_joy": r.joy["n_messages"], "n_hub": r.hubs["n_messages"]}
+                          "n_joy": r.joy["n_messages"], "n_hub": r.hubs["n_messages"],
+                          "reordered": r.bags.get("reordered", {}), "clock_reset": r.clock_reset}
                  for r in truth.runs},
     }
 
@@ -61,11 +72,22 @@ def run(args) -> int:
     if args.json is not None and args.json.resolve().is_relative_to(args.out.resolve()):
         raise InputError(f"--json {args.json}: must not be inside the output folder {args.out}")
     truth = simulate_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
-                              force=args.force)
+                              force=args.force, receive_jitter_s=args.receive_jitter,
+                              clock_resets=args.clock_reset)
     total = sum(r.duration_s for r in truth.runs) / 60.0
     effect = ", ".join(f"{n}={v:g}" for n, v in truth.effects) or "none"
     print(f"simulated campaign {args.out}: {len(truth.runs)} runs, {total:.1f} min, seed {truth.seed}, "
           f"effect {effect}")
+    for r in truth.runs:
+        jitter = r.bags.get("receive_jitter_s")
+        if jitter:
+            stored = ", ".join(f"{t} {n}" for t, n in r.bags["reordered"].items() if n)
+            print(f"{r.name}: receive latency {jitter[0] * 1e3:g}-{jitter[1] * 1e3:g} ms; stored out of "
+                  f"stamp order: {stored or 'none'}")
+        if r.clock_reset:
+            c = r.clock_reset
+            print(f"{r.name}: {c['tracker']} clock restarted (topic {c['topic']}, message {c['message']}, "
+                  f"stamps jump {c['jump_s']:+.3f} s)")
     print(format_table(truth))
     if args.json is not None:
         atomic_write_json(args.json, summary(truth))

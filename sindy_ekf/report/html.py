@@ -44,6 +44,7 @@ from identification.sindy.figures import (
 )
 from sindy_ekf.benchmark.figures import plot_nees, plot_outage_errors, plot_trajectories
 from sindy_ekf.diagnose.figures import plot_lag_profile, plot_residual_structure
+from sindy_ekf.report.bag_facts import bag_notes, bag_words
 from sindy_ekf.report.chain import QUICK, STAGES, ChainResult, run_chain
 from sindy_ekf.report.figures import (
     plot_driven_paths,
@@ -244,12 +245,14 @@ def section_synchronisation(chain: ChainResult) -> Section:
                      f"{r['timing_error']['r_baseline_speed_after']:+.2f}",
                      f"{b['before'] * 1e3:.3f}", f"{b['after'] * 1e3:.3f}",
                      f"{b['after_hub_model'] * 1e3:.3f}" if "after_hub_model" in b else "-",
-                     f"{hub['r1'] * 1e3:.3f} / {hub['r2'] * 1e3:.3f}" if hub else "-"])
+                     f"{hub['r1'] * 1e3:.3f} / {hub['r2'] * 1e3:.3f}" if hub else "-", bag_words(r)])
     sec.note("Clock model t_trigger = k t_tracker + d per tracker (drift = (k - 1) 1e6), the AT960's "
              "extra offset, the correlation r of the baseline length with forward speed before and after "
-             "it, the baseline RMS and the turning-hub model of eq. 5.25.")
+             "it, the baseline RMS and the turning-hub model of eq. 5.25; what reading the bags found.")
     sec.add(table_html(["run", "split", "LTD800 ppm", "AT960 ppm", "AT960 offset ms", "r before", "r after",
-                        "baseline RMS before mm", "after", "after hub", "hub r1/r2 mm"], rows, left=2))
+                        "baseline RMS before mm", "after", "after hub", "hub r1/r2 mm", "bags"], rows, left=2))
+    for line in bag_notes(runs):
+        sec.note(line)
     if _absent_or_failed(sec, chain, ("synchronisation",)):
         return sec
     raw, run = chain.showcase

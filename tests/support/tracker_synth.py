@@ -99,8 +99,10 @@ def _messages(raw: BagRun, store):
 
     TR, PS, P = T["sensor_msgs/msg/TimeReference"], T["geometry_msgs/msg/PointStamped"], T["geometry_msgs/msg/Point"]
     Joy, JS = T["sensor_msgs/msg/Joy"], T["sensor_msgs/msg/JointState"]
-    for t in raw.t_trigger_utc:
-        yield "/rpi/trigger", TR.__msgtype__, t + 3e-4, TR(header=hd(t + 3e-4), time_ref=tm(t), source="rpi")
+    # bag times: 0.3 ms after time_ref, or as given (a trigger clock that jumped: issue 14)
+    rx_trigger = raw.t_receive_utc.get("trigger", raw.t_trigger_utc + 3e-4)
+    for t, r in zip(raw.t_trigger_utc, rx_trigger):
+        yield "/rpi/trigger", TR.__msgtype__, r, TR(header=hd(r), time_ref=tm(t), source="rpi")
     for tracker in ("at960", "ltd800"):
         ps = getattr(raw, tracker)
         rx = raw.t_receive_utc.get(tracker, raw.t_trigger_utc[0] + ps.t_tracker - ps.t_tracker[0])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import re
 import shutil
 from dataclasses import replace
 
@@ -69,12 +70,21 @@ def test_missing_hub_topic_only_warns(tmp_path, raw, caplog):
     assert back.t_hub_utc.size == 0 and "/turning_hub/azimuth" in caplog.text
 
 
-def test_non_monotonic_stamps_name_run_topic_and_message(tmp_path, raw):
+def test_a_backward_jump_of_a_period_is_a_clock_reset_and_a_short_part_is_dropped_with_a_warning(
+        tmp_path, raw, caplog):
+    # two messages a whole trigger period apart stored swapped: longer than half a period, so by
+    # the data contract a clock reset, not a reordering; the 1 s before it is too short to keep
     t = raw.at960.t_tracker.copy()
     t[50], t[51] = t[51], t[50]
     write_run_bags(tmp_path / "run_01", replace(raw, at960=PointSeries(t, raw.at960.xyz)))
-    with pytest.raises(InputError, match=r"run run_01: topic /at960/measurement: stamps not monotonic at message 51"):
-        read_tracker_run(tmp_path / "run_01")
+    with caplog.at_level(logging.WARNING):
+        back = read_tracker_run(tmp_path / "run_01")
+    jump = f"{t[50] - t[51]:.6f}"
+    assert re.search(rf"run run_01: topic /at960/measurement: clock jumps back {jump} s at message 51 .*"
+                     r"the 1\.0 s of trigger stamps before it .* dropped", caplog.text)
+    assert back.name == "run_01" and back.t_trigger_utc[0] > raw.t_trigger_utc[0] + 0.9
+    assert back.facts.parts_dropped and "message 51" in back.facts.parts_dropped[0]
+    assert np.all(np.diff(back.at960.t_tracker) > 0)
 
 
 def test_a_repeated_stamp_is_dropped_and_said(tmp_path, raw, caplog):
@@ -149,7 +159,7 @@ def test_calibration_with_missing_or_extra_point_names_the_key(tmp_path, raw, ed
 def test_fast_ros1_parser_agrees_with_rosbags_and_refuses_non_uniform_messages():
     from rosbags.typesys import Stores, get_typestore
 
-    from identification.preprocessing.io_tracker import _ros1_columns
+    from identification.preprocessing.io_bags import _ros1_columns
 
     store = get_typestore(Stores.ROS1_NOETIC)
     T = store.types
@@ -165,3 +175,11 @@ def test_fast_ros1_parser_agrees_with_rosbags_and_refuses_non_uniform_messages()
     odd = raw[:2] + [bytes(store.serialize_ros1(replace(msgs[2], header=replace(msgs[2].header, frame_id="x")),
                                                 "geometry_msgs/msg/PointStamped"))]
     assert _ros1_columns(odd, "geometry_msgs/msg/PointStamped") is None
+
+
+def test_a_short_run_without_clock_resets_is_read_whole(tmp_path):
+    short = synth_run(seed=3, minutes=0.1)[0]  # 6 s: shorter than a part cut at a reset may be
+    write_run_bags(tmp_path / "run_01", short)
+    back = read_tracker_run(tmp_path / "run_01")
+    _assert_same(short, back)
+    assert back.facts.parts_dropped == () and back.facts.clock_resets == ()
