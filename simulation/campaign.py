@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-from dataclasses import asdict, is_dataclass
+from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -34,8 +34,10 @@ from groundfloor.progress import progress
 from simulation import bags
 from simulation import truth as truth_io
 from simulation.clocks import NS, simulate_tracker_clock
+from simulation.effects import Effect, parse_effect
 from simulation.hubs import baseline_geometry
 from simulation.measurement import AT960, LTD800
+from simulation.robot_params import RobotParams
 from simulation.tracker_run import RunSetup, simulate_tracker_run
 
 log = logging.getLogger(__name__)
@@ -113,8 +115,6 @@ def run_durations(minutes: float | None) -> np.ndarray:
 
 def check_effects(effects) -> tuple:
     """Return ``effects`` as a tuple of ``simulation.effects.Effect``; parse ``NAME=VALUE`` strings."""
-    from simulation.effects import Effect, parse_effect
-
     out = []
     for e in effects or ():
         out.append(parse_effect(e) if isinstance(e, str) else e)
@@ -180,10 +180,8 @@ def check_clock_resets(value) -> dict[str, tuple[str, float]]:
 
 
 def _robot_summary() -> dict:
-    from simulation import robot
-
-    params = robot.RobotParams()
-    return truth_io._plain(asdict(params)) if is_dataclass(params) else {}
+    """Return the robot's parameters as plain values for truth/ (``RobotParams`` as a dict)."""
+    return truth_io._plain(asdict(RobotParams()))
 
 
 def _umask() -> int:

@@ -50,6 +50,7 @@ from simulation.measurement import (
     simulate_lost,
     simulate_spurious,
 )
+from simulation.robot import simulate_run
 from simulation.truth import RunTruth, TrueStates
 
 TRIGGER_DEAD_TIME_S = 1e-3  # a tracker's trigger input registers no second edge within 1 ms
@@ -172,8 +173,6 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
     ``simulation.robot.simulate_run``; see the module docstrings of
     :mod:`simulation.clocks`, :mod:`simulation.measurement` and :mod:`simulation.hubs`.
     """
-    from simulation.robot import simulate_run
-
     rng_robot, rng_meas = rng.spawn(2)
     lead = float(rng_meas.uniform(0.5, 1.5))
     true = simulate_run(lead + setup.duration_s + TAIL_S, rng_robot, effect=setup.effect)

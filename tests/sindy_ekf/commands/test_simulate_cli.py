@@ -133,3 +133,12 @@ def test_demo_prints_what_the_campaign_holds(tmp_path, capsys):
     assert report.is_file() and f"report written to {report}" in printed
     assert "5 s prediction error" in printed and "sindy_ekf" in printed
     assert "skipping run" not in printed
+
+
+def test_simulate_command_takes_and_reports_jitter_and_reset(tmp_path, capsys):
+    assert main(["simulate", str(tmp_path / "c"), "--minutes", "2.25", "--receive-jitter", "2,12",
+                 "--clock-reset", "run_06:at960:0.5", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "receive latency 2-12 ms" in printed
+    assert "run_06: at960 clock restarted (topic /at960/measurement, message" in printed
+    assert "receive jitter 2-12 ms" in (tmp_path / "c" / "campaign.yaml").read_text()
