@@ -21,8 +21,8 @@ from identification.preprocessing.trajectory import (
     write_trajectory_campaign,
 )
 from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import evaluate_model, make_windows
-from identification.sindy.search import states_of_runs
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "real_warthog.py"
 
@@ -175,7 +175,7 @@ def test_identify_picks_the_low_rate_grid_for_lidar_poses(data, small_trajectory
 def test_diagnosis_on_real_data_names_only_what_5s_prediction_confirms(identified, data):
     """On these runs the window residuals favour mechanisms (a 0.56 s delay on wheels) whose
     re-identified models run away at rest or predict 5 s worse; such a cause must not be named."""
-    from identification.sindy.search import stable_at_rest
+    from identification.sindy.checks import stable_at_rest
     from sindy_ekf.diagnose import diagnose_states
 
     camp = read_trajectory_campaign(data / "warthog-drive-wheels")

@@ -146,7 +146,7 @@ def _zoh(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
 def train_series(train_runs, smoothing: float | None = None) -> list[StateSeries]:
     """Return the train runs' six-state series (finite segments of more than 10 samples)."""
     from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
-    from identification.sindy.search import body_states
+    from identification.sindy.data import body_states
 
     s = DEFAULT_SMOOTHING if smoothing is None else smoothing
     series = [state_series_from_body_states(seg, f"{r.name}[{i}]") for r in train_runs

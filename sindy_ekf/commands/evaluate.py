@@ -46,7 +46,7 @@ def run(args) -> int:
     from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
     from identification.sindy.evaluate import evaluate_on_runs
     from identification.sindy.model import SindyModel
-    from identification.sindy.search import states_of_runs
+    from identification.sindy.data import states_of_runs
 
     model = SindyModel.load(args.model)
     campaign = open_campaign(args.campaign)

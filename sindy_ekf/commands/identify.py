@@ -140,7 +140,7 @@ def _plots(result, out_dir: Path, train, model) -> None:
         plot_term_prevalence,
     )
     from identification.sindy.regression import integral_problem
-    from identification.sindy.search import states_of_runs
+    from identification.sindy.data import states_of_runs
 
     out_dir.mkdir(parents=True, exist_ok=True)
     for s in np.unique(result.table["s"]):

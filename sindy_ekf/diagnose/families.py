@@ -33,7 +33,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from identification.sindy.library import LIBRARY_STATE_NAMES, parse_term
-from identification.sindy.search import (
+from identification.sindy.checks import (
     STABILITY_TOL,
     max_re_eig_at_rest,
     stable_at_rest,

@@ -22,7 +22,7 @@ from groundfloor.progress import progress
 from groundfloor.types import BodyStates
 from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
 from identification.sindy.model import SindyModel
-from identification.sindy.search import stable_at_rest
+from identification.sindy.checks import stable_at_rest
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import (
     ExtendedModel,
@@ -342,7 +342,7 @@ def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence
     smoothing ``s`` of the model's hyperparameters); a run split at a gap becomes several segments.
     """
     from identification.preprocessing.campaigns import open_campaign
-    from identification.sindy.search import states_of_runs
+    from identification.sindy.data import states_of_runs
 
     model = load_model(model_path)
     camp = open_campaign(campaign)

@@ -189,7 +189,7 @@ def stage_evaluation(chain: ChainResult) -> None:
     """Score the model, the baselines and (simulated campaigns) the oracle on the test runs (5.3.8)."""
     from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
     from identification.sindy.evaluate import evaluate_on_runs
-    from identification.sindy.search import states_of_runs
+    from identification.sindy.data import states_of_runs
 
     s = float(chain.model.hyperparameters.get("s") or 0.0)
     for split in ("train", "test"):

@@ -191,7 +191,7 @@ def section_overview(chain: ChainResult) -> Section:
     states = chain.states.get("train", []) + chain.states.get("test", [])
     if not states:
         from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
-        from identification.sindy.search import states_of_runs
+        from identification.sindy.data import states_of_runs
 
         states = states_of_runs(traj.runs, DEFAULT_SMOOTHING)[0]
     sec.figures([(lambda: plot_driven_paths(traj.runs), "driven paths in the local frame"),
@@ -204,7 +204,7 @@ def section_calibration(chain: ChainResult) -> Section:
     sec = Section("calibration", "Calibration")
     if _absent_or_failed(sec, chain, ("calibration",)):
         return sec
-    from identification.preprocessing.calibration import ARCSEC_PER_RAD
+    from identification.preprocessing.network_transform import ARCSEC_PER_RAD
 
     cal, tf = chain.calibration, chain.calibration.transform
     std = tf.params_std
