@@ -11,7 +11,7 @@ Measures (wall time on this machine, numbers written to ``bench/results/estimati
 
 Usage::
 
-    python bench/bench_estimation.py [--campaign DIR] [--model MODEL.json] [--gnss dgnss]
+    python -m bench.bench_estimation [--campaign DIR] [--model MODEL.json] [--gnss dgnss]
 
 Without ``--campaign`` the default campaign is simulated (``sindy-ekf simulate DIR --seed 0``)
 and identified (``sindy-ekf identify DIR --out MODEL.json --quick``) into a cache folder.
@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 def main() -> int:
@@ -70,7 +69,7 @@ def main() -> int:
     oracle = oracle_dynamics_for(campaign_dir)
     lines = [f"# Estimation benchmark ({args.gnss})", "",
              f"Campaign `{campaign_dir}` ({len(campaign.runs)} runs), model `{model_path}`.",
-             f"Command: `{' '.join([Path(sys.executable).name] + sys.argv)}`", ""]
+             f"Command: `python -m bench.bench_estimation {' '.join(sys.argv[1:])}`", ""]
 
     # 1. the EKF over the whole campaign
     models = fit_models(campaign.split("train"), model, oracle, DEFAULT_SMOOTHING)

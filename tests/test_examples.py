@@ -9,7 +9,6 @@ thesis compares with, and the simulator's true dynamics.
 from __future__ import annotations
 
 import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +24,7 @@ def example_files() -> list[Path]:
 
 
 def load(path: Path):
-    """Import an example as a module, with ``examples/`` importable for its helpers."""
-    if str(EXAMPLES) not in sys.path:
-        sys.path.insert(0, str(EXAMPLES))
+    """Import an example as a module from its file (examples import only the installed packages)."""
     spec = importlib.util.spec_from_file_location(f"example_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

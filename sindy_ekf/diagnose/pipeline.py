@@ -338,7 +338,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
 def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:
     """Return the diagnosis of the model in ``model_path`` on a campaign (trajectory or tracker).
 
-    Body states come from the project's spline step (``identification.sindy.search.states_of_runs``,
+    Body states come from the project's spline step (``identification.sindy.data.states_of_runs``,
     smoothing ``s`` of the model's hyperparameters); a run split at a gap becomes several segments.
     """
     from identification.preprocessing.campaigns import open_campaign

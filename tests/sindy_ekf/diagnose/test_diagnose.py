@@ -19,12 +19,10 @@ import pytest
 
 from groundfloor.errors import InputError  # noqa: E402
 from simulation.effects import EFFECTS, Effect  # noqa: E402
+from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose import diagnose_states  # noqa: E402
 from tests.support import REPO
-from tests.support.diagnose_synth import (  # noqa: E402
-    fit_reference_with_lateral_law,
-    simulate_states_campaign,
-)
+from tests.support.diagnose_synth import fit_reference_with_lateral_law
 
 # The magnitude and campaign seed of each hidden effect are drawn from this master seed; the code
 # under test never sees them. CI uses a fixed master seed so that a green run is reproducible;
