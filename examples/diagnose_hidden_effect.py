@@ -46,9 +46,10 @@ def main(seed: int = 4, family: str | None = None) -> dict:
     for c in d.ranked[:3]:
         print(f"  {c.name:20s} out-of-sample gain {100 * c.gain:6.2f} % (threshold {100 * c.threshold:.2f} %) "
               f"{c.score.estimate}")
-    print(f"5 s position error on the test runs: {100 * d.before['pos_err_5s_m']:.1f} cm -> "
-          f"{100 * d.after['pos_err_5s_m']:.1f} cm with the extended model")
-    return {"hidden": family, "value": value, "verdict": d.verdict, "before": d.before, "after": d.after}
+    print(f"5 s position error on the test runs: {100 * d.before.pos_err_5s_m:.1f} cm -> "
+          f"{100 * d.after.pos_err_5s_m:.1f} cm with the extended model")
+    return {"hidden": family, "value": value, "verdict": d.verdict, "before": d.before.to_json(),
+            "after": d.after.to_json()}
 
 
 if __name__ == "__main__":

@@ -50,10 +50,6 @@ def V(k: int) -> int:
     return gtsam.symbol("v", k)
 
 
-def _wrap(a):
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
-
-
 def _J_world_xi(psi: np.ndarray) -> np.ndarray:
     """Return ``d[x, y, psi]/d xi`` ``(..., 3, 3)`` of a Pose2 perturbed by ``retract(xi)`` at 0."""
     c, s = np.cos(psi), np.sin(psi)

@@ -78,7 +78,7 @@ def fit_reference_with_lateral_law(seed: int = 12345, n_runs: int = 6, run_s: fl
     """
     from sindy_ekf.diagnose.data import split_from_states
     from sindy_ekf.diagnose.extend import reidentify
-    from sindy_ekf.diagnose.families import equation_weights
+    from sindy_ekf.diagnose.fitting import equation_weights
 
     train, _, names, _ = simulate_states_campaign(seed, None, n_train=n_runs, n_test=0, run_s=run_s,
                                                   rate_hz=rate_hz)
