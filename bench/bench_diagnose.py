@@ -70,7 +70,7 @@ def one_campaign(job: tuple) -> dict:
         d = diagnose_states(model, train, test, a, b, uncertainty=False)
     return {"seed": seed, "family": family or "none", "value": value, "flow": flow, "verdict": d.verdict,
             "gains": {c.name: c.gain for c in d.ranked}, "estimate": d.ranked[0].score.estimate
-            if d.verdict != "none" else {}, "before": d.before["pos_err_5s_m"], "after": d.after["pos_err_5s_m"],
+            if d.verdict != "none" else {}, "before": d.before.pos_err_5s_m, "after": d.after.pos_err_5s_m,
             "seconds": time.perf_counter() - t0}
 
 
@@ -151,7 +151,8 @@ def timing_default(effect=("input_delay", 0.15)) -> dict:
     return {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
             "load_average": list(__import__("os").getloadavg()), "parts": {k: round(v, 1) for k, v in d.seconds.items()},
             "verdict": d.verdict, "minutes": sum(r[1] for r in RUNS_TABLE_6_4) / 60, "hidden": list(effect),
-            "estimate": d.ranked[0].score.estimate, "before": d.before, "after": d.after, "outage": d.outage}
+            "estimate": d.ranked[0].score.estimate, "before": d.before.to_json(), "after": d.after.to_json(),
+            "outage": d.outage}
 
 
 def summarise(suite, ladder, timing, calib) -> str:

@@ -54,19 +54,19 @@ def main() -> int:
     from identification.preprocessing.campaigns import open_campaign
     from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
     from identification.sindy.model import SindyModel
+    from simulation.truth import true_dynamics_of
     from sindy_ekf.benchmark.run import (
         P0_STD,
         _prepare_run,
         benchmark_campaign,
         fit_models,
     )
-    from sindy_ekf.commands.benchmark import oracle_dynamics_for
     from sindy_ekf.estimation.ekf import EkfRun, run_ekf_batch
     from sindy_ekf.estimation.graph import smooth_batch, smooth_isam2
 
     model = SindyModel.load(model_path)
     campaign = open_campaign(campaign_dir)
-    oracle = oracle_dynamics_for(campaign_dir)
+    oracle = true_dynamics_of(campaign_dir)
     lines = [f"# Estimation benchmark ({args.gnss})", "",
              f"Campaign `{campaign_dir}` ({len(campaign.runs)} runs), model `{model_path}`.",
              f"Command: `python -m bench.bench_estimation {' '.join(sys.argv[1:])}`", ""]

@@ -281,8 +281,8 @@ def main() -> int:
             delay = delay_from_train(tr_d)
             e0 = evaluate_model(UnicycleModel().fit(tr_d), te_d).pos_err_5s_m
             e1 = evaluate_model(UnicycleModel().fit(delayed(tr_d, delay)), delayed(te_d, delay)).pos_err_5s_m
-            md.append(f"| {name} | {d.verdict} | {est_txt} | {d.before['pos_err_5s_m']:.3f} -> "
-                      f"{d.after['pos_err_5s_m']:.3f} | {others} | {delay:.2f} s | {e0:.3f} -> {e1:.3f} |")
+            md.append(f"| {name} | {d.verdict} | {est_txt} | {d.before.pos_err_5s_m:.3f} -> "
+                      f"{d.after.pos_err_5s_m:.3f} | {others} | {delay:.2f} s | {e0:.3f} -> {e1:.3f} |")
             print(name, "diagnosis", d.verdict, d.before, d.after, f"{dt_diag:.0f} s", flush=True)
         md.append("")
 

@@ -18,7 +18,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from examples.real_warthog import CAMPAIGNS, DATA, README_BASELINES, TARGET_RATIO  # one source of the figures
+from examples.real_warthog import (  # one source of the figures
+    CAMPAIGNS,
+    DATA,
+    README_BASELINES,
+    TARGET_RATIO,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -40,7 +40,11 @@ from simulation.gnss import schedule_outages, simulate_gnss
 from simulation.short_campaign import simulate_trajectory_runs
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
 from sindy_ekf.estimation.graph import smooth_batch
-from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise, state_series_from_body_states
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    fit_process_noise,
+    state_series_from_body_states,
+)
 
 SMOOTHING = 0.0005
 TAU_S, ALPHA, THRESHOLD = 3.0, 10.0, 0.5  # a sparse model: stays tame where noisy fixes push the state

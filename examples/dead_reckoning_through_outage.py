@@ -33,7 +33,11 @@ from simulation.robot import TrueDynamics
 from simulation.short_campaign import simulate_trajectory_runs
 from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.estimation.ekf import run_ekf_batch
-from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise, state_series_from_body_states
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    fit_process_noise,
+    state_series_from_body_states,
+)
 
 OUTAGE_S = 10.0
 LEAD_S = 15.0  # GNSS before each outage: the filter converges, then dead-reckons

@@ -28,7 +28,7 @@ from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose import diagnose_states
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import reidentify
-from sindy_ekf.diagnose.families import equation_weights
+from sindy_ekf.diagnose.fitting import equation_weights
 
 
 def reference_model(seed: int = 12345) -> SindyModel:
@@ -57,9 +57,10 @@ def main(seed: int = 4, family: str | None = None) -> dict:
     for c in d.ranked[:3]:
         print(f"  {c.name:20s} out-of-sample gain {100 * c.gain:6.2f} % (threshold {100 * c.threshold:.2f} %) "
               f"{c.score.estimate}")
-    print(f"5 s position error on the test runs: {100 * d.before['pos_err_5s_m']:.1f} cm -> "
-          f"{100 * d.after['pos_err_5s_m']:.1f} cm with the extended model")
-    return {"hidden": family, "value": value, "verdict": d.verdict, "before": d.before, "after": d.after}
+    print(f"5 s position error on the test runs: {100 * d.before.pos_err_5s_m:.1f} cm -> "
+          f"{100 * d.after.pos_err_5s_m:.1f} cm with the extended model")
+    return {"hidden": family, "value": value, "verdict": d.verdict, "before": d.before.to_json(),
+            "after": d.after.to_json()}
 
 
 if __name__ == "__main__":

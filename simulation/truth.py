@@ -70,6 +70,8 @@ import numpy as np
 import yaml
 
 from groundfloor.errors import InputError
+from simulation.effects import Effect
+from simulation.robot import TrueDynamics
 
 FORMAT = "sindy-ekf-truth/1"
 STATE_COLUMNS = ("t_utc", "t_rel", "x", "y", "z", "psi", "pitch", "vx", "vy", "omega", "u1", "u2", "at960_duty_s")
@@ -250,3 +252,41 @@ def read_truth(campaign_dir: str | Path, states: bool = True) -> CampaignTruth:
         body_origin_z_local_m=doc["body_origin_z_local_m"], baseline_length_m=doc["baseline_length_m"],
         hubs=doc["hubs"], noise=doc["noise"], robot=doc["robot"], runs=tuple(runs),
     )
+
+
+def is_simulated(campaign_dir: str | Path) -> bool:
+    """Return whether ``campaign_dir`` holds the simulator's ``truth/truth.yaml``."""
+    return (Path(campaign_dir) / "truth" / "truth.yaml").is_file()
+
+
+def true_dynamics_of(campaign_dir: str | Path) -> TrueDynamics | None:
+    """Return the simulator's true dynamics of a simulated campaign with its dynamics effect, or
+    None for a measured campaign (no ``truth/``).
+
+    The one place where the scorers (evaluation, benchmark, report) get the best any model can
+    do. Only the truth's first dynamics effect is applied; input-side effects (delay, deadband,
+    ...) are left to :meth:`TrueDynamics.motor_inputs`, never applied to the recorded inputs.
+    """
+    if not is_simulated(campaign_dir):
+        return None
+    truth = read_truth(campaign_dir, states=False)
+    return TrueDynamics(effect=Effect(*truth.effects[0]) if truth.effects else None)
+
+
+def campaign_summary(truth: CampaignTruth) -> dict:
+    """Return the JSON summary of a simulated campaign (``simulate --json``): its truth, per run."""
+    return {
+        "seed": truth.seed, "minutes": truth.minutes,
+        "effects": [{"name": n, "value": v} for n, v in truth.effects],
+        "transform": {"translation_m": truth.transform["translation_m"],
+                      "rotation_deg": truth.transform["rotation_deg"]},
+        "lever_arms_m": truth.lever_arms_m,
+        "runs": {r.name: {"split": r.split, "duration_s": r.duration_s, "n_trigger": r.n_trigger,
+                          "clock": {k: {"drift_ppm": c["drift_ppm"]} for k, c in r.clocks.items()},
+                          "at960_extra_offset_s": r.at960["offset_s"],
+                          "at960": {k: r.at960[k] for k in ("n_messages", "n_lost", "n_spurious", "n_dropout_pulses")},
+                          "ltd800": {k: r.ltd800[k] for k in ("n_messages", "n_dropout_pulses")},
+                          "n_joy": r.joy["n_messages"], "n_hub": r.hubs["n_messages"],
+                          "reordered": r.bags.get("reordered", {}), "clock_reset": r.clock_reset}
+                 for r in truth.runs},
+    }

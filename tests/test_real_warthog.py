@@ -185,7 +185,7 @@ def test_diagnosis_on_real_data_names_only_what_5s_prediction_confirms(identifie
     test, b, _ = states_of_runs(camp.split("test"), s)
     d = diagnose_states(model, train, test, a, b, ekf=False, uncertainty=False)
     if d.verdict != "none":
-        assert d.after["pos_err_5s_m"] < d.before["pos_err_5s_m"]
+        assert d.after.pos_err_5s_m < d.before.pos_err_5s_m
         assert stable_at_rest(d.extended.base)
     for c in d.ranked:
         if "not confirmed" in c.note:

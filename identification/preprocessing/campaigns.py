@@ -24,7 +24,10 @@ from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
 from groundfloor.types import TrajectoryCampaign
 from identification.preprocessing.io_tracker import find_bags
-from identification.preprocessing.preprocess import DEFAULT_SMOOTHING, preprocess_campaign
+from identification.preprocessing.preprocess import (
+    DEFAULT_SMOOTHING,
+    preprocess_campaign,
+)
 from identification.preprocessing.trajectory import read_trajectory_campaign
 
 log = logging.getLogger(__name__)

@@ -56,7 +56,12 @@ from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
 from identification.preprocessing.hub import HubModel, fit_hub_model
 from identification.preprocessing.io_survey import read_survey
-from identification.preprocessing.io_tracker import BagRun, ReadFacts, read_campaign_yaml, read_tracker_parts
+from identification.preprocessing.io_tracker import (
+    BagRun,
+    ReadFacts,
+    read_campaign_yaml,
+    read_tracker_parts,
+)
 from identification.preprocessing.poses import fit_poses
 from identification.preprocessing.states import body_states_from_poses
 from identification.preprocessing.sync import SyncedRun, sync_run

@@ -37,7 +37,10 @@ from scipy.interpolate import CubicSpline
 
 from groundfloor.errors import InputError
 from groundfloor.types import BodyStates, InputSeries, PoseTrack
-from identification.preprocessing.smoothing_spline import noise_std_from_data, smoothing_spline
+from identification.preprocessing.smoothing_spline import (
+    noise_std_from_data,
+    smoothing_spline,
+)
 from identification.preprocessing.trajectory import gap_segments
 
 log = logging.getLogger(__name__)

@@ -10,7 +10,7 @@ from identification.sindy.regression import fit_sindy
 from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import reidentify
-from sindy_ekf.diagnose.families import equation_weights
+from sindy_ekf.diagnose.fitting import equation_weights
 
 
 def fit_reference_model(seed: int = 12345, n_runs: int = 6, run_s: float = 60.0):

@@ -18,7 +18,6 @@ from identification.preprocessing.body_frame import fit_body_frame, fit_circle_3
 from identification.preprocessing.io_survey import survey_from_mapping
 from tests.support.survey_tables import TABLE_7_1, TABLE_7_1_STD_UM
 
-
 # ---------------------------------------------------------------- table 7.1
 
 def test_lever_arms_reproduce_table_7_1(survey):

@@ -23,7 +23,6 @@ from identification.preprocessing.network_transform import fit_transform
 from simulation.truth import read_truth
 from tests.support.survey_tables import TABLE_7_1, TABLE_7_2_ROT_DEG, TABLE_7_2_T
 
-
 # ---------------------------------------------------------------- the data file itself
 
 def test_yaml_holds_thesis_tables_6_1_to_6_3_verbatim(shared_dir, survey):

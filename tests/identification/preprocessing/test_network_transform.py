@@ -22,7 +22,6 @@ from identification.preprocessing.network_transform import (
 )
 from tests.support.survey_tables import TABLE_7_2_ROT_DEG, TABLE_7_2_T
 
-
 # ---------------------------------------------------------------- table 7.2
 
 def test_transform_reproduces_table_7_2(survey):

@@ -11,7 +11,10 @@ from groundfloor.errors import InputError
 from groundfloor.types import InputSeries, PoseTrack
 from identification.preprocessing.figures import plot_body_states
 from identification.preprocessing.smoothing_spline import noise_std_from_data
-from identification.preprocessing.states import body_states_from_poses, body_states_segments
+from identification.preprocessing.states import (
+    body_states_from_poses,
+    body_states_segments,
+)
 from tests.support.pose_synth import trajectory
 
 log = logging.getLogger(__name__)

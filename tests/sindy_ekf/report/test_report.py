@@ -24,8 +24,7 @@ import pytest
 
 from groundfloor.errors import InputError
 from identification.sindy.search import SearchGrid
-from sindy_ekf.report.chain import run_chain
-from sindy_ekf.report.html import (
+from sindy_ekf.report.blocks import (
     CONTENT_LEFT_PX,
     FIGURE_GAP_PX,
     FIGURE_WIDTH_PX,
@@ -34,9 +33,9 @@ from sindy_ekf.report.html import (
     SECTIONS,
     WIDE_ASPECT,
     WIDE_FIGURE_WIDTH_PX,
-    build_report,
-    render_report,
 )
+from sindy_ekf.report.html import build_report, render_report
+from sindy_ekf.stages.chain import run_chain
 from tests.support import REPO
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -275,7 +274,7 @@ def test_simulator_prints_nothing(tmp_path, capsys):
 def test_a_broken_figure_is_named_and_the_rest_kept():
     from matplotlib.figure import Figure
 
-    from sindy_ekf.report.html import Section
+    from sindy_ekf.report.blocks import Section
 
     def good():
         fig = Figure(figsize=(4, 3))
