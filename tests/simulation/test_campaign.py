@@ -19,6 +19,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from groundfloor.errors import InputError
+from identification.preprocessing import calibration, io_survey
 from simulation.campaign import RUNS_TABLE_6_4, run_durations, simulate_campaign
 from simulation.truth import read_truth
 from tests.support import REPO
@@ -369,8 +370,6 @@ def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
 def test_pipeline_calibration_of_the_survey_reproduces_the_truth(small_campaign, truth):
     """identification.preprocessing.calibration (H3's Gauss-Helmert fit and body frame) on the campaign's
     calibration.yaml gives the simulator's transform and lever arms to the micrometre."""
-    io_survey = pytest.importorskip("identification.preprocessing.io_survey")
-    calibration = pytest.importorskip("identification.preprocessing.calibration")
     cal = calibration.calibrate(io_survey.read_survey(small_campaign / "calibration.yaml"))
     assert np.allclose(cal.transform.t_at960_ltd800, truth.t_at960_ltd800, atol=5e-6)
     assert np.allclose(np.degrees(cal.transform.rotation_rad), truth.transform["rotation_deg"], atol=0.5 / 3600)
