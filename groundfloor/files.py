@@ -88,6 +88,26 @@ def check_output_file(path: str | os.PathLike, option: str) -> Path:
     return path
 
 
+def check_output_folder(path: str | os.PathLike, option: str) -> Path:
+    """Return ``path`` as a Path if files can be written into it, else raise InputError naming the culprit.
+
+    Checked before any work, for folders whose files are (re)written one by one (``--plots``,
+    ``benchmark --out``): the path may exist as a folder but not as a file, its nearest existing
+    ancestor must be a writable folder.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{option} {path}: is a file, expected a folder")
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{option} {path}: cannot be created, {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK):
+        raise InputError(f"{option} {path}: folder {probe} is not writable")
+    return path
+
+
 @contextlib.contextmanager
 def atomic_output_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
     """Yield a temporary sibling folder to fill; on success it replaces ``path``.

@@ -37,6 +37,11 @@ class Score:
     nis_inside_95: float
     runtime_s: float
     realtime_factor: float  # seconds of data per second of computing
+    # issue 14: how the estimator ended (sindy_ekf.benchmark.health); metrics cover the time before
+    status: str = "ok"  # ok | diverged | failed
+    t_s: float = float("nan")  # s since the run's start where it diverged or failed (NaN when ok)
+    reason: str = ""  # one line naming the run, empty when ok
+    recoveries: int = 0  # covariance re-initialisations after a NIS alarm, over all runs
 
 
 @dataclass(frozen=True)

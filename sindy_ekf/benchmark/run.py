@@ -34,14 +34,14 @@ from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
 from identification.sindy.data import body_states
 from simulation.gnss import schedule_outages, simulate_gnss
+from sindy_ekf.benchmark.health import RunStatus, combined_status, guarded, guarded_ekf_batch, score_partial
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
-from sindy_ekf.benchmark.scoring import chi2_bounds_95, score_estimator
+from sindy_ekf.benchmark.scoring import chi2_bounds_95
 from sindy_ekf.estimation.ekf import (
     GRID_TOL_S,
     EkfRun,
     estimation_grid,
     fit_lateral_constraint,
-    run_ekf_batch,
 )
 from sindy_ekf.estimation.graph import smooth_batch, smooth_isam2
 from sindy_ekf.estimation.process_models import (
@@ -205,11 +205,18 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     P0 = np.diag(P0_STD ** 2)
     estimates: dict[str, dict[str, Estimate]] = {}
     runtimes: dict[str, float] = {}
+    statuses: dict[str, dict[str, RunStatus]] = {}  # estimator -> run -> how it ended (health.py)
 
     def keep(name, results):
-        estimates[name] = {r.name: Estimate(r.t_pose, res.x[r.at_pose], res.P[r.at_pose],
-                                            getattr(res, "nis", np.empty(0)))
-                           for r, res in zip(runs, results)}
+        """Keep each run's estimate at the pose times it reached (all of them unless it diverged)."""
+        estimates[name], statuses[name] = {}, {}
+        for r, (res, status) in zip(runs, results):
+            n = 0 if res is None else int(np.searchsorted(r.at_pose, len(res.t)))
+            estimates[name][r.name] = Estimate(
+                r.t_pose[:n], res.x[r.at_pose[:n]] if n else np.empty((0, 6)),
+                res.P[r.at_pose[:n]] if n else np.empty((0, 6, 6)),
+                getattr(res, "nis", np.empty(0)) if n else np.empty(0))
+            statuses[name][r.name] = status
 
     ekf_names = [n for n in ("cv_ekf", "unicycle_ekf", "sindy_ekf", "oracle_ekf") if n in estimators and n in models]
     for name in ekf_names:
@@ -217,7 +224,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         batch = [EkfRun(f"{r.name} {name}", r.grid, r.u_motor if use_motor and r.u_motor is not None else r.u,
                         r.x0, P0, r.gnss) for r in runs]
         start = time.perf_counter()
-        keep(name, run_ekf_batch(models[name], batch))
+        keep(name, guarded_ekf_batch(models[name], batch))
         runtimes[name] = time.perf_counter() - start
     lateral = None
     if any(n.endswith("_lateral") for n in estimators):
@@ -226,13 +233,13 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         log.info("sindy_ekf_lateral: v_y = 0 with std %.4f m/s every %d steps", lateral.vy_std_m_s,
                  lateral.every)
         start = time.perf_counter()
-        keep("sindy_ekf_lateral", run_ekf_batch(models["sindy_ekf"], [
+        keep("sindy_ekf_lateral", guarded_ekf_batch(models["sindy_ekf"], [
             EkfRun(f"{r.name} sindy_ekf_lateral", r.grid, r.u, r.x0, P0, r.gnss) for r in runs],
             lateral=lateral))
         runtimes["sindy_ekf_lateral"] = time.perf_counter() - start
     if "dead_reckoning" in estimators:
         start = time.perf_counter()
-        keep("dead_reckoning", run_ekf_batch(models["sindy_ekf"], [
+        keep("dead_reckoning", guarded_ekf_batch(models["sindy_ekf"], [
             EkfRun(f"{r.name} dead_reckoning", r.grid, r.u, r.x0, P0, None) for r in runs]))
         runtimes["dead_reckoning"] = time.perf_counter() - start
     if {"sindy_graph", "sindy_isam2", "sindy_graph_lateral"} & set(estimators):
@@ -246,23 +253,24 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
             results = []
             for r in runs:
                 x_init = None
-                if init is not None:
+                if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
                     x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
                                               for i in range(6)])
-                results.append(smooth_batch(models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
-                                            x_init=x_init, marginal_stride=10, lateral=constraint,
-                                            name=f"{r.name} {name}"))
+                results.append(guarded(smooth_batch, models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
+                                       x_init=x_init, marginal_stride=10, lateral=constraint,
+                                       name=f"{r.name} {name}"))
             keep(name, results)
             runtimes[name] = time.perf_counter() - start
         if "sindy_isam2" in estimators:
             start = time.perf_counter()
-            keep("sindy_isam2", [smooth_isam2(models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
-                                              name=f"{r.name} sindy_isam2") for r in runs])
+            keep("sindy_isam2", [guarded(smooth_isam2, models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
+                                         name=f"{r.name} sindy_isam2") for r in runs])
             runtimes["sindy_isam2"] = time.perf_counter() - start
     truth = {r.name: r.truth for r in runs}
     outages = {r.name: r.gnss.outages for r in runs}
     scores, curves = {}, {}
     for name in estimates:
-        scores[name], curves[name] = score_estimator(estimates[name], truth, outages, runtimes[name])
+        scores[name], curves[name] = score_partial(estimates[name], truth, outages, runtimes[name],
+                                                   combined_status(statuses[name]))
     return BenchmarkResult(profile, ALIGNMENT, scores, estimates, truth, outages, curves,
                            chi2_bounds_95(3), chi2_bounds_95(2), campaign.name)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json
@@ -10,6 +11,7 @@ from simulation.gnss import PROFILES
 from sindy_ekf.benchmark.figures import write_benchmark_figures
 from sindy_ekf.benchmark.files import write_benchmark
 from sindy_ekf.benchmark.result import BenchmarkResult
+from sindy_ekf.commands.outputs import check_outputs
 from sindy_ekf.stages.estimation import benchmark_files
 
 
@@ -28,21 +30,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write TUM files of every estimate, the JSON and the plots into DIR")
 
 
+def _cell(value: float, width: int, decimals: int) -> str:
+    """Return ``value`` right-aligned in ``width`` characters, in exponent form when too long."""
+    text = f"{value:.{decimals}f}"
+    return f"{text:>{width}}" if len(text) < width else f"{value:>{width}.1e}"
+
+
 def format_scores(result: BenchmarkResult) -> str:
-    """Return the table of scores: ATE, error at the end of each outage length, NEES, runtime."""
+    """Return the table of scores: ATE, error at the end of each outage length, NEES, NIS, runtime,
+    status (issue 14: ``diverged`` or ``failed`` rows are scored up to their time, see the notes)."""
     durations = sorted({k for s in result.scores.values() for k in s.outage_pos_err_m}, key=float)
-    head = f"{'estimator':<16}{'ATE m':>8}{'ATE deg':>9}" + "".join(f"{'out ' + d + 's m':>11}" for d in durations)
+    head = f"{'estimator':<20}{'ATE m':>8}{'ATE deg':>9}" + "".join(f"{'out ' + d + 's m':>11}" for d in durations)
     lines = [f"benchmark of {result.campaign} ({len(result.truth)} test runs), GNSS {result.profile}, "
-             f"alignment {result.alignment}", head + f"{'NEES':>8}{'runtime s':>11}"]
+             f"alignment {result.alignment}", head + f"{'NEES':>8}{'NIS':>7}{'runtime s':>11}  status"]
     for name, s in result.scores.items():
-        cells = "".join(f"{s.outage_pos_err_m.get(d, float('nan')):>11.3f}" for d in durations)
-        lines.append(f"{name:<16}{s.ate_pos_m:>8.3f}{s.ate_yaw_deg:>9.2f}{cells}{s.nees_mean:>8.2f}"
-                     f"{s.runtime_s:>11.1f}")
+        cells = "".join(_cell(s.outage_pos_err_m.get(d, float("nan")), 11, 3) for d in durations)
+        status = s.status + (f" at {s.t_s:.2f} s" if s.status != "ok" else "")
+        status += f" ({s.recoveries} re-init)" if s.recoveries else ""
+        lines.append(f"{name:<20}{_cell(s.ate_pos_m, 8, 3)}{_cell(s.ate_yaw_deg, 9, 2)}{cells}"
+                     f"{_cell(s.nees_mean, 8, 2)}{_cell(s.nis_mean, 7, 2)}{s.runtime_s:>11.1f}  {status}")
     return "\n".join(lines)
 
 
+def status_warnings(result: BenchmarkResult) -> list[str]:
+    """Return one line per estimator that did not finish: name, status, time and reason."""
+    return [f"warning: {name} {s.status} at t={s.t_s:.2f} s, scored up to then: {s.reason}"
+            for name, s in result.scores.items() if s.status != "ok"]
+
+
 def run(args) -> int:
-    """Run the benchmark, print a table, write JSON / TUM / plots when asked."""
+    """Run the benchmark, print a table, write JSON / TUM / plots when asked.
+
+    Exit 0 when at least one estimator finished (each one that did not is a warning on stderr),
+    1 when none did (the files are written all the same).
+    """
+    check_outputs(args, folders=("out",))
     estimators = None if args.estimators is None else tuple(n.strip() for n in args.estimators.split(","))
     result = benchmark_files(args.campaign, args.model, profile=args.gnss, seed=args.seed, estimators=estimators)
     if args.out is not None:
@@ -51,4 +73,9 @@ def run(args) -> int:
     if args.json is not None:
         atomic_write_json(args.json, result.to_json())
     print(format_scores(result))
+    for line in status_warnings(result):
+        print(line, file=sys.stderr)
+    if all(s.status != "ok" for s in result.scores.values()):
+        print("sindy-ekf benchmark: error: no estimator finished (see the warnings)", file=sys.stderr)
+        return 1
     return 0

@@ -35,7 +35,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
-from groundfloor.errors import InputError
+from groundfloor.errors import DivergenceError, InputError
 from groundfloor.progress import progress
 from sindy_ekf.estimation.process_models import N_X, ProcessModel
 
@@ -337,8 +337,8 @@ class _RunState:
             self.accepted.append(ok)
             self.j += 1
         if not math.isfinite(ekf.x.sum() + ekf.P.sum()):
-            raise InputError(f"{self.name}: state became non-finite at t={self.t[k1] - self.t[0]:.2f} s "
-                             f"(model {ekf.model.name!r} diverged)")
+            raise DivergenceError(f"{self.name}: state became non-finite at t={self.t[k1] - self.t[0]:.2f} s "
+                                  f"(model {ekf.model.name!r} diverged)", self.t[k1] - self.t[0])
         self.X[k1], self.P[k1] = ekf.x, ekf.P
 
 
@@ -387,8 +387,9 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
         if not (np.isfinite(x_next.sum()) and P_max < np.inf):  # one test for all runs; then the culprit
             for i in range(a):
                 if not (np.all(np.isfinite(x_next[i])) and np.all(np.isfinite(P_next[i]))):
-                    raise InputError(f"{ss[i].name}: state or covariance became non-finite at "
-                                     f"t={t_rel[k + 1, i]:.2f} s (model {model.name!r} diverged)")
+                    raise DivergenceError(f"{ss[i].name}: state or covariance became non-finite at "
+                                          f"t={t_rel[k + 1, i]:.2f} s (model {model.name!r} diverged)",
+                                          t_rel[k + 1, i])
         P_next = 0.5 * (P_next + np.swapaxes(P_next, -1, -2))
         # F P F^T + Q is positive definite when Q's smallest eigenvalue is far above the round-off
         # of F P F^T (relative 1e-16 of P's largest entry): then no factorisation is needed

@@ -1,0 +1,132 @@
+"""Estimators that fail alone (issue 14, item 2): a diverging estimator is recorded with its time
+and reason and scored up to then, the others finish; divergence from the NIS over a sliding
+window, recovery by re-initialisation from the next fix."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from identification.sindy.model import model_from_terms
+from simulation.gnss import PROFILES, simulate_gnss
+from simulation.robot import RobotParams
+from sindy_ekf.benchmark.files import read_tum
+from sindy_ekf.benchmark.health import NIS_WINDOW, guarded_ekf_batch, nis_alarm
+from sindy_ekf.cli import main
+from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
+from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
+from tests.support.estimation_helpers import PolyBody, inputs_at, simulate_truth, simulate_truths, truth_on
+from tests.support.trajectory_synth import write_mini_campaign
+
+P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
+GATE = 13.8155  # chi2.ppf(0.999, 2), the EKF's gate
+
+
+@pytest.fixture(scope="module")
+def diverging(tmp_path_factory):
+    """The mini campaign and a model with one coefficient a million times too large (issue 14)."""
+    tmp = tmp_path_factory.mktemp("health")
+    root = write_mini_campaign(tmp / "mini")
+    terms = RobotParams().terms()
+    terms["omega"]["u2"] *= 1e6
+    return root, model_from_terms(terms).to_json(tmp / "huge.json")
+
+
+def test_one_diverging_estimator_leaves_the_others_complete(diverging, tmp_path, capsys):
+    root, model = diverging
+    code = main(["benchmark", str(root), "--model", str(model), "--estimators", "cv_ekf,sindy_ekf,sindy_graph",
+                 "--json", str(tmp_path / "b.json"), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 0
+    rows = json.loads((tmp_path / "b.json").read_text())["estimators"]
+    assert set(rows) == {"cv_ekf", "sindy_ekf", "sindy_graph"}
+    assert rows["cv_ekf"]["status"] == "ok" and rows["cv_ekf"]["t_s"] is None
+    # the cv_ekf row is exactly what cv_ekf alone gives: the divergence did not touch it
+    assert main(["benchmark", str(root), "--model", str(model), "--estimators", "cv_ekf",
+                 "--json", str(tmp_path / "alone.json"), "--quiet"]) == 0
+    alone = json.loads((tmp_path / "alone.json").read_text())["estimators"]["cv_ekf"]
+    for key in ("ate_pos_m", "ate_yaw_deg", "outage_pos_err_m", "nees_mean", "nis_mean"):
+        assert rows["cv_ekf"][key] == alone[key]
+    for name in ("sindy_ekf", "sindy_graph"):
+        row = rows[name]
+        assert row["status"] == "diverged" and 0.0 < row["t_s"] < 0.1
+        assert "run_c" in row["reason"] and "non-finite" in row["reason"] and "\n" not in row["reason"]
+        assert f"warning: {name} diverged at t=" in err
+    # the diverged filter is kept, and scored, over the poses before its divergence only
+    est = read_tum(tmp_path / "out" / "tum" / "sindy_ekf" / "run_c.tum")
+    truth = read_tum(tmp_path / "out" / "tum" / "truth" / "run_c.tum")
+    assert 1 <= len(est) and est[-1, 0] - truth[0, 0] < rows["sindy_ekf"]["t_s"]
+    d = est[:, 1:3] - truth[:len(est), 1:3]
+    assert rows["sindy_ekf"]["ate_pos_m"] == pytest.approx(np.sqrt(np.mean(np.sum(d ** 2, axis=1))), rel=1e-6)
+
+
+def test_benchmark_exits_non_zero_only_when_no_estimator_finished(diverging, tmp_path, capsys):
+    root, model = diverging
+    code = main(["benchmark", str(root), "--model", str(model), "--estimators", "sindy_ekf,dead_reckoning",
+                 "--json", str(tmp_path / "b.json"), "--quiet"])
+    assert code == 1 and "no estimator finished" in capsys.readouterr().err
+    rows = json.loads((tmp_path / "b.json").read_text())["estimators"]  # written all the same
+    assert {r["status"] for r in rows.values()} == {"diverged"}
+
+
+def test_nis_alarm_is_silent_on_consistent_innovations_and_fires_when_fixes_are_rejected():
+    rng = np.random.default_rng(0)
+    nis = rng.chisquare(2, 100_000)  # a consistent filter: 5,000 windows
+    assert nis_alarm(nis, GATE)[0] is None
+    _, _, bound = nis_alarm(nis, GATE)
+    assert bound == pytest.approx(2 * 97.65, rel=1e-3)  # twice chi2(40)'s 1 - 1e-6 quantile (tables)
+    # isolated outliers (each clipped at the gate) are no alarm, 20 rejected fixes in a row are
+    with_outliers = nis.copy()
+    with_outliers[::50] = 1e4
+    assert nis_alarm(with_outliers, GATE)[0] is None
+    diverged = nis.copy()
+    diverged[5000:5000 + NIS_WINDOW] = 1e4
+    i = nis_alarm(diverged, GATE)[0]
+    assert i is not None and 5000 - NIS_WINDOW < i <= 5000
+
+
+@pytest.fixture(scope="module")
+def jump():
+    """A 40 s run of a known model under DGNSS whose fixes jump 20 m east from t = 15 s on."""
+    model = fit_process_noise(ProcessModel(PolyBody(), name="oracle"),
+                              simulate_truths(ProcessModel(PolyBody(), name="oracle"), 30.0,
+                                              np.random.default_rng(100), n_runs=4))
+    truth = simulate_truth(model, 40.0, np.random.default_rng(7))
+    prof = replace(PROFILES["dgnss"], outlier_prob=0.0)
+    gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2], prof, seed=1,
+                         outages=np.empty((0, 2)))
+    t_jump = truth.t[0] + 15.0
+    p = gnss.p_local.copy()
+    p[gnss.t_valid >= t_jump, 0] += 20.0
+    gnss = replace(gnss, p_local=p)
+    t = estimation_grid(truth.t, gnss.t_valid)
+    return model, truth, EkfRun("jumpy", t, inputs_at(truth, t), truth.x6[0], P0, gnss), t_jump
+
+
+def test_a_jump_in_the_fixes_is_a_divergence_at_its_time_without_recovery(jump):
+    model, truth, run, t_jump = jump
+    [(res, status)] = guarded_ekf_batch(model, [run], recover=False)
+    t_first = run.gnss.t_valid[run.gnss.t_valid >= t_jump][0]
+    assert status.status == "diverged" and status.recoveries == 0
+    assert status.t_s == pytest.approx(t_first - run.t[0], abs=1e-6)
+    assert "NIS" in status.reason
+    # kept up to the jump, identical there to the plain filter
+    plain = run_ekf_batch(model, [run])[0]
+    assert res.t[-1] < t_first
+    np.testing.assert_array_equal(res.x, plain.x[:len(res.t)])
+
+
+def test_a_jump_in_the_fixes_is_recovered_by_reinitialising_from_the_next_fix(jump):
+    model, truth, run, t_jump = jump
+    [(res, status)] = guarded_ekf_batch(model, [run])
+    assert status.status == "ok" and status.recoveries == 1
+    assert len(res.t) == len(run.t)
+    # after the reset the filter follows the (jumped) fixes again, with fixes accepted
+    ref = truth_on(truth, res.t)
+    late = res.t > t_jump + 5.0
+    err = np.hypot(res.x[late, 0] - (ref[late, 0] + 20.0), res.x[late, 1] - ref[late, 1])
+    assert np.sqrt(np.mean(err ** 2)) < 0.5
+    assert np.mean(res.accepted[res.nis_t > t_jump + 5.0]) > 0.95
