@@ -108,6 +108,23 @@ def check_output_folder(path: str | os.PathLike, option: str) -> Path:
     return path
 
 
+def check_outputs(args, files: tuple[str, ...] = ("json",), folders: tuple[str, ...] = ("plots",)) -> None:
+    """Raise InputError naming the option unless each output of a command's ``args`` can be written.
+
+    Issue 14: a command that fails on its output after its work wastes the work, so every
+    ``--json`` file and ``--plots`` folder (and a folder-like ``--out``) is checked first.
+    ``files`` and ``folders`` name attributes of ``args``; a missing one or None is skipped.
+    """
+    for name in files:
+        value = getattr(args, name, None)
+        if value is not None:
+            check_output_file(value, f"--{name}")
+    for name in folders:
+        value = getattr(args, name, None)
+        if value is not None:
+            check_output_folder(value, f"--{name}")
+
+
 @contextlib.contextmanager
 def atomic_output_dir(path: str | os.PathLike, force: bool = False) -> Iterator[Path]:
     """Yield a temporary sibling folder to fill; on success it replaces ``path``.

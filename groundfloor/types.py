@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from groundfloor.errors import InputError
+
 
 @dataclass(frozen=True)
 class PointSeries:
@@ -85,6 +87,43 @@ class InputSeries:
     t: np.ndarray  # (m,)
     u1: np.ndarray  # throttle / forward command, about [-1, 1]
     u2: np.ndarray  # steering / turning command, about [-1, 1], left positive
+
+
+# DATA_CONTRACT: u1, u2 are scaled to about [-1, 1]; a value beyond 1.5 is a scale error (axes in
+# percent, raw counts), not a hard push of the stick (issue 14, item 4)
+INPUT_ABS_MAX = 1.5
+# a run whose poses span less than this never moved: 1 cm is 30 times the trackers' noise
+MIN_MOTION_M, MIN_MOTION_RAD = 0.01, 0.01
+
+
+def check_input_range(values, where: str, column: str, t=None) -> None:
+    """Raise a one-line InputError naming ``where`` and ``column`` if any ``|value| > INPUT_ABS_MAX``.
+
+    ``t`` (optional, same length) gives the stamp of the first value out of range in the message;
+    NaN values are left to the readers' own checks.
+    """
+    v = np.asarray(values, dtype=float)
+    bad = np.flatnonzero(np.abs(v) > INPUT_ABS_MAX)
+    if bad.size:
+        i = int(bad[0])
+        at = f", t={float(t[i]):.3f} s" if t is not None else ""
+        raise InputError(f"{where}: column {column}: {bad.size} value(s) beyond |u| = {INPUT_ABS_MAX:g} "
+                         f"(first {v[i]:g} at row {i}{at}); inputs are scaled to about [-1, 1]")
+
+
+def check_poses_move(x, y, yaw, where: str) -> None:
+    """Raise a one-line InputError naming ``where`` if the finite poses span less than
+    ``MIN_MOTION_M`` in position and ``MIN_MOTION_RAD`` in heading (a robot that never moved)."""
+    x, y, yaw = (np.asarray(a, dtype=float) for a in (x, y, yaw))
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any():
+        return
+    span_m = float(np.hypot(np.ptp(x[ok]), np.ptp(y[ok])))
+    turn = yaw[np.isfinite(yaw)]
+    span_rad = float(np.ptp(np.unwrap(turn))) if turn.size else 0.0
+    if span_m < MIN_MOTION_M and span_rad < MIN_MOTION_RAD:
+        raise InputError(f"{where}: poses never move ({1000 * span_m:.1f} mm and {np.degrees(span_rad):.2f} deg "
+                         f"over {int(ok.sum())} poses): nothing to identify or score")
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 
 from groundfloor.errors import InputError
-from groundfloor.types import PointSeries, RawRun, TrackerCampaign
+from groundfloor.types import PointSeries, RawRun, TrackerCampaign, check_input_range
 from identification.preprocessing.io_bags import (
     TOPIC_AT960,
     TOPIC_HUB,
@@ -159,6 +159,8 @@ def _bag_run(name: str, split: str, topics: dict[str, TopicColumns]) -> BagRun:
         cols[topic] = c
     if not np.all(np.isfinite(cols[TOPIC_JOY].values)):
         raise InputError(f"run {name}: topic {TOPIC_JOY}: non-finite axes")
+    for j, column in enumerate(("axes[1] (u1)", "axes[0] (u2)")):
+        check_input_range(cols[TOPIC_JOY].values[:, j], f"run {name}: topic {TOPIC_JOY}", column)
     hub = cols.get(TOPIC_HUB, TopicColumns(np.zeros(0), np.zeros((0, 2)), np.zeros(0)))
     if not len(hub):
         log.warning("run %s: topic %s missing: no turning-hub model for this run", name, TOPIC_HUB)

@@ -51,7 +51,7 @@ import numpy as np
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json, check_output_dir
 from groundfloor.progress import progress
-from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun
+from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun, check_poses_move
 from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
 from identification.preprocessing.hub import HubModel, fit_hub_model
@@ -252,6 +252,7 @@ def preprocess_run(raw: RawRun, calibration: Calibration, smoothing: float = DEF
     poses = fit_poses(synced.t_utc[both], p_front, p_rear, levers["front"], levers["rear"],
                       std["front"], std["rear"])
     sec["poses"] = time.perf_counter() - tic
+    check_poses_move(poses.x, poses.y, poses.yaw, f"run {raw.name}")
 
     tic = time.perf_counter()
     inputs = inputs_from_raw(raw)

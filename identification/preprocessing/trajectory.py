@@ -47,6 +47,8 @@ from groundfloor.types import (
     PoseTrack,
     TrajectoryCampaign,
     TrajectoryRun,
+    check_input_range,
+    check_poses_move,
 )
 
 log = logging.getLogger(__name__)
@@ -202,6 +204,9 @@ def _read_run(run_dir: Path, name: str, split: str) -> TrajectoryRun:
     ic, repairs["duplicate_input_stamps"] = _merge_duplicates(ic, "last")
     if ic["t"].size < 1:
         raise InputError(f"{inputs_path}: no valid input rows")
+    for column in ("u1", "u2"):
+        check_input_range(ic[column], str(inputs_path), column, ic["t"])
+    check_poses_move(pc["x"], pc["y"], pc["yaw"], f"run {name} ({poses_path})")
 
     t_p, t_i = pc["t"], ic["t"]
     overlap_s = min(t_p[-1], t_i[-1]) - max(t_p[0], t_i[0])

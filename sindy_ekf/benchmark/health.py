@@ -51,6 +51,10 @@ NIS_TOLERANCE = 2.0
 MAX_RECOVERIES = 3  # per run
 RESET_INFLATION = 10.0  # heading and velocity std after a reset, times P0's
 STATUS_ORDER = ("ok", "diverged", "failed")
+# a test run shorter than this is named and skipped, not scored: the filters' start (P0 to steady
+# state at 5 Hz fixes) takes a few seconds, so a 3 s run would score the transient alone
+MIN_RUN_S = 10.0
+MIN_RUN_POSES = 10
 
 
 @dataclass(frozen=True)
@@ -273,3 +277,23 @@ def score_partial(estimates: dict[str, Estimate], truth: dict[str, np.ndarray], 
         score, curves = empty_score(runtime_s), {}
     return replace(score, status=status.status, t_s=status.t_s, reason=status.reason,
                    recoveries=status.recoveries), curves
+
+
+def split_short_runs(runs, min_s: float = MIN_RUN_S) -> tuple[list, dict[str, str]]:
+    """Return the runs long enough to benchmark and ``{run: why}`` of those skipped.
+
+    A run needs :data:`MIN_RUN_POSES` finite poses spanning at least ``min_s`` seconds.
+    """
+    kept, skipped = [], {}
+    for run in runs:
+        p = run.poses
+        ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
+        t = np.asarray(p.t, float)[ok]
+        span = float(t[-1] - t[0]) if t.size else 0.0
+        if t.size < MIN_RUN_POSES or span < min_s:
+            skipped[run.name] = (f"run {run.name}: {span:.1f} s with {t.size} usable poses, shorter than "
+                                 f"the {min_s:g} s a benchmark run needs; skipped")
+            log.warning("%s", skipped[run.name])
+        else:
+            kept.append(run)
+    return kept, skipped

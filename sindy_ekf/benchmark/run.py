@@ -34,7 +34,14 @@ from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
 from identification.sindy.data import body_states
 from simulation.gnss import schedule_outages, simulate_gnss
-from sindy_ekf.benchmark.health import RunStatus, combined_status, guarded, guarded_ekf_batch, score_partial
+from sindy_ekf.benchmark.health import (
+    RunStatus,
+    combined_status,
+    guarded,
+    guarded_ekf_batch,
+    score_partial,
+    split_short_runs,
+)
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95
 from sindy_ekf.estimation.ekf import (
@@ -196,6 +203,10 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     train = (train_campaign or campaign).split("train")
     if not test:
         raise InputError(f"{campaign.root}: no run marked test to benchmark on")
+    test, skipped = split_short_runs(test)
+    if not test:
+        raise InputError(f"{campaign.root}: every test run is too short to benchmark "
+                         f"(first: {next(iter(skipped.values()))})")
     if not train:
         raise InputError(f"{campaign.root}: no run marked train to fit process noise on")
     series = train_series(train, s)
@@ -273,4 +284,4 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         scores[name], curves[name] = score_partial(estimates[name], truth, outages, runtimes[name],
                                                    combined_status(statuses[name]))
     return BenchmarkResult(profile, ALIGNMENT, scores, estimates, truth, outages, curves,
-                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name)
+                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name, skipped)

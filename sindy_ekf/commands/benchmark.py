@@ -6,12 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from groundfloor.files import atomic_write_json
+from groundfloor.files import atomic_write_json, check_outputs
 from simulation.gnss import PROFILES
 from sindy_ekf.benchmark.figures import write_benchmark_figures
 from sindy_ekf.benchmark.files import write_benchmark
 from sindy_ekf.benchmark.result import BenchmarkResult
-from sindy_ekf.commands.outputs import check_outputs
 from sindy_ekf.stages.estimation import benchmark_files
 
 
@@ -41,7 +40,8 @@ def format_scores(result: BenchmarkResult) -> str:
     status (issue 14: ``diverged`` or ``failed`` rows are scored up to their time, see the notes)."""
     durations = sorted({k for s in result.scores.values() for k in s.outage_pos_err_m}, key=float)
     head = f"{'estimator':<20}{'ATE m':>8}{'ATE deg':>9}" + "".join(f"{'out ' + d + 's m':>11}" for d in durations)
-    lines = [f"benchmark of {result.campaign} ({len(result.truth)} test runs), GNSS {result.profile}, "
+    skipped = f", {len(result.skipped_runs)} skipped as too short" if result.skipped_runs else ""
+    lines = [f"benchmark of {result.campaign} ({len(result.truth)} test runs{skipped}), GNSS {result.profile}, "
              f"alignment {result.alignment}", head + f"{'NEES':>8}{'NIS':>7}{'runtime s':>11}  status"]
     for name, s in result.scores.items():
         cells = "".join(_cell(s.outage_pos_err_m.get(d, float("nan")), 11, 3) for d in durations)
@@ -53,9 +53,11 @@ def format_scores(result: BenchmarkResult) -> str:
 
 
 def status_warnings(result: BenchmarkResult) -> list[str]:
-    """Return one line per estimator that did not finish: name, status, time and reason."""
-    return [f"warning: {name} {s.status} at t={s.t_s:.2f} s, scored up to then: {s.reason}"
-            for name, s in result.scores.items() if s.status != "ok"]
+    """Return one line per test run skipped as too short and per estimator that did not finish
+    (name, status, time and reason)."""
+    return ([f"warning: {why}" for why in result.skipped_runs.values()]
+            + [f"warning: {name} {s.status} at t={s.t_s:.2f} s, scored up to then: {s.reason}"
+               for name, s in result.scores.items() if s.status != "ok"])
 
 
 def run(args) -> int:

@@ -18,7 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from groundfloor.files import atomic_write_json
+from groundfloor.files import atomic_write_json, check_outputs
 from sindy_ekf.commands.report import format_headline, format_problems
 from sindy_ekf.commands.simulate import format_table
 from sindy_ekf.report.demo import (
@@ -42,6 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     """Simulate, run the chain, write the report; print where it is and the headline figures."""
+    check_outputs(args)
     campaign = simulate_demo_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
                                       force=args.force)
     truth = campaign.truth

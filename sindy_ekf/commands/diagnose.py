@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from groundfloor.files import atomic_write_json
+from groundfloor.files import atomic_write_json, check_outputs
 from sindy_ekf.diagnose import Diagnosis, diagnose_campaign
 from sindy_ekf.diagnose.figures import write_diagnosis_figures
 from sindy_ekf.diagnose.residuals import top_structure
@@ -50,6 +50,7 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
 
 def run(args) -> int:
     """Diagnose, print the ranking and the gain, write JSON, plots and the extended model on request."""
+    check_outputs(args)
     d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf)
     print(format_diagnosis(d, args.model, args.campaign))
     if args.plots:

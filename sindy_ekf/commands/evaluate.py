@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from groundfloor.files import atomic_write_json
+from groundfloor.files import atomic_write_json, check_outputs
 from sindy_ekf.stages.evaluation import MODEL, Evaluation, evaluate_files
 from sindy_ekf.stages.figures import write_evaluation_figures
 
@@ -32,6 +32,7 @@ def format_errors(ev: Evaluation) -> str:
 
 def run(args) -> int:
     """Evaluate model, baselines and (simulated campaigns) the oracle; print and write JSON."""
+    check_outputs(args)
     ev = evaluate_files(args.campaign, args.model, methods=("rk4", "euler2"))
     print(format_errors(ev))
     if args.plots:

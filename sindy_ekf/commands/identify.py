@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from groundfloor.files import atomic_write_json, check_output_file
+from groundfloor.files import atomic_write_json, check_output_file, check_outputs
 from sindy_ekf.stages.figures import write_identification_figures
 from sindy_ekf.stages.identification import (
     Identification,
@@ -69,6 +69,7 @@ def format_ranking(ident: Identification) -> str:
 
 def run(args) -> int:
     """Search, write the model and print its equations and the ranking; return the exit code."""
+    check_outputs(args, files=(), folders=("plots",))
     check_output_file(args.out, "--out")
     if args.json:
         check_output_file(args.json, "--json")

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from groundfloor.files import atomic_write_json
+from groundfloor.files import atomic_write_json, check_outputs
 from identification.preprocessing.preprocess import (
     DEFAULT_SMOOTHING,
     TIMING_ERROR_R,
@@ -70,6 +70,7 @@ def format_summary(result: PreprocessResult) -> str:
 
 def run(args) -> int:
     """Preprocess, print the summary table, write ``--json``; return the exit code."""
+    check_outputs(args)
     smoothing = DEFAULT_SMOOTHING if args.smoothing is None else args.smoothing
     result = preprocess_campaign(args.campaign, args.out, smoothing=smoothing, force=args.force,
                                  plots_dir=args.plots, jobs=args.jobs,

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from groundfloor.files import atomic_write_json
+from groundfloor.files import atomic_write_json, check_outputs
 from sindy_ekf.report.html import build_report
 from sindy_ekf.stages.chain import ChainResult
 
@@ -56,6 +56,7 @@ def format_problems(chain: ChainResult) -> str:
 
 def run(args) -> int:
     """Run the chain, write the report, print where it is and the headline figures."""
+    check_outputs(args, folders=("out",))
     report = build_report(args.campaign, args.out, model=args.model, quick=args.quick)
     if not args.quiet:
         print(format_headline(report.chain))

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from groundfloor.errors import InputError
-from groundfloor.files import atomic_write_json
+from groundfloor.files import atomic_write_json, check_outputs
 from simulation.campaign import simulate_campaign
 from simulation.truth import CampaignTruth, campaign_summary
 
@@ -47,6 +47,7 @@ def format_table(truth: CampaignTruth) -> str:
 
 def run(args) -> int:
     """Simulate the campaign, print a summary, write ``--json``; return the exit code."""
+    check_outputs(args)
     if args.json is not None and args.json.resolve().is_relative_to(args.out.resolve()):
         raise InputError(f"--json {args.json}: must not be inside the output folder {args.out}")
     truth = simulate_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
