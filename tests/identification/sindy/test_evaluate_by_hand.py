@@ -1,0 +1,61 @@
+"""The 5 s evaluation against errors computed by hand (issue 14, item 5): a robot whose speed
+grows as ``c t^2 / 2`` predicted by constant velocity is off by ``c tau^2 (3 t0 + tau) / 6`` after
+``tau`` in the window starting at ``t0``; different in every window, so an RMS over windows is
+told from a mean of absolute errors or a single window."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from groundfloor.types import BodyStates
+from identification.sindy.baselines import ConstantVelocityModel
+from identification.sindy.evaluate import evaluate_model
+
+DT, DURATION, C = 0.02, 20.0, 0.01  # s, s, m/s^3
+WINDOW, STEP = 5.0, 2.5  # 5 s windows, 50 % overlap: starts 0, 2.5, ..., 15 s
+
+
+def _states(t, x, y, yaw, vx, omega):
+    zeros = np.zeros_like(t)
+    return BodyStates(t=t, vx=vx, vy=zeros, omega=omega, u1=zeros, u2=zeros, x=x, y=y, yaw=yaw)
+
+
+def _starts():
+    return [k * STEP for k in range(int((DURATION - WINDOW) / STEP) + 1)]
+
+
+def test_position_error_of_an_accelerating_robot_equals_the_hand_computation():
+    t = np.arange(int(round(DURATION / DT)) + 1) * DT + 100.0
+    s = t - t[0]
+    heading = 0.7  # driving straight along this heading
+    dist, speed = C * s ** 3 / 6, C * s ** 2 / 2
+    st = _states(t, 1.0 + dist * math.cos(heading), -2.0 + dist * math.sin(heading), np.full_like(t, heading),
+                 speed, np.zeros_like(t))
+    res = evaluate_model(ConstantVelocityModel(), [st])
+    errors = [C * WINDOW ** 2 * (3 * t0 + WINDOW) / 6 for t0 in _starts()]
+    assert res.n_windows == len(errors) == 7
+    rms = math.sqrt(sum(e * e for e in errors) / len(errors))
+    assert res.pos_err_5s_m == pytest.approx(rms, rel=1e-6)
+    assert res.pos_err_5s_m != pytest.approx(sum(errors) / len(errors), rel=1e-3)  # not a mean
+    assert res.yaw_err_5s_deg == pytest.approx(0.0, abs=1e-9)
+    # and half-way through the windows (tau = 2.5 s)
+    half = [C * 2.5 ** 2 * (3 * t0 + 2.5) / 6 for t0 in _starts()]
+    k = int(round(2.5 / DT))
+    assert res.s_p[k] == pytest.approx(math.sqrt(sum(e * e for e in half) / len(half)), rel=1e-6)
+    np.testing.assert_allclose(res.eps_p[:, -1], errors, rtol=1e-6)
+
+
+def test_heading_error_of_a_spinning_robot_equals_the_hand_computation():
+    t = np.arange(int(round(DURATION / DT)) + 1) * DT
+    k_rad = 0.002  # rad/s^3: yaw = k t^3 / 6, omega = k t^2 / 2, standing on the spot
+    st = _states(t, np.zeros_like(t), np.zeros_like(t), k_rad * t ** 3 / 6, np.zeros_like(t), k_rad * t ** 2 / 2)
+    res = evaluate_model(ConstantVelocityModel(), [st])
+    errors = [k_rad * WINDOW ** 2 * (3 * t0 + WINDOW) / 6 for t0 in _starts()]
+    rms_deg = math.degrees(math.sqrt(sum(e * e for e in errors) / len(errors)))
+    assert res.yaw_err_5s_deg == pytest.approx(rms_deg, rel=1e-6)
+    assert res.pos_err_5s_m == pytest.approx(0.0, abs=1e-12)
+    assert res.summary() == {"pos_err_5s_m": res.pos_err_5s_m, "yaw_err_5s_deg": res.yaw_err_5s_deg,
+                             "n_windows": 7}

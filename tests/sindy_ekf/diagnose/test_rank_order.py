@@ -1,0 +1,51 @@
+"""The diagnosis ranking in order (issue 14, item 5): significant families first, by out-of-sample
+gain, then the others by gain; the verdict is the first significant one or ``none``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sindy_ekf.diagnose.fitting import FamilyScore
+from sindy_ekf.diagnose.rank import rank_families, verdict
+
+THRESHOLDS = {"input_delay": 0.02, "heading_dependence": 0.5, "position_dependence": 0.05,
+              "time_dependence": 0.1, "asymmetry": 0.02, "deadband": 0.02, "lateral_slip": 0.01}
+
+
+def _score(family, gain, **estimate):
+    return FamilyScore(family, np.zeros(1), np.zeros(1), gain, {}, gain, estimate)
+
+
+def test_significant_families_come_first_by_gain_then_the_rest_by_gain():
+    scores = [_score("deadband", 0.01), _score("input_delay", 0.05), _score("heading_dependence", 0.30),
+              _score("asymmetry", 0.20), _score("time_dependence", 0.50), _score("position_dependence", 0.04)]
+    ranked = rank_families(scores, THRESHOLDS)
+    # by hand: significant (gain > threshold) time_dependence 0.5, asymmetry 0.2, input_delay 0.05;
+    # then heading_dependence 0.3, position_dependence 0.04, deadband 0.01. The gain decides, not
+    # the gain over the threshold (asymmetry's 10 x would beat time_dependence's 5 x)
+    assert [c.name for c in ranked] == ["time_dependence", "asymmetry", "input_delay",
+                                        "heading_dependence", "position_dependence", "deadband"]
+    assert [c.significant for c in ranked] == [True, True, True, False, False, False]
+    assert verdict(ranked) == "time_dependence"
+
+
+def test_ranking_does_not_depend_on_the_order_of_the_scores():
+    scores = [_score("asymmetry", 0.03), _score("input_delay", 0.07), _score("deadband", 0.5)]
+    a = [c.name for c in rank_families(scores, THRESHOLDS)]
+    b = [c.name for c in rank_families(scores[::-1], THRESHOLDS)]
+    assert a == b == ["deadband", "input_delay", "asymmetry"]
+
+
+def test_no_significant_family_is_none_even_with_a_large_gain_below_its_threshold():
+    scores = [_score("heading_dependence", 0.45), _score("input_delay", 0.01)]
+    ranked = rank_families(scores, THRESHOLDS)
+    assert [c.name for c in ranked] == ["heading_dependence", "input_delay"]
+    assert verdict(ranked) == "none"
+    assert verdict([]) == "none"
+
+
+def test_lateral_slip_without_a_lateral_law_is_reported_but_never_named():
+    scores = [_score("lateral_slip", 0.9, model_has_lateral_law=False, drift_s=0.02), _score("input_delay", 0.03)]
+    ranked = rank_families(scores, THRESHOLDS)
+    assert [c.name for c in ranked] == ["input_delay", "lateral_slip"]
+    assert verdict(ranked) == "input_delay" and "no lateral law" in ranked[1].note
