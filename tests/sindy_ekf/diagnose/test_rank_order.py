@@ -49,3 +49,21 @@ def test_lateral_slip_without_a_lateral_law_is_reported_but_never_named():
     ranked = rank_families(scores, THRESHOLDS)
     assert [c.name for c in ranked] == ["input_delay", "lateral_slip"]
     assert verdict(ranked) == "input_delay" and "no lateral law" in ranked[1].note
+
+
+def test_thresholds_are_twice_the_recorded_calibration_maxima():
+    """The significance thresholds come from the calibration recorded in bench/results (raw numbers
+    of ``bench.bench_diagnose --calibrate 24``): a changed constant would no longer match them."""
+    import json
+
+    from sindy_ekf.diagnose.rank import NULL_MAX_GAIN, THRESHOLDS
+    from tests.support import REPO
+
+    recorded = json.loads((REPO / "bench" / "results" / "diagnose_raw.json").read_text())["calibration"]["max"]
+    for family, gain in recorded.items():
+        if family == "lateral_slip":  # from the first study's reference-model campaigns (rank.py)
+            assert NULL_MAX_GAIN[family] == 0.03533
+        else:
+            assert NULL_MAX_GAIN[family] == gain
+    assert THRESHOLDS["deadband"] == 0.01918 and THRESHOLDS["asymmetry"] == 0.09428
+    assert THRESHOLDS["input_delay"] == 0.03152 and THRESHOLDS["lateral_slip"] == 0.07066
