@@ -187,7 +187,6 @@ def main(argv=None) -> int:
     ap.add_argument("--modules", default=None, help="comma-separated subset of the modules (paths)")
     args = ap.parse_args(argv)
     targets = {m: t for m, t in TARGETS.items() if args.modules is None or m in args.modules.split(",")}
-    rng = random.Random(args.seed)
     rows, survivors, total_killed, total_run = [], [], 0, 0
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="mutation_") as tmp:
@@ -196,6 +195,7 @@ def main(argv=None) -> int:
         for module, tests in targets.items():
             source = (REPO / module).read_text()
             all_sites = sites(source)
+            rng = random.Random(f"{args.seed}:{module}")  # the same draw whichever modules run
             drawn = sorted(rng.sample(all_sites, min(args.per_module, len(all_sites))), key=lambda s: s.line)
             (work / module).write_text(mutant(source, None))
             ok, clean_s = run_tests(work, tests, 900)

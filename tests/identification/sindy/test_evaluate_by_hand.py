@@ -37,6 +37,8 @@ def test_position_error_of_an_accelerating_robot_equals_the_hand_computation():
     res = evaluate_model(ConstantVelocityModel(), [st])
     errors = [C * WINDOW ** 2 * (3 * t0 + WINDOW) / 6 for t0 in _starts()]
     assert res.n_windows == len(errors) == 7
+    np.testing.assert_allclose(np.diff(res.t_rel), 0.02, rtol=1e-9)  # 50 Hz steps (thesis 5.3.8)
+    assert res.t_rel[-1] == pytest.approx(WINDOW)
     rms = math.sqrt(sum(e * e for e in errors) / len(errors))
     assert res.pos_err_5s_m == pytest.approx(rms, rel=1e-6)
     assert res.pos_err_5s_m != pytest.approx(sum(errors) / len(errors), rel=1e-3)  # not a mean
@@ -59,3 +61,22 @@ def test_heading_error_of_a_spinning_robot_equals_the_hand_computation():
     assert res.pos_err_5s_m == pytest.approx(0.0, abs=1e-12)
     assert res.summary() == {"pos_err_5s_m": res.pos_err_5s_m, "yaw_err_5s_deg": res.yaw_err_5s_deg,
                              "n_windows": 7}
+
+
+class _KnowsTheClock(ConstantVelocityModel):
+    """Forward acceleration ``C t`` with ``t`` the seconds since the start of the window's run:
+    exactly the accelerating robot's, so its predictions are exact if evaluate passes that time."""
+
+    def accel(self, x6, u, t=0.0):
+        a = np.zeros(np.shape(x6)[:-1] + (3,))
+        a[..., 0] = C * np.broadcast_to(t, a.shape[:-1])
+        return a
+
+
+def test_time_passed_to_the_model_is_seconds_since_the_start_of_the_run():
+    t = np.arange(int(round(DURATION / DT)) + 1) * DT + 100.0  # the run starts at 100 s
+    s = t - t[0]
+    st = _states(t, C * s ** 3 / 6, np.zeros_like(t), np.zeros_like(t), C * s ** 2 / 2, np.zeros_like(t))
+    res = evaluate_model(_KnowsTheClock(), [st])
+    assert res.n_windows == 7
+    assert res.pos_err_5s_m < 1e-9  # RK4 is exact for a force linear in time

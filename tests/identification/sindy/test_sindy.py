@@ -96,6 +96,14 @@ def test_constant_input_is_unidentifiable(runs_by_seed):
         integral_problem([st], "poly3", tau=2.0, names=["r1"])
 
 
+def test_times_not_increasing_name_the_run(runs_by_seed):
+    st = runs_by_seed[0][1]
+    t = st.t.copy()
+    t[10] = t[9]
+    with pytest.raises(InputError, match="run run_b: times are not strictly increasing"):
+        integral_problem([runs_by_seed[0][0], dataclasses.replace(st, t=t)], "poly3", tau=2.0, names=["run_a", "run_b"])
+
+
 def test_missing_values_name_run_and_column(runs_by_seed):
     u1 = runs_by_seed[0][1].u1.copy()
     u1[5:9] = np.nan

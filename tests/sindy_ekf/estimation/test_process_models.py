@@ -20,6 +20,7 @@ from sindy_ekf.estimation.process_models import (
     StateSeries,
     body_states_from_state_series,
     fit_process_noise,
+    state_series_from_body_states,
 )
 from tests.support.estimation_helpers import LinearDynamics
 
@@ -160,6 +161,22 @@ def test_process_noise_recovers_the_generating_density():
     # 8000 samples: relative standard error of a variance is sqrt(2/8000) = 1.6 %
     np.testing.assert_allclose(np.diag(model.Q_rate_), np.diag(Q_rate), rtol=0.06)
     assert np.all(np.linalg.eigvalsh(model.Q_rate_) > 0)
+    # the one-step residual std is that of the noise added per 0.02 s step
+    np.testing.assert_allclose(model.residual_std_, np.sqrt(np.diag(Q_rate) * 0.02), rtol=0.03)
+
+
+def test_state_series_and_body_states_convert_column_by_column():
+    t = np.array([0.0, 0.1, 0.2])
+    x6 = np.arange(18.0).reshape(3, 6)  # columns x, y, psi, vx, vy, omega
+    u = np.array([[0.1, -0.2], [0.3, -0.4], [0.5, -0.6]])
+    st = body_states_from_state_series(StateSeries("s", t, x6, u))
+    for name, column in (("x", 0), ("y", 1), ("yaw", 2), ("vx", 3), ("vy", 4), ("omega", 5)):
+        np.testing.assert_array_equal(getattr(st, name), x6[:, column])
+    np.testing.assert_array_equal(st.u1, u[:, 0])
+    np.testing.assert_array_equal(st.u2, u[:, 1])
+    back = state_series_from_body_states(st, "s")
+    np.testing.assert_array_equal(back.x6, x6)
+    np.testing.assert_array_equal(back.u, u)
 
 
 def test_lag_fit_recovers_known_gains():
