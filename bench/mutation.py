@@ -175,6 +175,8 @@ def copy_tree(dst: Path) -> None:
     """Copy the packages, tests and configuration into ``dst`` (no .git, no caches)."""
     for name in ("groundfloor", "simulation", "identification", "sindy_ekf", "tests"):
         shutil.copytree(REPO / name, dst / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    # the tests read recorded results (bench/results/diagnose_raw.json: the rank thresholds)
+    shutil.copytree(REPO / "bench" / "results", dst / "bench" / "results")
     for name in ("pyproject.toml", "conftest.py"):
         if (REPO / name).exists():
             shutil.copy2(REPO / name, dst / name)

@@ -5,16 +5,25 @@ window, recovery by re-initialisation from the next fix."""
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from groundfloor.gnss import GnssSeries
 from identification.sindy.model import model_from_terms
 from simulation.gnss import PROFILES, simulate_gnss
 from simulation.robot import RobotParams
 from sindy_ekf.benchmark.files import read_tum
-from sindy_ekf.benchmark.health import NIS_WINDOW, guarded_ekf_batch, nis_alarm
+from sindy_ekf.benchmark.health import (
+    NIS_WINDOW,
+    RESET_INFLATION,
+    guarded,
+    guarded_ekf_batch,
+    nis_alarm,
+    reset_state,
+)
 from sindy_ekf.cli import main
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
 from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
@@ -44,6 +53,7 @@ def test_one_diverging_estimator_leaves_the_others_complete(diverging, tmp_path,
     rows = json.loads((tmp_path / "b.json").read_text())["estimators"]
     assert set(rows) == {"cv_ekf", "sindy_ekf", "sindy_graph"}
     assert rows["cv_ekf"]["status"] == "ok" and rows["cv_ekf"]["t_s"] is None
+    assert rows["cv_ekf"]["reason"] == "" and all(r["recoveries"] == 0 for r in rows.values())
     # the cv_ekf row is exactly what cv_ekf alone gives: the divergence did not touch it
     assert main(["benchmark", str(root), "--model", str(model), "--estimators", "cv_ekf",
                  "--json", str(tmp_path / "alone.json"), "--quiet"]) == 0
@@ -130,3 +140,36 @@ def test_a_jump_in_the_fixes_is_recovered_by_reinitialising_from_the_next_fix(ju
     err = np.hypot(res.x[late, 0] - (ref[late, 0] + 20.0), res.x[late, 1] - ref[late, 1])
     assert np.sqrt(np.mean(err ** 2)) < 0.5
     assert np.mean(res.accepted[res.nis_t > t_jump + 5.0]) > 0.95
+
+
+def test_reset_takes_the_position_of_the_next_fix_less_the_rotated_lever_arm():
+    fixes = np.array([[10.0, 5.0, 0.0], [11.0, 5.5, 0.0], [12.0, 6.0, 0.0]])
+    gnss = GnssSeries("rtk", np.array([1.0, 2.0, 3.0]), np.array([1.1, 2.1, 3.1]), fixes,
+                      np.full((3, 3), 0.02), np.zeros(3, np.uint8), np.array([0.4, 0.0, 0.0]), np.empty((0, 2)))
+    x = np.array([0.0, 0.0, math.pi / 2, 1.0, 0.1, 0.2])
+    P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
+    x1, P1 = reset_state(x, P0, gnss, t_from=1.5)
+    # by hand: the fix at t = 2 s, the antenna 0.4 m ahead at heading 90 deg is 0.4 m north
+    np.testing.assert_allclose(x1, [11.0, 5.1, math.pi / 2, 1.0, 0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(np.diag(P1)[:2], 0.02 ** 2 + RESET_INFLATION ** 2 * 0.05 ** 2)
+    np.testing.assert_allclose(np.diag(P1)[2:], RESET_INFLATION ** 2 * np.diag(P0)[2:])
+    assert reset_state(x, P0, gnss, t_from=3.0) is None  # no fix after: no reset
+
+
+def test_guarded_call_names_how_an_estimator_ended():
+    from types import SimpleNamespace
+
+    t = np.arange(5) * 0.5 + 10.0
+    fine = SimpleNamespace(t=t, x=np.zeros((5, 6)))
+    assert guarded(lambda: fine) == (fine, guarded(lambda: fine)[1])
+    assert guarded(lambda: fine)[1].status == "ok"
+    broken = np.zeros((5, 6))
+    broken[3, 2] = np.nan
+    value, status = guarded(lambda: SimpleNamespace(t=t, x=broken))
+    assert value is None and status.status == "diverged" and status.t_s == 1.5
+
+    def boom():
+        raise RuntimeError("gtsam said\nno")
+
+    value, status = guarded(boom)
+    assert value is None and status.status == "failed" and status.reason == "RuntimeError: gtsam said no"
