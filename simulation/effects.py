@@ -162,7 +162,7 @@ EFFECTS: dict[str, EffectSpec] = {
         exponential=FormSpec("1/(10 min)", "input gain (1 - value)^(t / 600 s)", *_DECAY,
                              "decay_per_10min"),
         late=FormSpec("1/(10 min)", "input gain 1 until onset_s, then linear to 1 - value at 600 s",
-                      *_DECAY, "decay_per_10min and onset_s", {"onset_s": 60.0}),
+                      *_DECAY, "decay_per_10min and onset_s", {"onset_s": 30.0}),
         early=FormSpec("1/(10 min)", "input gain falls to 1 - value at 600 s, mostly within tau_s",
                        *_DECAY, "decay_per_10min and tau_s", {"tau_s": 60.0})),
     "asymmetry": _family(
@@ -278,7 +278,7 @@ def _resolve_params(name: str, form: str, given: dict) -> tuple:
     for key in ("length_m", "onset_s", "tau_s", "release_ratio") + tuple(s for s, *_ in LATERAL_FORMS.values() if s):
         if key in out and not out[key] > 0:
             raise InputError(f"effect {name}:{form}: parameter {key}={out[key]!r} must be > 0")
-    if form == "late" and not out.get("onset_s", 60.0) < 600.0:
+    if form == "late" and not out.get("onset_s", 30.0) < 600.0:
         raise InputError(f"effect {name}:{form}: onset_s={out['onset_s']!r} must be below 600 s")
     if form == "hysteresis" and not out.get("release_ratio", 0.5) < 1.0:
         raise InputError(f"effect {name}:{form}: release_ratio={out['release_ratio']!r} must be below 1")
@@ -289,15 +289,28 @@ def draw_bumps(rng: np.random.Generator) -> dict:
     """Return ``{centres_m, widths_m, weights}`` of ``N_BUMPS`` Gaussian bumps in the driving area.
 
     Centres uniform in the inner 80 % of the driving ellipse (:class:`simulation.driver.
-    DrivingArea`'s semi-axes 3.2 m and 1.8 m), widths 0.5-1.2 m, weights 0.5-1.
+    DrivingArea`'s semi-axes 3.2 m and 1.8 m), widths 0.5-1.2 m, relative weights 0.3-1, scaled
+    so that the field's peak over the ellipse is 1: the effect's value is then the largest
+    damping increase, as for the disc.
     """
+    c, s = math.cos(_AXIS), math.sin(_AXIS)
+
+    def to_local(e1, e2):
+        return _AREA_CENTER[0] + c * e1 - s * e2, _AREA_CENTER[1] + s * e1 + c * e2
+
     r = np.sqrt(rng.uniform(0.0, 0.8 ** 2, N_BUMPS))
     ang = rng.uniform(-math.pi, math.pi, N_BUMPS)
-    e1, e2 = 3.2 * r * np.cos(ang), 1.8 * r * np.sin(ang)
-    c, s = math.cos(_AXIS), math.sin(_AXIS)
-    centres = np.column_stack([_AREA_CENTER[0] + c * e1 - s * e2, _AREA_CENTER[1] + s * e1 + c * e2])
-    return {"centres_m": _frozen(np.round(centres, 4)), "widths_m": _frozen(np.round(rng.uniform(0.5, 1.2, N_BUMPS), 4)),
-            "weights": _frozen(np.round(rng.uniform(0.5, 1.0, N_BUMPS), 4))}
+    cx, cy = to_local(3.2 * r * np.cos(ang), 1.8 * r * np.sin(ang))
+    widths = rng.uniform(0.5, 1.2, N_BUMPS)
+    weights = rng.uniform(0.3, 1.0, N_BUMPS)
+    g1, g2 = np.meshgrid(np.linspace(-1, 1, 81), np.linspace(-1, 1, 81))
+    inside = np.hypot(g1, g2) <= 1.0
+    gx, gy = to_local(3.2 * g1[inside], 1.8 * g2[inside])
+    field = sum(w * np.exp(-((gx - x) ** 2 + (gy - y) ** 2) / (2 * sig ** 2))
+                for x, y, sig, w in zip(cx, cy, widths, weights))
+    weights = weights / field.max()
+    return {"centres_m": _frozen(np.round(np.column_stack([cx, cy]), 4)), "widths_m": _frozen(np.round(widths, 4)),
+            "weights": _frozen(np.round(weights, 4))}
 
 
 def check_effect(name: str, value: float, form: str = "") -> None:
