@@ -51,7 +51,7 @@ def body_source(params: RobotParams, effect: Effect | None, law: LateralLaw, sv:
     are used (bound to :mod:`math` or numpy by the caller). A non-linear lateral law is not
     here: it replaces the polynomial ``vy`` equation (:func:`simulation.lateral.lateral_source`).
     """
-    x, y, psi, vx, vy, om = sv
+    x, y, psi, vx, _, om = sv
     name, form = (effect.name, effect.form) if effect is not None else (None, None)
     lines = []
     if name == "heading_dependence":

@@ -51,7 +51,7 @@ def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple
     limiters branch on floats and use ``relu(s) = (s + |s|) / 2`` on arrays. A non-linear
     lateral law replaces the polynomial ``vy`` equation; the effect's body mechanism follows
     the limiters (:mod:`simulation.body_effects`)."""
-    x, y, psi, vx, vy, om = sv
+    vx, vy, om = sv[3:]
     names = (vx, vy, om)
     law, gain = effective_lateral(lateral or LateralLaw(), effect)
     lines = []

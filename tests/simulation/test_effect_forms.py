@@ -130,7 +130,7 @@ def test_lags_on_a_joystick_sequence_match_an_ode_solver_and_the_simulators_memo
     y, ref, edges = np.zeros(4), [], np.concatenate([[0.0], t_joy, [t[-1] + 1.0]])
     for a, b in zip(edges[:-1], edges[1:]):
         c = held(a)
-        sol = solve_ivp(lambda s, v: np.r_[(c - v[:2]) / tau1, (v[:2] - v[2:]) / tau2], (a, b), y,
+        sol = solve_ivp(lambda s, v, c=c: np.r_[(c - v[:2]) / tau1, (v[:2] - v[2:]) / tau2], (a, b), y,
                         dense_output=True, rtol=1e-11, atol=1e-13)
         inside = (t >= a) & (t < b)
         ref.append(sol.sol(t[inside]).T[:, 2:])

@@ -41,7 +41,7 @@ def test_law_value_by_hand(law):
 def test_steady_drift_solves_the_law(law):
     """The drift where vy_dot = 0, found by bracketing, against each law's closed form."""
     for vx, om in ((0.5, 0.6), (0.8, 0.45), (-0.3, 1.0)):
-        def a_y(vy):
+        def a_y(vy, vx=vx, om=om):
             return float(lateral_accel_and_jacobian(law, K, C, vx, vy, om)[0])
         vy = brentq(a_y, -0.5, 0.5, xtol=1e-15)
         demand = C * vx * om
@@ -94,10 +94,12 @@ def test_lateral_slip_forms_replace_the_law_and_scale_the_coupling(form):
     law = LateralLaw.default(form)
     slip = TrueDynamics(effect=Effect("lateral_slip", g, form))
     for vx, om in ((0.5, 0.3), (0.6, -0.2)):
-        vy = brentq(lambda v: float(lateral_accel_and_jacobian(law, K, g * C, vx, v, om)[0]), -0.9, 0.9, xtol=1e-15)
+        vy = brentq(lambda v, vx=vx, om=om: float(lateral_accel_and_jacobian(law, K, g * C, vx, v, om)[0]),
+                    -0.9, 0.9, xtol=1e-15)
         # the true dynamics' vy equation vanishes there (the polynomial has no other vy terms)
         assert slip.accel(_x6(vx, vy, om), [0.0, 0.0])[1] == pytest.approx(0.0, abs=1e-12)
-        base = brentq(lambda v: float(lateral_accel_and_jacobian(law, K, C, vx, v, om)[0]), -0.5, 0.5, xtol=1e-15)
+        base = brentq(lambda v, vx=vx, om=om: float(lateral_accel_and_jacobian(law, K, C, vx, v, om)[0]),
+                      -0.5, 0.5, xtol=1e-15)
         if form in ("linear", "tanh"):
             assert vy == pytest.approx(g * base, rel=1e-9)
         else:

@@ -65,8 +65,8 @@ def _rk4_replay(oracle: TrueDynamics, run, dt: float) -> np.ndarray:
     for k in range(len(run.t) - 1):
         u, w = run.u_motor[k], np.r_[0.0, 0.0, 0.0, run.noise[k]]
 
-        def f(s):
-            return oracle.derivative(s, u, run.t[k]) + w
+        def f(s, u=u, w=w, t=run.t[k]):
+            return oracle.derivative(s, u, t) + w
 
         k1 = f(x)
         k2 = f(x + 0.5 * dt * k1)

@@ -93,10 +93,13 @@ def test_model_b_passes_the_envelope_check_and_a_folded_robot_does_not():
 
 
 def test_variant_runs_stay_sane(variants):
-    """Every variant drives: inside the area, heading within limits, speeds below the limiters."""
+    """Every variant drives: inside the area, heading within limits, speeds below the limiters,
+    its joystick at its rate; gentle drivers command less than aggressive ones on average."""
     area = DrivingArea()
+    command = {"gentle": [], "aggressive": []}
     for n, v in variants.items():
-        run = simulate_run(20.0, np.random.default_rng(n), variant=v, dt=0.004)
+        run = simulate_run(30.0, np.random.default_rng(n), variant=v, dt=0.004)
+        command[v.driver.style].append(np.mean(np.abs(run.u_joy)))
         assert area.contains(run.x, run.y).all(), n
         assert np.degrees(np.abs(run.psi - run.psi[0])).max() < 150.0, n
         track = np.abs(run.vx) + v.robot.track_half_width_m * np.abs(run.omega)
@@ -104,6 +107,7 @@ def test_variant_runs_stay_sane(variants):
         assert np.abs(run.vy).max() < 0.1, n
         gap = np.diff(run.t_joy)
         assert np.median(gap) == pytest.approx(1.0 / v.driver.joy_rate_hz, rel=0.1), n
+    assert np.mean(command["gentle"]) < np.mean(command["aggressive"]) - 0.05
 
 
 def test_variants_round_trip_through_truth_yaml(variants):
@@ -160,3 +164,25 @@ MAIN_STATES_AFTER_8_S = {
                      -0.008387408452751911, -0.23113052597500305, -0.5374285972580483, 0.25356209692818643,
                      0.0012692393296484614),
 }
+
+
+def test_process_noise_spectra():
+    """White: per-step std sqrt(2 tau / dt) times the OU std (same low-frequency density);
+    coloured: the given std with its power at the resonance; OU: lag-one correlation e^(-dt/tau)."""
+    from simulation.process_noise import ProcessNoise, simulate_process_noise
+
+    dt, std, tau, n = 0.002, np.array([0.06, 0.03, 0.15]), 0.05, 200_000
+    rng = np.random.default_rng(0)
+    white = simulate_process_noise(ProcessNoise("white"), n, dt, std, tau, rng)
+    np.testing.assert_allclose(white.std(axis=0), std * np.sqrt(2 * tau / dt), rtol=0.02)
+    ou = simulate_process_noise(ProcessNoise("ou"), n, dt, std, tau, rng)
+    np.testing.assert_allclose(ou.std(axis=0), std, rtol=0.05)
+    lag1 = np.mean(ou[1:, 0] * ou[:-1, 0]) / np.var(ou[:, 0])
+    assert lag1 == pytest.approx(np.exp(-dt / tau), abs=0.01)
+    col = simulate_process_noise(ProcessNoise("coloured", 6.0, 0.2), n, dt, std, tau, rng)
+    np.testing.assert_allclose(col.std(axis=0), std, rtol=0.05)
+    freq = np.fft.rfftfreq(n, dt)
+    power = np.abs(np.fft.rfft(col[:, 0])) ** 2
+    smooth = np.convolve(power, np.ones(200) / 200, mode="same")
+    assert freq[np.argmax(smooth[freq < 50])] == pytest.approx(6.0, abs=0.6)
+
