@@ -54,9 +54,19 @@ def broadcast_inputs(x6: np.ndarray, u) -> tuple[np.ndarray, np.ndarray]:
 
 def pose_rate(psi: np.ndarray, v_body: np.ndarray) -> np.ndarray:
     """Return ``[x_dot, y_dot, psi_dot]`` ``(..., 3)``: body velocities into the local frame (eq. 5.75)."""
-    c, s = np.cos(psi), np.sin(psi)
-    vx, vy, om = v_body[..., 0], v_body[..., 1], v_body[..., 2]
-    return np.stack([vx * c - vy * s, vx * s + vy * c, om], axis=-1)
+    psi, v_body = np.asarray(psi, dtype=float), np.asarray(v_body, dtype=float)
+    out = np.empty(np.broadcast_shapes(psi.shape, v_body.shape[:-1]) + (3,))
+    _pose_rate_into(out, np.cos(psi), np.sin(psi), v_body)
+    return out
+
+
+def _pose_rate_into(out: np.ndarray, c: np.ndarray, s: np.ndarray, v_body: np.ndarray) -> None:
+    """Write :func:`pose_rate` into ``out (..., 3)`` given ``cos psi`` and ``sin psi`` (no stacking: the
+    filters call it on small batches, where each numpy call, not the arithmetic, is the cost)."""
+    vx, vy = v_body[..., 0], v_body[..., 1]
+    out[..., 0] = vx * c - vy * s
+    out[..., 1] = vx * s + vy * c
+    out[..., 2] = v_body[..., 2]
 
 
 class Dynamics(ABC):
@@ -113,7 +123,11 @@ class Dynamics(ABC):
     def derivative(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
         """Return the six-state derivative ``(..., 6)`` of eq. 5.75."""
         x6, u = broadcast_inputs(x6, u)
-        return np.concatenate([pose_rate(x6[..., 2], self.pose_velocity(x6, u)), self.accel(x6, u, t)], axis=-1)
+        f = np.empty(x6.shape)
+        psi = x6[..., 2]
+        _pose_rate_into(f[..., :3], np.cos(psi), np.sin(psi), self.pose_velocity(x6, u))
+        f[..., 3:] = self.accel(x6, u, t)
+        return f
 
     def derivative_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0, input_jacobian: bool = True
                                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -122,8 +136,8 @@ class Dynamics(ABC):
         Implements eqs. 5.61 and 5.75: the kinematics' Jacobian (rotation of the body
         velocities, its derivative in ``psi``) stacked on the model's acceleration Jacobians.
         ``input_jacobian=False`` returns ``None`` for ``J_f_u`` (the EKF's prediction needs only
-        ``J_f_x``). Written with few numpy calls: the filters call it four times per step on
-        small batches, where the per-call overhead, not the arithmetic, is the cost.
+        ``J_f_x``). Written with few numpy calls: the filters call it on small batches, where the
+        per-call overhead, not the arithmetic, is the cost.
         """
         x6, u = broadcast_inputs(x6, u)
         a, J_a_x, J_a_u = self.accel_and_jacobians(x6, u, t)
@@ -131,25 +145,22 @@ class Dynamics(ABC):
         lead = x6.shape[:-1]
         psi = x6[..., 2]
         c, s = np.cos(psi), np.sin(psi)
-        vx, vy = v[..., 0], v[..., 1]
-        x_dot = c * vx - s * vy
-        y_dot = s * vx + c * vy
         f = np.empty(lead + (N_X,))
-        f[..., 0], f[..., 1], f[..., 2], f[..., 3:] = x_dot, y_dot, v[..., 2], a
+        _pose_rate_into(f[..., :3], c, s, v)
+        f[..., 3:] = a
         J_x = np.zeros(lead + (N_X, N_X))
-        J_x[..., 0, 2], J_x[..., 1, 2] = -y_dot, x_dot
+        J_x[..., 0, 2], J_x[..., 1, 2] = -f[..., 1], f[..., 0]
         J_x[..., 3:, :] = J_a_x
-        J_u = np.zeros(lead + (N_X, N_U)) if input_jacobian else None
-        if J_v_x is None:  # the pose moves with the velocity states
-            J_x[..., 0, 3], J_x[..., 0, 4], J_x[..., 1, 3], J_x[..., 1, 4], J_x[..., 2, 5] = c, -s, s, c, 1.0
-        else:  # d pose_rate / d v_pose is the rotation R(psi) on (vx, vy), 1 on omega
-            R = np.zeros(lead + (3, 3))
-            R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
-            J_x[..., :3, :] += R @ J_v_x
-            if input_jacobian:
-                J_u[..., :3, :] = R @ J_v_u
+        # d pose_rate / d v_pose: the rotation R(psi) on (vx, vy), 1 on omega
+        R = J_x[..., :3, 3:] if J_v_x is None else np.zeros(lead + (3, 3))
+        R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
+        J_u = None
         if input_jacobian:
+            J_u = np.empty(lead + (N_X, N_U))
             J_u[..., 3:, :] = J_a_u
+            J_u[..., :3, :] = 0.0 if J_v_u is None else R @ J_v_u
+        if J_v_x is not None:  # a kinematic model: the pose moves with velocities of its own
+            J_x[..., :3, :] += R @ J_v_x
         return f, J_x, J_u
 
 
