@@ -19,6 +19,7 @@ import logging
 import math
 import warnings
 from dataclasses import dataclass, field
+from itertools import combinations_with_replacement
 from pathlib import Path
 
 import numpy as np
@@ -54,9 +55,9 @@ class ActiveTerms:
     product of a table of monomials with a fixed weight matrix ``(columns, 3 + 18 + 6)``: every
     active term adds its coefficient to the column of its monomial (accelerations) and, for each
     of its variables, exponent times coefficient to the column of the monomial one degree lower
-    (product rule; Jacobians). Polynomial libraries take the table of all monomials of the five
-    variables up to degree 3 as two outer products, so the whole evaluation is a handful of numpy
-    calls whatever the model's size; libraries with ``|x|`` atoms gather each active term's
+    (product rule; Jacobians). Polynomial libraries take the table of the monomials of the five
+    variables up to degree 3 (56 rows), each degree from the one below in one gather and one
+    product, so the whole evaluation is a handful of numpy calls whatever the model's size; libraries with ``|x|`` atoms gather each active term's
     (at most three) atoms from a table of atom values and their derivatives instead. The filters
     evaluate the model four times per step on a few runs at a time, where numpy's per-call
     overhead, not the arithmetic, is the cost.
@@ -76,19 +77,22 @@ class ActiveTerms:
             return 3 + 6 * e + 3 + v if v < 3 else 3 + 18 + 2 * e + (v - 3)
 
         if self.monomials:
-            def col(factors: list[int]) -> int:  # column of the monomial prod z[factors] (sorted)
-                return sum(nv ** d for d in range(len(factors))) + sum(
-                    f * nv ** (len(factors) - 1 - i) for i, f in enumerate(factors))
-
-            self.weight = np.zeros((sum(nv ** d for d in range(4)), 27))
+            # rows of the monomial table: 1, then each product of 1, 2 or 3 variables once (sorted
+            # factors); a row of degree d is a row of degree d - 1 times one variable
+            monomials = [()] + [m for d in (1, 2, 3) for m in combinations_with_replacement(range(nv), d)]
+            row = {m: r for r, m in enumerate(monomials)}
+            self.products = [(slice(row[m[0]], row[m[-1]] + 1),
+                              np.array([[row[f[:-1]] for f in m], [row[f[-1:]] for f in m]]))
+                             for m in ([f for f in monomials if len(f) == d] for d in (2, 3))]
+            self.weight = np.zeros((len(monomials), 27))
             for j, atoms in enumerate(library.atoms):
                 c = coef[:, j]
-                factors = sorted(v for v, code in atoms for _ in range(code + 1))
-                self.weight[col(factors), :3] += c
+                factors = tuple(sorted(v for v, code in atoms for _ in range(code + 1)))
+                self.weight[row[factors], :3] += c
                 for v in set(factors):
                     rest = list(factors)
                     rest.remove(v)
-                    self.weight[col(rest), [out(e, v) for e in range(3)]] += factors.count(v) * c
+                    self.weight[row[tuple(rest)], [out(e, v) for e in range(3)]] += factors.count(v) * c
             self.weight_a = np.ascontiguousarray(self.weight[:, :3])  # accelerations alone: a smaller product
             return
 
@@ -125,15 +129,14 @@ class ActiveTerms:
         n = math.prod(lead)
         weight = self.weight if jacobians else self.weight_a
         if self.monomials:
-            # the table of all monomials, one row per monomial (so each block is a contiguous slice
-            # written in place): a handful of numpy calls, no concatenation
-            nv = self.n_vars
+            # the monomial table, one row per monomial: each degree is one gather and one product
+            # written in place, a handful of numpy calls whatever the model's size
             table = np.empty((len(weight), n))
             table[0] = 1.0
-            z, z2 = table[1:1 + nv], table[1 + nv:1 + nv + nv ** 2]
-            z[:3], z[3:] = v_body.reshape(n, 3).T, u.reshape(n, 2).T
-            np.multiply(z[:, None, :], z[None, :, :], out=z2.reshape(nv, nv, n))
-            np.multiply(z2[:, None, :], z[None, :, :], out=table[1 + nv + nv ** 2:].reshape(nv ** 2, nv, n))
+            table[1:4], table[4:1 + self.n_vars] = v_body.reshape(n, 3).T, u.reshape(n, 2).T
+            for rows, factors in self.products:
+                f = np.take(table, factors, axis=0)
+                np.multiply(f[0], f[1], out=table[rows])
             out = table.T @ weight
         else:
             z = np.concatenate([v_body, u], axis=-1).reshape(n, -1)
