@@ -1,6 +1,6 @@
 """Calibration from the raw survey: agreement with thesis tables 7.1/7.2, blunder power, speed.
 
-Usage: ``.venv/bin/python bench/bench_calibration.py``; writes ``bench/results/calibration.md``.
+Usage: ``.venv/bin/python -m bench.bench_calibration``; writes ``bench/results/calibration.md``.
 Input: only ``simulation/data/calibration.yaml`` (thesis tables 6.1 to 6.3).
 """
 
@@ -13,19 +13,18 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from groundfloor.files import atomic_write_text  # noqa: E402
-from identification.preprocessing.calibration import (  # noqa: E402
+from groundfloor.files import atomic_write_text
+from identification.preprocessing.body_frame import fit_body_frame
+from identification.preprocessing.calibration import calibrate
+from identification.preprocessing.io_survey import read_survey
+from identification.preprocessing.network_transform import (
     ARCSEC_PER_RAD,
     angles_from_rotation,
-    calibrate,
-    fit_body_frame,
     fit_transform,
     fit_transform_closed_form,
 )
-from identification.preprocessing.io_survey import read_survey  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 TABLE_7_2_T = np.array([-2.050360, -8.757229, -0.086725])
 TABLE_7_2_ROT_DEG = np.array([-0.374896, -0.180820, 142.749476])
@@ -81,7 +80,7 @@ def body_variant(survey, body, variant):
 def main() -> int:
     survey = read_survey(ROOT / "simulation" / "data" / "calibration.yaml")
     lines = ["## Calibration from the raw survey (tables 7.1 and 7.2)", "",
-             "Command: `.venv/bin/python bench/bench_calibration.py` (input: only "
+             "Command: `.venv/bin/python -m bench.bench_calibration` (input: only "
              "`simulation/data/calibration.yaml`, thesis tables 6.1 to 6.3).", ""]
 
     fit = fit_transform(survey)

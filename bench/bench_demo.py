@@ -1,6 +1,6 @@
 """Time ``sindy-ekf demo`` (what ``make demo`` runs) and, optionally, ``make demo`` on a fresh clone.
 
-Usage: ``.venv/bin/python bench/bench_demo.py [--fresh-clone] [--no-write]``.
+Usage: ``.venv/bin/python -m bench.bench_demo [--fresh-clone] [--no-write]``.
 Target (issue 8): the demo in at most 3 minutes on 2 cores. The demo runs as a subprocess, so
 its CPU time is the children's (``resource.getrusage``); the per-stage wall times come from its
 ``--json`` output. ``--fresh-clone`` also clones the repository into a temporary folder and
@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
 TARGET_S = 180.0
 
 
@@ -56,7 +57,7 @@ def main() -> int:
     lines = [
         "## Demo (issue 8): `sindy-ekf demo`, the whole chain to the HTML report",
         "",
-        "Command: `.venv/bin/python bench/bench_demo.py" + (" --fresh-clone`" if args.fresh_clone else "`")
+        "Command: `.venv/bin/python -m bench.bench_demo" + (" --fresh-clone`" if args.fresh_clone else "`")
         + f" (Python {platform.python_version()}, {os.cpu_count()} cores shared with other jobs).",
         "",
         f"**`sindy-ekf demo`: {wall:.0f} s wall, {cpu:.0f} s CPU** (target {TARGET_S:.0f} s on 2 cores); exit {rc}; "

@@ -2,10 +2,10 @@
 
 Usage::
 
-    .venv/bin/python bench/bench_diagnose.py --calibrate 16   # effect-free study -> thresholds
-    .venv/bin/python bench/bench_diagnose.py [--jobs 2]       # suite, ladder, timing -> results
+    .venv/bin/python -m bench.bench_diagnose --calibrate 16   # effect-free study -> thresholds
+    .venv/bin/python -m bench.bench_diagnose [--jobs 2]       # suite, ladder, timing -> results
 
-Campaigns are the tests' shape (tests/tests.support.diagnose_synth.py: 4 x 45 s train and 2 x 45 s test runs of
+Campaigns are the tests' shape (``simulation.short_campaign``: 4 x 45 s train and 2 x 45 s test runs of
 the simulator, 25 Hz body states with measurement noise), diagnosed against the reference model
 identified on the effect-free campaign of seed 12345. Parts:
 
@@ -34,15 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))
-sys.path.insert(0, str(HERE.parent / "tests"))
+from simulation.effects import EFFECTS, Effect
+from simulation.short_campaign import simulate_states_campaign, states_from_true_run
+from tests.support.diagnose_synth import fit_reference_with_lateral_law
 
-from simulation.effects import EFFECTS, Effect  # noqa: E402
-from tests.support.diagnose_synth import (  # noqa: E402
-    fit_reference_with_lateral_law,
-    simulate_states_campaign,
-)
+HERE = Path(__file__).resolve().parent
 
 RUN_S, RATE_HZ = 45.0, 25.0
 MASTER_SEED = 20261121
@@ -74,7 +70,7 @@ def one_campaign(job: tuple) -> dict:
         d = diagnose_states(model, train, test, a, b, uncertainty=False)
     return {"seed": seed, "family": family or "none", "value": value, "flow": flow, "verdict": d.verdict,
             "gains": {c.name: c.gain for c in d.ranked}, "estimate": d.ranked[0].score.estimate
-            if d.verdict != "none" else {}, "before": d.before["pos_err_5s_m"], "after": d.after["pos_err_5s_m"],
+            if d.verdict != "none" else {}, "before": d.before.pos_err_5s_m, "after": d.after.pos_err_5s_m,
             "seconds": time.perf_counter() - t0}
 
 
@@ -136,7 +132,6 @@ def timing_default(effect=("input_delay", 0.15)) -> dict:
     from simulation.campaign import RUNS_TABLE_6_4
     from simulation.robot import simulate_run
     from sindy_ekf.diagnose import diagnose_states
-    from tests.support.diagnose_synth import states_from_true_run
 
     rng = np.random.default_rng(7)
     states, names, split = [], [], []
@@ -156,11 +151,12 @@ def timing_default(effect=("input_delay", 0.15)) -> dict:
     return {"seconds": time.perf_counter() - t0, "cpu_seconds": time.process_time() - c0,
             "load_average": list(__import__("os").getloadavg()), "parts": {k: round(v, 1) for k, v in d.seconds.items()},
             "verdict": d.verdict, "minutes": sum(r[1] for r in RUNS_TABLE_6_4) / 60, "hidden": list(effect),
-            "estimate": d.ranked[0].score.estimate, "before": d.before, "after": d.after, "outage": d.outage}
+            "estimate": d.ranked[0].score.estimate, "before": d.before.to_json(), "after": d.after.to_json(),
+            "outage": d.outage}
 
 
 def summarise(suite, ladder, timing, calib) -> str:
-    cmd = "`.venv/bin/python bench/bench_diagnose.py --jobs 2`"
+    cmd = "`.venv/bin/python -m bench.bench_diagnose --jobs 2`"
     eff = [r for r in suite if r["family"] != "none"]
     free = [r for r in suite if r["family"] == "none"]
     named = sum(r["verdict"] == r["family"] for r in eff)
@@ -203,7 +199,7 @@ def summarise(suite, ladder, timing, calib) -> str:
         o = timing.get("outage") or {}
         lines += [f"Default-size campaign ({timing['minutes']:.1f} min of 50 Hz states, table 6.4 runs and splits, "
                   f"hidden {timing['hidden'][0]} = {timing['hidden'][1]}, model identified on its own train runs; "
-                  f"command `.venv/bin/python bench/bench_diagnose.py --timing-only`): `diagnose_states` with the "
+                  f"command `.venv/bin/python -m bench.bench_diagnose --timing-only`): `diagnose_states` with the "
                   f"EKF outages took **{timing['seconds']:.1f} s** wall, {timing.get('cpu_seconds', float('nan')):.1f} s "
                   f"CPU (parts {timing['parts']}; load average at the end {timing.get('load_average')} on the 2 "
                   "shared cores; target <= 120 s; preprocessing excluded: `open_campaign` caches it).",
@@ -215,7 +211,7 @@ def summarise(suite, ladder, timing, calib) -> str:
                   f"{o.get('after_m', float('nan')):.3f} m (outages in which the filter diverged, left out of "
                   f"the RMS: {o.get('n_diverged')})", ""]
     if calib:
-        lines += [f"Threshold calibration (`.venv/bin/python bench/bench_diagnose.py --calibrate {calib['n']}`, "
+        lines += [f"Threshold calibration (`.venv/bin/python -m bench.bench_diagnose --calibrate {calib['n']}`, "
                   "two thirds reference flow, one third same flow): largest test gain per family over "
                   f"{calib['n']} effect-free campaigns {calib['max']}; the thresholds in "
                   "`sindy_ekf/diagnose/rank.py` are 2 x these (at least 0.01); verdicts on the calibration "

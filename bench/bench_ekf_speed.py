@@ -11,7 +11,7 @@ estimates is reported too (the refactoring must not change them).
 
 Usage::
 
-    python bench/bench_ekf_speed.py [--campaign DIR] [--model MODEL.json] [--baseline REV] [--repeat N]
+    python -m bench.bench_ekf_speed [--campaign DIR] [--model MODEL.json] [--baseline REV] [--repeat N]
 
 Without ``--campaign`` the default campaign is simulated (``sindy-ekf simulate DIR --seed 0``),
 preprocessed (``sindy-ekf preprocess DIR --out TRAJ``) and identified on the full grid
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -32,12 +33,16 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+
 BASELINE = "6c1b82f"  # the last commit before the one dynamics interface (issue 12)
 
 
 def measure(tree: Path, campaign_dir: Path, model_path: Path, repeat: int, npz: Path | None) -> dict:
-    """Return the EKF timings of the code in ``tree`` (imported first on ``sys.path``)."""
-    sys.path.insert(0, str(tree))
+    """Return the EKF timings of the code in ``tree`` (first on the child's ``PYTHONPATH``).
+
+    The imports are local on purpose: they must resolve in whichever tree the child was
+    started on, the current one or the baseline revision.
+    """
     from identification.preprocessing.campaigns import open_campaign
     from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
     from identification.sindy.model import SindyModel
@@ -107,7 +112,9 @@ def main() -> int:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--measure", "--tree", str(tree), "--campaign",
                str(campaign_dir.resolve()), "--model", str(model_path.resolve()), "--repeat", str(args.repeat),
                "--npz", str(npz)]
-        done = subprocess.run(cmd, capture_output=True, text=True, cwd=tree)
+        # the tree's own packages first: ahead of the editable install, which points at the checkout
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tree), os.environ.get("PYTHONPATH")]))}
+        done = subprocess.run(cmd, capture_output=True, text=True, cwd=tree, env=env)
         if done.returncode:
             sys.exit(f"measuring {tree} failed:\n{done.stderr}")
         return json.loads(done.stdout.strip().splitlines()[-1])  # the JSON is the last line
@@ -125,7 +132,7 @@ def main() -> int:
     lines = ["# EKF speed through the dynamics interface", "",
              f"Campaign `{campaign_dir}` ({new['n_runs']} runs, {new['data_s']:.0f} s of data, {new['steps']} "
              f"grid steps in all), model `{model_path}` ({new['complexity']} active terms).",
-             f"Command: `{' '.join([Path(sys.executable).name] + sys.argv)}`", "",
+             f"Command: `python -m bench.bench_ekf_speed {' '.join(sys.argv[1:])}`", "",
              f"Load average when measured: {' '.join(load)} (2 cores, shared). All runs in lockstep "
              f"(`run_ekf_batch`), dgnss fixes; best of {args.repeat} for sindy_ekf.", "",
              "| code | EKF | wall time s | real-time factor | target |", "|---|---|---|---|---|"]

@@ -11,7 +11,7 @@ Measures (wall time on this machine, numbers written to ``bench/results/estimati
 
 Usage::
 
-    python bench/bench_estimation.py [--campaign DIR] [--model MODEL.json] [--gnss dgnss]
+    python -m bench.bench_estimation [--campaign DIR] [--model MODEL.json] [--gnss dgnss]
 
 Without ``--campaign`` the default campaign is simulated (``sindy-ekf simulate DIR --seed 0``)
 and identified (``sindy-ekf identify DIR --out MODEL.json --quick``) into a cache folder.
@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 def main() -> int:
@@ -55,22 +54,22 @@ def main() -> int:
     from identification.preprocessing.campaigns import open_campaign
     from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
     from identification.sindy.model import SindyModel
+    from simulation.truth import true_dynamics_of
     from sindy_ekf.benchmark.run import (
         P0_STD,
         _prepare_run,
         benchmark_campaign,
         fit_models,
     )
-    from sindy_ekf.commands.benchmark import oracle_dynamics_for
     from sindy_ekf.estimation.ekf import EkfRun, run_ekf_batch
     from sindy_ekf.estimation.graph import smooth_batch, smooth_isam2
 
     model = SindyModel.load(model_path)
     campaign = open_campaign(campaign_dir)
-    oracle = oracle_dynamics_for(campaign_dir)
+    oracle = true_dynamics_of(campaign_dir)
     lines = [f"# Estimation benchmark ({args.gnss})", "",
              f"Campaign `{campaign_dir}` ({len(campaign.runs)} runs), model `{model_path}`.",
-             f"Command: `{' '.join([Path(sys.executable).name] + sys.argv)}`", ""]
+             f"Command: `python -m bench.bench_estimation {' '.join(sys.argv[1:])}`", ""]
 
     # 1. the EKF over the whole campaign
     models = fit_models(campaign.split("train"), model, oracle, DEFAULT_SMOOTHING)

@@ -1,7 +1,7 @@
 """Identification bench: the full four-hyperparameter grid, the selected model against the oracle,
 and the batched evaluation against one ``solve_ivp`` per window.
 
-Usage: ``.venv/bin/python bench/bench_identify.py [--minutes M] [--seed N] [--jobs J]``;
+Usage: ``.venv/bin/python -m bench.bench_identify [--minutes M] [--seed N] [--jobs J]``;
 writes ``bench/results/identify.md``.
 
 Data: a simulated set with the run lengths and splits of thesis table 6.4 (45.4 min, 6 train
@@ -31,30 +31,29 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from groundfloor.files import atomic_write_text  # noqa: E402
-from groundfloor.types import InputSeries, PoseTrack  # noqa: E402
-from identification.preprocessing.states import body_states_segments  # noqa: E402
-from identification.sindy.adjust import adjust_coefficients, subsampling_effect  # noqa: E402
-from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
-from identification.sindy.evaluate import (  # noqa: E402
+from groundfloor.files import atomic_write_text
+from groundfloor.types import InputSeries, PoseTrack
+from identification.preprocessing.states import body_states_segments
+from identification.sindy.adjust import adjust_coefficients, subsampling_effect
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.evaluate import (
     evaluate_model,
     evaluate_reference,
     make_windows,
 )
-from identification.sindy.library import parse_term  # noqa: E402
-from identification.sindy.regression import integral_problem  # noqa: E402
-from identification.sindy.search import (  # noqa: E402
+from identification.sindy.library import parse_term
+from identification.sindy.regression import integral_problem
+from identification.sindy.search import (
     DEFAULT_GRID,
     admissible,
     refit,
     search,
     select_parsimonious,
 )
-from simulation.campaign import RUNS_TABLE_6_4  # noqa: E402
-from simulation.robot import TrueDynamics, simulate_run  # noqa: E402
+from simulation.campaign import RUNS_TABLE_6_4
+from simulation.robot import TrueDynamics, simulate_run
+
+ROOT = Path(__file__).resolve().parents[1]
 
 POS_STD_M, YAW_STD_RAD = 50e-6, np.radians(0.006)
 
@@ -109,7 +108,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "identify.md")
     args = ap.parse_args()
-    cmd = "bench/bench_identify.py " + " ".join(sys.argv[1:])
+    cmd = "-m bench.bench_identify " + " ".join(sys.argv[1:])
 
     tic = time.perf_counter()
     runs = simulated_runs(args.minutes, args.seed)

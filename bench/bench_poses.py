@@ -1,9 +1,9 @@
 """Hub model, poses and body-frame states: speed on 30 000 samples and accuracy against truth.
 
-Usage: ``.venv/bin/python bench/bench_poses.py [--seeds 0 2 3] [--minutes M]``; writes
+Usage: ``.venv/bin/python -m bench.bench_poses [--seeds 0 2 3] [--minutes M]``; writes
 ``bench/results/poses.md``.
 
-1. Speed: one synthetic 10-minute run at 50 Hz (30 000 samples, tests/tests.support.pose_synth.py),
+1. Speed: one synthetic 10-minute run at 50 Hz (30 000 samples, ``tests.support.pose_synth``),
    best of three wall-clock times per stage.
 2. Accuracy on simulated campaigns (``simulation.campaign.simulate_campaign``; seed 0 is the
    full default campaign, 45.4 min, reused from ``bench/_work/campaign_default_seed0`` when
@@ -22,16 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+from groundfloor.errors import InputError
+from groundfloor.files import atomic_write_text
+from groundfloor.types import InputSeries
+from identification.preprocessing.hub import fit_hub_model, fit_hub_model_joint
+from identification.preprocessing.poses import fit_poses
+from identification.preprocessing.states import body_states_from_poses
 
-from groundfloor.errors import InputError  # noqa: E402
-from groundfloor.files import atomic_write_text  # noqa: E402
-from groundfloor.types import InputSeries  # noqa: E402
-from identification.preprocessing.hub import fit_hub_model, fit_hub_model_joint  # noqa: E402
-from identification.preprocessing.poses import fit_poses  # noqa: E402
-from identification.preprocessing.states import body_states_from_poses  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SMOOTHINGS = (0.0, 0.0005, 0.005, 0.01, 1.0, 10.0)
 WORK = ROOT / "bench" / "_work"
@@ -186,7 +184,7 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, nargs="*", default=[0, 2, 3])
     parser.add_argument("--minutes", type=float, default=8.0, help="length of the campaigns of seeds other than 0")
     args = parser.parse_args()
-    cmd = "`.venv/bin/python bench/bench_poses.py " + " ".join(sys.argv[1:]) + "`"
+    cmd = "`.venv/bin/python -m bench.bench_poses " + " ".join(sys.argv[1:]) + "`"
     lines = ["## Hub model, poses, body-frame states (identification/hub.py, poses.py, states.py)", "",
              f"Command: {cmd}", "",
              f"Load average at start (2 cores shared with other work): {os.getloadavg()[0]:.1f}.", ""]

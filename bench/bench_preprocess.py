@@ -1,6 +1,6 @@
 """Preprocessing the full default campaign: wall time per stage, and accuracy against truth.
 
-Usage: ``.venv/bin/python bench/bench_preprocess.py [--minutes M] [--seed N] [--jobs J]``;
+Usage: ``.venv/bin/python -m bench.bench_preprocess [--minutes M] [--seed N] [--jobs J]``;
 writes ``bench/results/preprocess.md``. The campaign (45.4 min of driving, table 6.4, unless
 ``--minutes``) is simulated once into ``bench/_work/`` (gitignored) and reused.
 
@@ -21,11 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from groundfloor.files import atomic_write_text
+from identification.preprocessing.preprocess import preprocess_campaign
 
-from groundfloor.files import atomic_write_text  # noqa: E402
-from identification.preprocessing.preprocess import preprocess_campaign  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SMOOTHINGS = (0.0, 0.0005, 0.005, 0.01)
 
@@ -152,7 +151,7 @@ def main() -> int:
     n_poses = sum(r.poses.t.size for r in result.runs.values())
     minutes = sum(r.synced.s_trigger[-1] for r in result.runs.values()) / 60
 
-    cmd = "   ".join(["`.venv/bin/python bench/bench_preprocess.py", *sys.argv[1:]]).replace("   ", " ") + "`"
+    cmd = "   ".join(["`.venv/bin/python -m bench.bench_preprocess", *sys.argv[1:]]).replace("   ", " ") + "`"
     sec = result.seconds
     lines = [
         "## Preprocessing (issue 3): tracker campaign to poses and body-frame states", "",

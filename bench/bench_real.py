@@ -1,6 +1,6 @@
 """The chain on the real Warthog campaigns: baselines, full search, cross-campaign, diagnosis.
 
-Usage: ``.venv/bin/python bench/bench_real.py [--quick] [--jobs N] [--no-diagnose]
+Usage: ``.venv/bin/python -m bench.bench_real [--quick] [--jobs N] [--no-diagnose]
 [--out bench/results/real.md]``. Writes ``bench/results/real.md`` (assembled into
 bench/RESULTS.md by ``bench/run_all.py``) with, per campaign of ``../shared/data``:
 
@@ -18,7 +18,6 @@ bench/RESULTS.md by ``bench/run_all.py``) with, per campaign of ``../shared/data
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import platform
 import sys
 import time
@@ -28,14 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(ROOT))
+from examples import real_warthog as ex
+from identification.preprocessing.trajectory import read_trajectory_campaign
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.data import states_of_runs
+from identification.sindy.evaluate import evaluate_model
 
-from identification.preprocessing.trajectory import read_trajectory_campaign  # noqa: E402
-from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
-from identification.sindy.evaluate import evaluate_model  # noqa: E402
-from identification.sindy.search import states_of_runs  # noqa: E402
+HERE = Path(__file__).resolve().parent
 
 NOTES = """### Notes on these data
 
@@ -69,14 +67,6 @@ NOTES = """### Notes on these data
   so vy wanders and the yaw rate with it: `sindy_ekf` and `sindy_graph` drift away, their
   `_lateral` variants (the non-holonomic `v_y = 0` pseudo-measurement) do not (benchmark table).
 """
-
-
-def _example():
-    spec = importlib.util.spec_from_file_location("real_warthog", ROOT / "examples" / "real_warthog.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["real_warthog"] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def delayed(states, delay_s: float):
@@ -134,9 +124,8 @@ def main() -> int:
     parser.add_argument("--reuse-models", action="store_true")
     parser.add_argument("--gnss", default="dgnss", help="GNSS profile of the estimator benchmark")
     args = parser.parse_args()
-    ex = _example()
     grid = ex.QUICK_REAL_GRID if args.quick else ex.REAL_GRID
-    cmd = "bench/bench_real.py" + (" --quick" if args.quick else "") + (f" --jobs {args.jobs}" if args.jobs > 1 else "")
+    cmd = "-m bench.bench_real" + (" --quick" if args.quick else "") + (f" --jobs {args.jobs}" if args.jobs > 1 else "")
     md = ["## Real data: Clearpath Warthog on grass (issue 6)", "",
           f"Command: `.venv/bin/python {cmd}` ({platform.python_version()}, load average "
           f"{', '.join(f'{x:.1f}' for x in __import__('os').getloadavg())} at start). Data: `../shared/data` "
@@ -174,8 +163,7 @@ def main() -> int:
             from identification.sindy.model import SindyModel
 
             camp = read_trajectory_campaign(ex.DATA / name)
-            scores[name] = ex.score(SindyModel.load(saved), camp, camp)
-            scores[name].search = None
+            scores[name] = ex.score(SindyModel.load(saved), camp, camp)  # no search: reused model
         else:
             scores[name] = ex.run_campaign(ex.DATA / name, grid, args.jobs)
             if saved is not None:
@@ -293,8 +281,8 @@ def main() -> int:
             delay = delay_from_train(tr_d)
             e0 = evaluate_model(UnicycleModel().fit(tr_d), te_d).pos_err_5s_m
             e1 = evaluate_model(UnicycleModel().fit(delayed(tr_d, delay)), delayed(te_d, delay)).pos_err_5s_m
-            md.append(f"| {name} | {d.verdict} | {est_txt} | {d.before['pos_err_5s_m']:.3f} -> "
-                      f"{d.after['pos_err_5s_m']:.3f} | {others} | {delay:.2f} s | {e0:.3f} -> {e1:.3f} |")
+            md.append(f"| {name} | {d.verdict} | {est_txt} | {d.before.pos_err_5s_m:.3f} -> "
+                      f"{d.after.pos_err_5s_m:.3f} | {others} | {delay:.2f} s | {e0:.3f} -> {e1:.3f} |")
             print(name, "diagnosis", d.verdict, d.before, d.after, f"{dt_diag:.0f} s", flush=True)
         md.append("")
 

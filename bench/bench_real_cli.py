@@ -4,7 +4,7 @@ For each campaign of ``../shared/data``: ``sindy-ekf identify`` (the grid chosen
 interval), ``evaluate``, ``benchmark`` (all default estimators), ``diagnose`` and ``report``, each
 timed; the figures are read back from the JSON files the commands write, and
 ``bench/results/real_cli.md`` is written (atomically). Run from a checkout:
-``.venv/bin/python bench/bench_real_cli.py [--jobs 2]``.
+``.venv/bin/python -m bench.bench_real_cli [--jobs 2]``.
 """
 
 from __future__ import annotations
@@ -18,9 +18,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from examples.real_warthog import (  # one source of the figures
+    CAMPAIGNS,
+    DATA,
+    README_BASELINES,
+    TARGET_RATIO,
+)
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "examples"))
-from real_warthog import CAMPAIGNS, DATA, README_BASELINES, TARGET_RATIO  # noqa: E402  (one source of the figures)
 
 README_UNICYCLE = {name: b["unicycle"] for name, b in README_BASELINES.items()}
 CLI = [sys.executable, "-m", "sindy_ekf.cli"]
@@ -45,7 +50,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "real_cli.md")
     args = parser.parse_args()
     lines = ["## Real data through the command line (issue 6)", "",
-             f"Command: `.venv/bin/python bench/bench_real_cli.py --jobs {args.jobs}` "
+             f"Command: `.venv/bin/python -m bench.bench_real_cli --jobs {args.jobs}` "
              f"(Python {sys.version.split()[0]}, load average {', '.join(f'{v:.1f}' for v in os.getloadavg())} "
              "at start). Every figure below is read from the JSON the commands wrote.", ""]
     timings: list[str] = []

@@ -1,7 +1,7 @@
 """Bags stored in receive order (issue 14): a default-size campaign with receive jitter, through
 the command line, against the same campaign without it and against truth.
 
-Usage: ``.venv/bin/python bench/bench_receive_order.py [--minutes M] [--seed N] [--jitter MS_LO,MS_HI]``;
+Usage: ``.venv/bin/python -m bench.bench_receive_order [--minutes M] [--seed N] [--jitter MS_LO,MS_HI]``;
 writes ``bench/results/receive_order.md``. Three campaigns are simulated once into ``bench/_work/``
 (gitignored) and reused, all of one seed, so that they hold the same messages:
 
@@ -32,10 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from groundfloor.files import atomic_write_text
 
-from groundfloor.files import atomic_write_text  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RESETS = ("run_06:at960:0.5", "run_09:ltd800:0.02")
 
@@ -137,7 +136,7 @@ def main() -> int:
                   f"code {done.returncode}, `{said}`"]
 
     minutes = "table 6.4, 45.4 min" if args.minutes is None else f"{args.minutes:g} min"
-    cmd = " ".join(["`.venv/bin/python bench/bench_receive_order.py", *sys.argv[1:]]).strip() + "`"
+    cmd = " ".join(["`.venv/bin/python -m bench.bench_receive_order", *sys.argv[1:]]).strip() + "`"
     sim = " ".join(base)
     lines = [
         "## Bags stored in receive order (issue 14, item 1)", "",

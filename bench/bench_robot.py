@@ -1,6 +1,6 @@
 """Robot simulator: speed of ``simulate_run`` and visibility of every effect in 5 s predictions.
 
-Usage: ``.venv/bin/python bench/bench_robot.py``; writes ``bench/results/robot.md``.
+Usage: ``.venv/bin/python -m bench.bench_robot``; writes ``bench/results/robot.md``.
 
 Speed: the nine run lengths of thesis table 6.4 (45.4 min), CPU and wall time (wall time depends
 on what else shares the two cores). Visibility: for each effect at its moderate magnitude, a run
@@ -19,12 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from groundfloor.files import atomic_write_text
+from simulation.effects import EFFECTS, Effect
+from simulation.robot import TrueDynamics, simulate_run
 
-from groundfloor.files import atomic_write_text  # noqa: E402
-from simulation.effects import EFFECTS, Effect  # noqa: E402
-from simulation.robot import TrueDynamics, simulate_run  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 TABLE_6_4_S = (100, 390, 340, 300, 100, 470, 125, 440, 460)
 
@@ -57,7 +56,7 @@ def predict_5s_error(run, horizon_s=5.0, step_s=2.5, dt=0.01):
 def main() -> int:
     lines = ["## robot: simulated Husky (simulation/robot.py, driver.py, effects.py)", "",
              f"Command: `{Path(sys.executable).relative_to(ROOT) if sys.executable.startswith(str(ROOT)) else sys.executable} "
-             f"bench/bench_robot.py` (Python {platform.python_version()}, 2 cores shared with other jobs)", ""]
+             f"-m bench.bench_robot` (Python {platform.python_version()}, 2 cores shared with other jobs)", ""]
     # --- speed
     cpu0, wall0 = time.process_time(), time.perf_counter()
     steps = 0

@@ -1,21 +1,15 @@
 """Time ``TrueDynamics``' polynomial Jacobian: the vectorised pass against the former per-monomial loop.
 
-Usage: ``python bench/bench_robot_jacobian.py`` (prints a markdown table).
+Usage: ``python -m bench.bench_robot_jacobian`` from the checkout (prints a markdown table).
 """
 from __future__ import annotations
 
-import sys
 import timeit
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
-
-from test_robot_jacobian import _loop_poly_jacobian  # noqa: E402
-
-from simulation.robot import TrueDynamics  # noqa: E402
+from simulation.robot import TrueDynamics
+from tests.support.robot_synth import loop_poly_jacobian
 
 
 def main() -> int:
@@ -29,7 +23,7 @@ def main() -> int:
         x6[:, 3:] = z[:, :3]
         u = z[:, 3:]
         t = {}
-        for name, fn in (("loop", lambda: _loop_poly_jacobian(dyn, z)),
+        for name, fn in (("loop", lambda: loop_poly_jacobian(dyn, z)),
                          ("vec", lambda: dyn._poly_jacobian(z)),
                          ("full", lambda: dyn.accel_and_jacobians(x6, u))):
             t[name] = min(timeit.repeat(fn, number=200, repeat=5)) / 200 * 1e6

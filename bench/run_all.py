@@ -1,6 +1,6 @@
 """Run every bench script and assemble bench/RESULTS.md from bench/results/*.md.
 
-Usage: ``.venv/bin/python bench/run_all.py [--assemble-only]``. Each ``bench/bench_*.py``
+Usage: ``.venv/bin/python -m bench.run_all [--assemble-only]`` from the checkout. Each ``bench/bench_*.py``
 writes its own ``bench/results/<area>.md`` with the figures and the command that produced
 them; this script runs them one after another (never in parallel: timings are for 2 cores)
 and concatenates the sections in pipeline order.
@@ -35,7 +35,8 @@ def main() -> int:
         for script in sorted(HERE.glob("bench_*.py")):
             t0 = time.perf_counter()
             print(f"== {script.name}", flush=True)
-            rc = subprocess.call([sys.executable, str(script)])
+            # as a module from the checkout: its sources, and tests.support for the builders
+            rc = subprocess.call([sys.executable, "-m", f"bench.{script.stem}"], cwd=HERE.parent)
             print(f"== {script.name}: exit {rc} after {time.perf_counter() - t0:.1f} s", flush=True)
     print(assemble())
     return 0

@@ -32,13 +32,19 @@ from pathlib import Path
 import numpy as np
 
 from identification.preprocessing.campaigns import open_campaign
+from identification.preprocessing.trajectory import write_trajectory_campaign
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
+from identification.sindy.data import states_of_runs
 from identification.sindy.regression import fit_sindy
-from identification.sindy.search import states_of_runs
 from simulation.gnss import schedule_outages, simulate_gnss
+from simulation.short_campaign import simulate_trajectory_runs
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
 from sindy_ekf.estimation.graph import smooth_batch
-from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise, state_series_from_body_states
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    fit_process_noise,
+    state_series_from_body_states,
+)
 
 SMOOTHING = 0.0005
 TAU_S, ALPHA, THRESHOLD = 3.0, 10.0, 0.5  # a sparse model: stays tame where noisy fixes push the state
@@ -62,9 +68,9 @@ def main(campaign: str | Path | None = None) -> dict:
     """Run every estimator on the first test run; print and return their scores."""
     with tempfile.TemporaryDirectory(prefix="benchmark-example-") as tmp:
         if campaign is None:
-            from _small_campaign import simulate_trajectory_campaign
-
-            campaign = simulate_trajectory_campaign(Path(tmp) / "campaign", seed=7)
+            runs = [(run, None) for run in simulate_trajectory_runs(seed=7)]  # simulator truth, no bags
+            campaign = write_trajectory_campaign(Path(tmp) / "campaign", "examples-seed7", runs,
+                                                 ground_truth="simulator truth plus tracker-level noise")
         camp = open_campaign(campaign)
     train, _, _ = states_of_runs(camp.split("train"), SMOOTHING)
     st = states_of_runs(camp.split("test"), SMOOTHING)[0][0]

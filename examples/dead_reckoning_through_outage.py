@@ -25,13 +25,19 @@ from pathlib import Path
 import numpy as np
 
 from identification.preprocessing.campaigns import open_campaign
+from identification.preprocessing.trajectory import write_trajectory_campaign
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
+from identification.sindy.data import states_of_runs
 from identification.sindy.regression import fit_sindy
-from identification.sindy.search import states_of_runs
 from simulation.robot import TrueDynamics
+from simulation.short_campaign import simulate_trajectory_runs
 from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.estimation.ekf import run_ekf_batch
-from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise, state_series_from_body_states
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    fit_process_noise,
+    state_series_from_body_states,
+)
 
 OUTAGE_S = 10.0
 LEAD_S = 15.0  # GNSS before each outage: the filter converges, then dead-reckons
@@ -52,9 +58,9 @@ def main(campaign: str | Path | None = None) -> dict:
     simulated = campaign is None  # then the simulator's true dynamics are known: the reference
     with tempfile.TemporaryDirectory(prefix="outage-example-") as tmp:
         if simulated:
-            from _small_campaign import simulate_trajectory_campaign
-
-            campaign = simulate_trajectory_campaign(Path(tmp) / "campaign", seed=5)
+            runs = [(run, None) for run in simulate_trajectory_runs(seed=5)]  # simulator truth, no bags
+            campaign = write_trajectory_campaign(Path(tmp) / "campaign", "examples-seed5", runs,
+                                                 ground_truth="simulator truth plus tracker-level noise")
         camp = open_campaign(campaign)
     train, _, _ = states_of_runs(camp.split("train"), SMOOTHING)
     test, _, _ = states_of_runs(camp.split("test"), SMOOTHING)

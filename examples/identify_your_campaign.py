@@ -30,9 +30,12 @@ import warnings
 from pathlib import Path
 
 from identification.preprocessing.campaigns import open_campaign
+from identification.preprocessing.trajectory import write_trajectory_campaign
 from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import evaluate_on_runs
-from identification.sindy.search import SearchGrid, search, states_of_runs
+from identification.sindy.search import SearchGrid, search
+from simulation.short_campaign import simulate_trajectory_runs
 
 # A small but real grid: 2 values of tau, alpha and T (the full one, table 5.1 plus tau, has
 # 480 points and is what `sindy-ekf identify` searches by default).
@@ -47,9 +50,9 @@ def main(campaign: str | Path | None = None, out_dir: str | Path | None = None) 
 
 def _identify(campaign, out_dir: Path) -> dict:
     if campaign is None:
-        from _small_campaign import simulate_trajectory_campaign
-
-        campaign = simulate_trajectory_campaign(out_dir / "campaign", seed=3)
+        runs = [(run, None) for run in simulate_trajectory_runs(seed=3)]  # simulator truth, no bags
+        campaign = write_trajectory_campaign(out_dir / "campaign", "examples-seed3", runs,
+                                             ground_truth="simulator truth plus tracker-level noise")
     camp = open_campaign(campaign)
     train, test = camp.split("train"), camp.split("test")
     print(f"campaign {camp.name}: {len(train)} train runs, {len(test)} test runs")

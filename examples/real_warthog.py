@@ -38,32 +38,29 @@ import argparse
 import logging
 import sys
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # run as a script from a checkout
-    sys.path.insert(0, str(ROOT))
-
-from groundfloor.types import BodyStates, TrajectoryCampaign, TrajectoryRun  # noqa: E402
-from identification.preprocessing.trajectory import read_trajectory_campaign  # noqa: E402
-from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel  # noqa: E402
-from identification.sindy.evaluate import EvaluationResult, evaluate_model, make_windows  # noqa: E402
-from identification.sindy.model import EnvelopeWarning, SindyModel  # noqa: E402
-from identification.sindy.search import (  # noqa: E402
+from groundfloor.types import BodyStates, TrajectoryCampaign, TrajectoryRun
+from identification.preprocessing.trajectory import read_trajectory_campaign
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.checks import stable_at_rest
+from identification.sindy.data import states_of_runs
+from identification.sindy.evaluate import EvaluationResult, evaluate_model, make_windows
+from identification.sindy.model import EnvelopeWarning, SindyModel
+from identification.sindy.search import (
     LOW_RATE_GRID,
     QUICK_LOW_RATE_GRID,
     SearchGrid,
     SearchResult,
     search,
-    stable_at_rest,
-    states_of_runs,
 )
 
 log = logging.getLogger(__name__)
 
+ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
 CAMPAIGNS = ("warthog-drive-cmd", "warthog-drive-wheels")
 
@@ -79,7 +76,7 @@ TARGET_RATIO = {"warthog-drive-cmd": 0.6, "warthog-drive-wheels": 0.8}
 REAL_GRID, QUICK_REAL_GRID = LOW_RATE_GRID, QUICK_LOW_RATE_GRID
 
 
-@dataclass
+@dataclass(frozen=True)
 class CampaignScores:
     """A model identified on one campaign's train runs and scored on test runs.
 
@@ -136,7 +133,7 @@ def select_stable(result: SearchResult) -> tuple[SindyModel, int]:
     The search selects by the one-standard-error rule among admissible models (stable at rest,
     never diverged on a held-out window: :func:`identification.sindy.search.select_one_se`); 5 s
     windows do not see a slowly growing mode, an EKF coasting through a GNSS outage does. Should
-    the selected model still not be :func:`identification.sindy.search.stable_at_rest` (no grid point
+    the selected model still not be :func:`identification.sindy.checks.stable_at_rest` (no grid point
     admissible), the best-ranked stable refitted model is taken instead.
     """
     if stable_at_rest(result.model):
@@ -176,10 +173,9 @@ def run_campaign(path: str | Path, grid: SearchGrid = REAL_GRID, n_jobs: int = 1
     campaign = read_trajectory_campaign(path)
     result = identify(campaign, grid, n_jobs)
     model, rank = select_stable(result)
-    model.training.update({"search_rank": rank, "cv_pos_err_5s_m": float(result.table["pos_err_5s_m"][rank])})
-    scores = score(model, campaign, campaign)
-    scores.search = result
-    return scores
+    model = replace(model, training={**model.training, "search_rank": rank,
+                                     "cv_pos_err_5s_m": float(result.table["pos_err_5s_m"][rank])})
+    return replace(score(model, campaign, campaign), search=result)
 
 
 def format_table(scores: list[CampaignScores]) -> str:

@@ -1,4 +1,4 @@
-"""Atomic file and folder writes: never leave half a result behind.
+"""Atomic file and folder writes, and output checks: never leave half a result behind.
 
 Every writer in the project goes through these: a file is written to a temporary name in the
 same folder and renamed (``os.replace`` is atomic on POSIX), a folder is built under a
@@ -65,6 +65,26 @@ def check_output_dir(path: str | os.PathLike, force: bool = False) -> Path:
         probe = probe.parent
     if not os.access(probe, os.W_OK):
         raise InputError(f"{path}: output folder is not writable")
+    return path
+
+
+def check_output_file(path: str | os.PathLike, option: str) -> Path:
+    """Return ``path`` as a Path if a file can be written there, else raise InputError naming the culprit.
+
+    Checked before any work: the path must not be a folder, its nearest existing ancestor must
+    be a writable folder (not a regular file). ``option`` names the command-line option
+    (``--out``) in the message.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder, expected a file name")
+    probe = path.parent if str(path.parent) else Path(".")
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{option} {path}: cannot be written, {probe} is a file, not a folder")
+    if not os.access(probe, os.W_OK):
+        raise InputError(f"{option} {path}: folder {probe} is not writable")
     return path
 
 

@@ -18,7 +18,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag1 import Writer
+from rosbags.rosbag1 import Reader, Writer
 from rosbags.typesys import Stores, get_typestore
 
 NS = 1_000_000_000
@@ -172,8 +172,6 @@ def write_bag(path: str | Path, topics: list[TopicData]) -> Path:
 
 def count_messages(run_dir: str | Path) -> dict[str, int]:
     """Return the number of messages per topic over all ROS1 bags of a run folder."""
-    from rosbags.rosbag1 import Reader
-
     counts: dict[str, int] = {}
     for path in sorted(Path(run_dir).glob("*.bag")):
         with Reader(path) as reader:

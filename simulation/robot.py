@@ -31,223 +31,36 @@ them):
 - Pose: eq. 5.75 kinematics ``x_dot = vx cos psi - vy sin psi``, ``y_dot = vx sin psi + vy cos
   psi``, ``psi_dot = omega`` in the local (AT960) frame.
 
-Effects (:mod:`simulation.effects`) act either on the motor inputs (:meth:`motor_inputs`) or on
-:meth:`TrueDynamics.accel` (heading, position, lateral slip). Integration: classical RK4 at ``dt`` with the motor
-inputs and the noise held over each step (the motor controller updates at ``1/dt``), written on
-Python floats because the 6-state step is far cheaper that way than through numpy calls; the
-driver (:mod:`simulation.driver`) closes the loop at each joystick message.
+The coefficients and constants are :class:`simulation.robot_params.RobotParams`. A simulator
+variant (:class:`simulation.variant.Variant`) changes them and adds structure: another lateral
+law (:mod:`simulation.lateral`), a first-order motor lag, another process-noise spectrum
+(:mod:`simulation.process_noise`), another driver. Effects (:mod:`simulation.effects`) act
+either on the motor inputs (:meth:`TrueDynamics.motor_inputs`, :mod:`simulation.actuator`) or
+on :meth:`TrueDynamics.accel` (:mod:`simulation.body_effects`). Integration: classical RK4
+at ``dt`` with the motor inputs and the noise held over each step (the motor controller updates
+at ``1/dt``), through code generated on Python floats (:mod:`simulation.rk4_codegen`, which says
+why); the driver (:mod:`simulation.driver`) closes the loop at each joystick message.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import signal
 
 from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
+from simulation.actuator import InputChain, InputMemo
+from simulation.body_effects import add_body_jacobians, effective_lateral, slope
 from simulation.driver import DrivingArea, HumanDriver, simulate_joy_stamps
-from simulation.effects import EFFECTS, Effect
-
-VARS = ("vx", "vy", "omega", "u1", "u2")  # order of the exponents of a monomial
-
-# Thesis model B, eq. 7.7 (vx_dot) and eq. 7.9 (omega_dot), pysindy feature names.
-MODEL_B_VX = (
-    ("vx", -7.770), ("u1", 7.190), ("vx omega", -0.369), ("omega u1", 0.312), ("vx^3", 6.780),
-    ("vx^2 u1", -6.357), ("vx omega^2", 7.730), ("vx omega u2", -5.104), ("vx u1^2", 3.459),
-    ("omega^2 u1", -3.752), ("omega u1 u2", 1.125), ("u1^3", -3.129), ("u1 u2^2", -0.435),
-)
-MODEL_B_OMEGA = (
-    ("omega", -6.951), ("u2", 7.900), ("vx^2 omega", 7.690), ("vx^2 u2", -3.251),
-    ("vx omega^2", 1.394), ("vx u1 u2", -0.817), ("vx u2^2", -0.907), ("vy omega^2", 2.315),
-    ("vy u1^2", -4.976), ("omega^3", 2.896), ("omega^2 u1", -1.409), ("omega^2 u2", -4.349),
-    ("omega u1^2", -3.143), ("omega u2^2", 3.226), ("u1^2 u2", -0.795), ("u1 u2^2", 0.838),
-    ("u2^3", -2.322),
-)
-
-
-@dataclass(frozen=True)
-class RobotParams:
-    """Parameters of the simulated Husky A200 (SI units, radians)."""
-
-    terms_vx: tuple = MODEL_B_VX  # eq. 7.7
-    terms_omega: tuple = MODEL_B_OMEGA  # eq. 7.9
-    lateral_damping_1_s: float = 15.0  # k_y
-    lateral_coupling: float = 1.0  # c_y (rigid-body value)
-    max_speed_m_s: float = 1.0  # table 3.1
-    track_half_width_m: float = 0.29  # half the hub-to-hub distance across an axle (table 6.3)
-    guard_track_speed_m_s: float = 0.9  # per-track speed limit (model B's steady states: 0.876)
-    guard_omega_rad_s: float = 1.2  # yaw-rate limit (model B's steady states: 1.149)
-    guard_gain: float = 2000.0  # 1/m resp. s/rad^2: 0.8 m/s^2 at 2 cm/s beyond the limit
-    accel_noise_std: tuple = (0.06, 0.03, 0.15)  # vx_dot m/s^2, vy_dot m/s^2, omega_dot rad/s^2
-    noise_corr_time_s: float = 0.05
-    pitch_per_accel_rad: float = math.radians(0.5)  # rad per m/s^2
-    pitch_freq_hz: float = 2.0
-    pitch_damping_ratio: float = 0.5
-    g_m_s2: float = 9.81
-
-    def terms(self) -> dict[str, dict[str, float]]:
-        """Return ``{equation: {feature: coefficient}}`` of the effect-free polynomial dynamics."""
-        return {"vx": dict(self.terms_vx),
-                "vy": {"vy": -self.lateral_damping_1_s, "vx omega": -self.lateral_coupling},
-                "omega": dict(self.terms_omega)}
-
-
-def exponents_from_name(name: str) -> tuple[int, ...]:
-    """Return the exponents over ``VARS`` of a pysindy-style monomial name like ``"vx^2 u1"``."""
-    exps = [0] * len(VARS)
-    for factor in name.split():
-        var, _, power = factor.partition("^")
-        exps[VARS.index(var)] += int(power) if power else 1
-    return tuple(exps)
-
-
-def _horner(poly: dict, names: tuple) -> str:
-    """Return a nested (Horner) expression of ``{exponents: coefficient source}`` in ``names``."""
-    if not poly:
-        return "0.0"
-    counts = [sum(1 for ex in poly if ex[v]) for v in range(len(names))]
-    v = int(np.argmax(counts))
-    if counts[v] == 0:
-        return " + ".join(poly.values())
-    rest = {ex: c for ex, c in poly.items() if not ex[v]}
-    inner = {ex[:v] + (ex[v] - 1,) + ex[v + 1:]: c for ex, c in poly.items() if ex[v]}
-    head = f"{_horner(rest, names)} + " if rest else ""
-    return f"({head}{names[v]}*{_horner(inner, names)})"
-
-
-def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple, indent: str,
-               vectorised: bool = False) -> list[str]:
-    """Return source lines computing ``ax, ay, aw`` from the states named ``sv`` (x, y, psi, vx,
-    vy, om) and the per-input coefficients ``coef`` (state monomial -> variable name); the
-    limiters branch on floats and use ``relu(s) = (s + |s|) / 2`` on arrays."""
-    x, y, psi, vx, vy, om = sv
-    names = (vx, vy, om)
-    lines = []
-    for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
-        lines.append(f"{indent}{out} = {_horner(coef[key], names)}")
-    g, gw, kg = params.guard_track_speed_m_s, params.guard_omega_rad_s, params.guard_gain
-    b = params.track_half_width_m
-    if vectorised:
-        relu2 = "((e1 + abs(e1))**2 - (e2 + abs(e2))**2)"  # 4 sign(s) relu(|s| - lim)^2
-        lines += [f"{indent}e1 = {vx} - {b!r}*{om} - {g!r}; e2 = -{vx} + {b!r}*{om} - {g!r}",
-                  f"{indent}al = -{kg / 4!r}*{relu2}",
-                  f"{indent}e1 = {vx} + {b!r}*{om} - {g!r}; e2 = -{vx} - {b!r}*{om} - {g!r}",
-                  f"{indent}ar = -{kg / 4!r}*{relu2}",
-                  f"{indent}ax = ax + 0.5*(al + ar)",
-                  f"{indent}aw = aw + (ar - al)*{0.5 / b!r}",
-                  f"{indent}e1 = {om} - {gw!r}; e2 = -{om} - {gw!r}",
-                  f"{indent}aw = aw - {kg / 4!r}*{relu2}"]
-    else:
-        lines += [f"{indent}vt = abs({vx}) + {b!r}*abs({om})",  # the faster track's speed
-                  f"{indent}if vt > {g!r}:",
-                  f"{indent}    vl = {vx} - {b!r}*{om}; vr = {vx} + {b!r}*{om}",
-                  f"{indent}    al = -{kg!r}*(abs(vl) - {g!r})**2 if vl > {g!r} or vl < {-g!r} else 0.0",
-                  f"{indent}    ar = -{kg!r}*(abs(vr) - {g!r})**2 if vr > {g!r} or vr < {-g!r} else 0.0",
-                  f"{indent}    al = al if vl > 0 else -al; ar = ar if vr > 0 else -ar",
-                  f"{indent}    ax += 0.5*(al + ar); aw += (ar - al)*{0.5 / b!r}",
-                  f"{indent}if {om} > {gw!r}: aw -= {kg!r}*({om} - {gw!r})**2",
-                  f"{indent}elif {om} < {-gw!r}: aw += {kg!r}*({om} + {gw!r})**2"]
-    name = effect.name if effect is not None else None
-    if name == "heading_dependence":
-        a_g = params.g_m_s2 * math.sin(math.radians(effect.value))
-        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
-        lines += [f"{indent}ax = ax + {a_g!r}*cos({psi} - {pd!r})",
-                  f"{indent}ay = ay - {a_g!r}*sin({psi} - {pd!r})"]
-    elif name == "position_dependence":
-        fx = EFFECTS["position_dependence"].fixed
-        (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
-        half_scale = fx["patch_edge_m"] / (2.0 * math.log(9.0))
-        d_vx, d_om = -dict(params.terms_vx)["vx"], -dict(params.terms_omega)["omega"]
-        lines += [f"{indent}s_ = 0.5*(1.0 + tanh(({r!r} - sqrt(({x} - {cx!r})**2 + ({y} - {cy!r})**2"
-                  f" + 1e-12))/{half_scale!r}))",
-                  f"{indent}ax = ax - {effect.value * d_vx!r}*s_*{vx}",
-                  f"{indent}aw = aw - {effect.value * d_om!r}*s_*{om}"]
-    elif name == "lateral_slip":
-        lines.append(f"{indent}ay = ay - {(effect.value - 1.0) * params.lateral_coupling!r}*{vx}*{om}")
-    return lines
-
-
-def _collect_by_state(params: RobotParams) -> tuple[dict, list[str]]:
-    """Return ``({eq: {state exps: coefficient name}}, lines computing the coefficients from
-    u1, u2)``: the polynomial regrouped by state monomial, its coefficients polynomials in u."""
-    terms = params.terms()
-    coef, lines, powers = {}, [], set()
-    for key in ("vx", "vy", "omega"):
-        groups: dict[tuple, list[str]] = {}
-        for n, c in terms[key].items():
-            ex = exponents_from_name(n)
-            u_part = "*".join(f"u{i + 1}" + (f"_{ex[3 + i]}" if ex[3 + i] > 1 else "")
-                              for i in range(2) if ex[3 + i])
-            powers |= {(i + 1, p) for i in range(2) for p in range(2, ex[3 + i] + 1)}
-            groups.setdefault(ex[:3], []).append(f"({c!r})" + (f"*{u_part}" if u_part else ""))
-        coef[key] = {}
-        for j, (ex, parts) in enumerate(groups.items()):
-            if len(parts) == 1 and "*" not in parts[0]:  # constant: inline the literal
-                coef[key][ex] = parts[0]
-                continue
-            cn = f"C_{key}_{j}"
-            coef[key][ex] = cn
-            lines.append(f"{cn} = " + " + ".join(parts))
-    pre = [f"u{i}_{p} = u{i}" + f"*u{i}" * (p - 1) for i, p in sorted(powers)]
-    return coef, pre + lines
-
-
-def _compile_stepper(params: RobotParams, effect: Effect | None):
-    """Return ``(integrate, acc)`` compiled from the term table for the float RK4 loop.
-
-    ``integrate(k0, k1, state, U, N1, N2, N3, out, h)`` advances ``state`` (6 floats) over the
-    steps ``k0..k1-1`` with RK4, the inputs ``U[k - k0]`` and noise ``N*[k]`` held per step,
-    appending the state at each step start to ``out``; ``acc`` is the same code as a function
-    of floats (for tests). The polynomial is regrouped by state monomial with coefficients recomputed
-    only when the motor input changes (it is constant over a joystick message), which makes a
-    stage about three times cheaper than the expanded form.
-    """
-    coef, coef_lines = _collect_by_state(params)
-    src = ["def integrate(k0, k1, state, U, N1, N2, N3, out, h):",
-            "    x, y, psi, vx, vy, om = state",
-            "    h2 = 0.5*h; h6 = h/6.0; u1p = u2p = None",
-            "    for k in range(k0, k1):",
-            "        u1, u2 = U[k - k0]",
-            "        if u1 != u1p or u2 != u2p:",
-            "            u1p, u2p = u1, u2"]
-    src += ["            " + ln for ln in coef_lines]
-    src += ["        out.append((x, y, psi, vx, vy, om))",
-            "        a1 = N1[k]; a2 = N2[k]; a3 = N3[k]"]
-    stage_in = [("x", "y", "psi", "vx", "vy", "om")] + [("xb", "yb", "pb", "vb", "wb", "ob")] * 3
-    step = ["h2", "h2", "h", None]
-    for i in range(4):
-        sv = stage_in[i]
-        src += _acc_lines(params, effect, coef, sv, "        ")
-        src += [f"        c = cos({sv[2]}); s = sin({sv[2]})",
-                f"        kx{i} = {sv[3]}*c - {sv[4]}*s; ky{i} = {sv[3]}*s + {sv[4]}*c; kp{i} = {sv[5]}",
-                f"        kv{i} = ax + a1; kw{i} = ay + a2; ko{i} = aw + a3"]
-        if step[i]:
-            hh = step[i]
-            src += [f"        xb = x + {hh}*kx{i}; yb = y + {hh}*ky{i}; pb = psi + {hh}*kp{i}",
-                    f"        vb = vx + {hh}*kv{i}; wb = vy + {hh}*kw{i}; ob = om + {hh}*ko{i}"]
-    for var, kn in (("x", "kx"), ("y", "ky"), ("psi", "kp"), ("vx", "kv"), ("vy", "kw"), ("om", "ko")):
-        src.append(f"        {var} += h6*({kn}0 + 2.0*({kn}1 + {kn}2) + {kn}3)")
-    src.append("    return x, y, psi, vx, vy, om")
-    namespace = {"cos": math.cos, "sin": math.sin, "tanh": math.tanh, "sqrt": math.sqrt}
-    exec("\n".join(src), namespace)  # noqa: S102 - source generated from the numeric term table
-    return namespace["integrate"], _compile_acc(params, effect, vectorised=False)
-
-
-def _compile_acc(params: RobotParams, effect: Effect | None, vectorised: bool):
-    """Return ``acc(x, y, psi, vx, vy, om, u1, u2) -> (ax, ay, aw)`` generated from the term
-    table: on numpy arrays (``vectorised``, for :meth:`TrueDynamics.accel`) or on floats."""
-    coef, coef_lines = _collect_by_state(params)
-    src = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
-    src += ["    " + ln for ln in coef_lines]
-    src += _acc_lines(params, effect, coef, ("x", "y", "psi", "vx", "vy", "om"), "    ", vectorised)
-    src.append("    return ax, ay, aw")
-    lib = np if vectorised else math
-    namespace = {"cos": lib.cos, "sin": lib.sin, "tanh": lib.tanh, "sqrt": lib.sqrt}
-    exec("\n".join(src), namespace)  # noqa: S102 - source generated from the numeric term table
-    return namespace["acc"]
+from simulation.effects import Effect
+from simulation.lateral import LateralLaw, lateral_accel_and_jacobian, lateral_terms
+from simulation.process_noise import simulate_ou_noise, simulate_process_noise  # noqa: F401 - re-export
+from simulation.rk4_codegen import compile_acc, compile_stepper
+from simulation.robot_params import RobotParams, exponents_from_name
+from simulation.variant import Variant
 
 
 class TrueDynamics(Dynamics):
@@ -255,7 +68,14 @@ class TrueDynamics(Dynamics):
 
     A :class:`groundfloor.dynamics.Dynamics`: accelerations depend on the pose too (effects);
     the pose follows the inherited eq. 5.75 kinematics. (:func:`simulate_run` integrates the
-    same accelerations through code generated on Python floats, its own RK4 for the inner loop.)
+    same accelerations through code generated on Python floats, :mod:`simulation.rk4_codegen`.)
+
+    Inputs are always what the motors see. The actuator's state (the motor lag of a variant,
+    an ``input_delay:motor_lag`` effect, the stiction of ``deadband:hysteresis``) lives in
+    :meth:`motor_inputs` (``self.inputs``, a :class:`simulation.actuator.InputChain`), which
+    integrates it exactly from the joystick messages since the run start; :meth:`accel` takes
+    its output. So the six-state interface stays, and the oracle is exact: integrated with
+    ``motor_inputs`` held over each step it reproduces :func:`simulate_run` (tested).
 
     Parameters
     ----------
@@ -263,15 +83,26 @@ class TrueDynamics(Dynamics):
         Robot parameters; default :class:`RobotParams`.
     effect
         At most one :class:`simulation.effects.Effect`.
+    lateral
+        The robot's lateral law; default linear (:mod:`simulation.lateral`).
+    motor_lag_s
+        Time constant of the robot's first-order motor lag (0: none).
     """
 
     name = "oracle"
 
-    def __init__(self, params: RobotParams | None = None, effect: Effect | None = None):
+    def __init__(self, params: RobotParams | None = None, effect: Effect | None = None, *,
+                 lateral: LateralLaw | None = None, motor_lag_s: float = 0.0):
         self.params = params or RobotParams()
         self.effect = effect
-        self._acc_np = _compile_acc(self.params, effect, vectorised=True)
+        self.lateral = lateral or LateralLaw()
+        self.inputs = InputChain(effect, motor_lag_s)
+        self._motor_lag_s = float(motor_lag_s)
+        self._law, self._slip_gain = effective_lateral(self.lateral, effect)
+        self._acc_np = compile_acc(self.params, effect, vectorised=True, lateral=self.lateral)
         terms = self.params.terms()
+        if self._law.form != "linear":  # the law replaces the polynomial vy equation
+            terms = {**terms, "vy": {}}
         self._eqs = [[(c, np.array(exponents_from_name(n))) for n, c in terms[k].items()]
                      for k in ("vx", "vy", "omega")]
         # one entry per (equation, monomial, variable it contains): the derivative's coefficient
@@ -284,6 +115,16 @@ class TrueDynamics(Dynamics):
         self._dscatter[np.arange(len(entries)), [5 * e[0] + e[1] for e in entries]] = 1.0
         if self._dexp.size and self._dexp.max() > 3:
             raise ValueError("TrueDynamics: monomials of degree > 4 in one variable are not supported")
+
+    @classmethod
+    def of_variant(cls, variant: Variant, effect: Effect | None = None) -> TrueDynamics:
+        """Return the true dynamics of a simulator variant with an optional effect."""
+        return cls(variant.robot, effect, lateral=variant.lateral, motor_lag_s=variant.motor_lag_s)
+
+    @property
+    def motor_lag_s(self) -> float:
+        """Time constant of the robot's own motor lag (0: none; an effect's lag is the effect's)."""
+        return self._motor_lag_s
 
     # -- dynamics --------------------------------------------------------------------------
     def accel(self, x6, u, t=0.0) -> np.ndarray:
@@ -336,68 +177,34 @@ class TrueDynamics(Dynamics):
         J_x[..., 2, 3] += (d_r - d_l) * 0.5 / b
         J_x[..., 2, 5] += 0.5 * (d_l + d_r)
         J_x[..., 2, 5] -= 2 * p.guard_gain * np.maximum(np.abs(om) - p.guard_omega_rad_s, 0.0)
-        eff = self.effect
-        if eff is not None and eff.name == "heading_dependence":
-            a_g = p.g_m_s2 * math.sin(math.radians(eff.value))
-            d = x6[..., 2] - EFFECTS["heading_dependence"].fixed["psi_down_rad"]
-            J_x[..., 0, 2] += -a_g * np.sin(d)
-            J_x[..., 1, 2] += -a_g * np.cos(d)
-        elif eff is not None and eff.name == "position_dependence":
-            fx = EFFECTS["position_dependence"].fixed
-            (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
-            h = fx["patch_edge_m"] / (2.0 * math.log(9.0))
-            dx, dy = x6[..., 0] - cx, x6[..., 1] - cy
-            d = np.sqrt(dx * dx + dy * dy + 1e-12)
-            th = np.tanh((r - d) / h)
-            s = 0.5 * (1.0 + th)
-            ds_dd = -0.5 * (1.0 - th * th) / h
-            k_vx = eff.value * -dict(p.terms_vx)["vx"]
-            k_om = eff.value * -dict(p.terms_omega)["omega"]
-            for row, k, state in ((0, k_vx, vx), (2, k_om, om)):
-                J_x[..., row, 0] -= k * state * ds_dd * dx / d
-                J_x[..., row, 1] -= k * state * ds_dd * dy / d
-            J_x[..., 0, 3] -= k_vx * s
-            J_x[..., 2, 5] -= k_om * s
-        elif eff is not None and eff.name == "lateral_slip":
-            k = (eff.value - 1.0) * p.lateral_coupling
-            J_x[..., 1, 3] -= k * om
-            J_x[..., 1, 5] -= k * vx
+        if self._law.form != "linear":
+            _, d = lateral_accel_and_jacobian(self._law, p.lateral_damping_1_s, self._slip_gain * p.lateral_coupling,
+                                              vx, x6[..., 4], om)
+            J_x[..., 1, 3:6] += d
+        add_body_jacobians(p, self.effect, self.lateral, x6, J_x)
         return J_x, J_u
 
     # -- inputs ----------------------------------------------------------------------------
-    def motor_inputs(self, t_query, t_joy, u_joy) -> np.ndarray:
+    def motor_inputs(self, t_query, t_joy, u_joy, memo: InputMemo | None = None) -> np.ndarray:
         """Return the ``(n, 2)`` inputs the motors see at ``t_query`` (s since run start).
 
-        Zero-order hold of the joystick messages (zero before the first), then the effect's
-        input-side mechanism (delay, deadband, asymmetry, battery sag; see
-        :mod:`simulation.effects`), then saturation to [-1, 1].
+        Zero-order hold of the joystick messages (zero before the first), the effect's
+        input-side mechanism (delay, deadband, asymmetry, battery sag), the motor lags,
+        saturation to [-1, 1]: :class:`simulation.actuator.InputChain`. ``memo`` lets
+        :func:`simulate_run` extend one history without recomputing it.
         """
-        t_query = np.atleast_1d(np.asarray(t_query, float))
-        t_joy, u_joy = np.asarray(t_joy, float), np.asarray(u_joy, float).reshape(-1, 2)
-        eff = self.effect
-        name = eff.name if eff is not None else None
-        t_eff = t_query - eff.value if name == "input_delay" else t_query
-        idx = np.searchsorted(t_joy, t_eff, side="right") - 1
-        u = np.zeros((t_query.size, 2))
-        if len(u_joy):
-            u = np.where((idx >= 0)[:, None], u_joy[np.maximum(idx, 0)], 0.0)
-        if name == "deadband":
-            v = eff.value
-            u = np.sign(u) * np.maximum(np.abs(u) - v, 0.0) / (1.0 - v)
-        elif name == "asymmetry":
-            h = eff.value / 2.0
-            u = np.column_stack([u[:, 0] + h * u[:, 1], u[:, 1] + h * u[:, 0]])
-        elif name == "time_dependence":
-            u = u * np.maximum(1.0 - eff.value * t_query / 600.0, 0.0)[:, None]
-        return np.clip(u, -1.0, 1.0)
+        return self.inputs.motor_inputs(t_query, t_joy, u_joy, memo)
 
     def true_terms(self) -> dict[str, dict[str, float]]:
         """Return ``{"vx"|"vy"|"omega": {feature: coefficient}}`` of the effect-free dynamics.
 
         Feature names follow pysindy's PolynomialLibrary with variables ``vx, vy, omega, u1,
-        u2``; the speed limiter (zero in normal driving), noise and effects are excluded.
+        u2``; the speed limiter (zero in normal driving), noise, effects and the motor lag are
+        excluded. The ``vy`` equation is exact for the polynomial lateral laws and the law's
+        third-order Taylor expansion otherwise (:func:`simulation.lateral.lateral_terms`).
         """
-        return self.params.terms()
+        p = self.params
+        return {**p.terms(), "vy": lateral_terms(self.lateral, p.lateral_damping_1_s, p.lateral_coupling)}
 
 
 @dataclass(frozen=True)
@@ -417,15 +224,7 @@ class TrueRun:
     u_motor: np.ndarray  # (n, 2) inputs as the motors saw them
     t_joy: np.ndarray  # (m,) joystick message times, s since run start
     u_joy: np.ndarray  # (m, 2) joystick messages [u1, u2] as the robot received them
-
-
-def simulate_ou_noise(n: int, dt: float, std, corr_time_s: float, rng: np.random.Generator) -> np.ndarray:
-    """Return ``(n, len(std))`` stationary Ornstein-Uhlenbeck samples on a grid of step ``dt``."""
-    std = np.asarray(std, float)
-    rho = math.exp(-dt / corr_time_s)
-    eps = rng.standard_normal((n, std.size))
-    eps[0] /= math.sqrt(1.0 - rho * rho)  # start in the stationary distribution
-    return signal.lfilter([math.sqrt(1.0 - rho * rho)], [1.0, -rho], eps, axis=0) * std
+    noise: np.ndarray | None = None  # (n, 3) process-noise accelerations held over each step
 
 
 def pitch_from_accel(ax: np.ndarray, dt: float, params: RobotParams) -> np.ndarray:
@@ -444,12 +243,12 @@ def pitch_from_accel(ax: np.ndarray, dt: float, params: RobotParams) -> np.ndarr
 
 def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParams | None = None,
                  effect: Effect | None = None, dt: float = 0.002,
-                 start_pose: tuple[float, float, float] | None = None) -> TrueRun:
+                 start_pose: tuple[float, float, float] | None = None, variant: Variant | None = None) -> TrueRun:
     """Return the true states of a run of ``duration_s`` driven by the human-like driver.
 
     The driver (:class:`simulation.driver.HumanDriver`) decides a command at each joystick
     message from the state then; the motors see it through :meth:`TrueDynamics.motor_inputs`;
-    the body dynamics (:meth:`TrueDynamics.accel` plus OU process noise) and the eq. 5.75 pose
+    the body dynamics (:meth:`TrueDynamics.accel` plus process noise) and the eq. 5.75 pose
     kinematics are integrated by RK4 at ``dt``.
 
     Parameters
@@ -460,12 +259,15 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
         Seeded generator; same seed, same run (driver, joystick clock, noise and start pose
         draw from independent children of it).
     params, effect
-        Robot parameters (default :class:`RobotParams`) and at most one effect.
+        Robot parameters (default: the variant's) and at most one effect.
     dt
         Integration and output step, s (the motor controller's update period).
     start_pose
         ``(x, y, psi)`` in the local frame; default: near the area centre, heading along the
         line between the trackers (either way) with some scatter.
+    variant
+        Simulator variant (:class:`simulation.variant.Variant`): robot, lateral law, motor lag,
+        process-noise spectrum and driver; default ``Variant()``, the simulator before variants.
 
     Returns
     -------
@@ -479,8 +281,13 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
         raise InputError(f"simulate_run: dt={dt!r} must lie in (0, 0.02] s")
     if effect is not None and not isinstance(effect, Effect):
         raise InputError(f"simulate_run: effect={effect!r} is not a simulation.effects.Effect")
-    params = params or RobotParams()
-    dyn = TrueDynamics(params, effect)
+    if variant is not None and not isinstance(variant, Variant):
+        raise InputError(f"simulate_run: variant={variant!r} is not a simulation.variant.Variant")
+    variant = variant or Variant()
+    if params is not None:
+        variant = replace(variant, robot=params)
+    params, drv = variant.robot, variant.driver
+    dyn = TrueDynamics.of_variant(variant, effect)
     rng_drv, rng_joy, rng_noise, rng_start = rng.spawn(4)
     area = DrivingArea()
     if start_pose is None:
@@ -490,14 +297,16 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
                       psi_start + rng_start.normal(0, 0.3))
     n = int(round(duration_s / dt)) + 1
     t = np.arange(n) * dt
-    t_joy = simulate_joy_stamps(duration_s, rng_joy)
+    t_joy = simulate_joy_stamps(duration_s, rng_joy, rate_hz=drv.joy_rate_hz, jitter_std_s=drv.joy_jitter_std_s,
+                                min_step_s=drv.joy_min_step_s)
     u_joy = np.zeros((t_joy.size, 2))
-    noise = simulate_ou_noise(n, dt, params.accel_noise_std, params.noise_corr_time_s, rng_noise)
+    noise = simulate_process_noise(variant.noise, n, dt, params.accel_noise_std, params.noise_corr_time_s, rng_noise)
     n1, n2, n3 = (noise[:, i].tolist() for i in range(3))
-    latency = effect.value if effect is not None and effect.name == "input_delay" else 0.0
-    driver = HumanDriver(rng_drv, start_pose[2], area, latency_s=latency)
+    latency = dyn.inputs.delay_s + sum(dyn.inputs.lags_s)  # a driver gets used to a slow robot
+    driver = HumanDriver(rng_drv, start_pose[2], area, params=drv, latency_s=latency)
     u_motor = np.empty((n, 2))
-    integrate, _ = _compile_stepper(params, effect)
+    integrate, _ = compile_stepper(params, effect, variant.lateral)
+    memo = InputMemo() if dyn.inputs.stateful else None
     state = tuple(float(v) for v in start_pose) + (0.0, 0.0, 0.0)
     rows: list[tuple] = []
     k_msg = np.minimum(np.ceil(t_joy / dt - 1e-9).astype(int), n)  # first step a message acts on
@@ -508,7 +317,7 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
             u_joy[m - 1] = driver.command(t_joy[m - 1], *state)
         if k1 <= k0:
             continue
-        um = dyn.motor_inputs(t[k0:k1], t_joy[:m], u_joy[:m])
+        um = dyn.motor_inputs(t[k0:k1], t_joy[:m], u_joy[:m], memo)
         u_motor[k0:k1] = um
         state = integrate(k0, k1, state, um.tolist(), n1, n2, n3, rows, dt)
     out = np.array(rows)
@@ -517,11 +326,11 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
     ax = a_body[:, 0] - vys * oms
     pitch = pitch_from_accel(ax, dt, params)
     z = np.zeros(n)
-    if effect is not None and effect.name == "heading_dependence":
-        tilt = math.radians(effect.value)
-        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
+    floor = slope(effect)
+    if floor is not None:
+        tilt, pd = floor
         pitch = pitch + tilt * np.cos(psis - pd)
         z = -math.tan(tilt) * (xs * math.cos(pd) + ys * math.sin(pd))
     return TrueRun(t=t, x=xs.copy(), y=ys.copy(), psi=psis.copy(), vx=vxs.copy(), vy=vys.copy(),
                    omega=oms.copy(), pitch=pitch, z=z, ax=ax, u_motor=u_motor, t_joy=t_joy,
-                   u_joy=u_joy)
+                   u_joy=u_joy, noise=noise)

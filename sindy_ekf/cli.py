@@ -1,7 +1,9 @@
 """The ``sindy-ekf`` command line: parses arguments, calls the library, prints.
 
 No algorithm lives here. Each command is a module in :mod:`sindy_ekf.commands` with
-``add_parser(subparsers)`` and ``run(args) -> int``. Bad input (``InputError``) ends with a
+``add_arguments(parser)`` and ``run(args) -> int``; :data:`COMMANDS` lists them with their
+one-line help, so that ``sindy-ekf --help`` imports none of them and only the module of the
+command being run is imported (with its library). Bad input (``InputError``) ends with a
 one-line message on stderr and exit code 2; a traceback is shown only with ``--verbose``.
 Commands write figures only to files, so the command line sets matplotlib's backend once, to
 Agg (no display needed); the library never switches the backend of a notebook that imports it.
@@ -13,17 +15,36 @@ import argparse
 import importlib
 import logging
 import sys
+from types import ModuleType
+from typing import Iterable
 
-import matplotlib
-
-from groundfloor import __version__
+from groundfloor import __version__, progress
 from groundfloor.errors import InputError
 
-COMMANDS = ["simulate", "preprocess", "identify", "evaluate", "benchmark", "diagnose", "report", "demo"]
+COMMANDS = {  # name -> help line; the module sindy_ekf.commands.<name> is imported only to run it
+    "simulate": "write a simulated tracker campaign",
+    "preprocess": "raw bags to synchronised poses and body-frame states",
+    "identify": "identify a SINDy model on the train runs",
+    "evaluate": "multi-step prediction error on the test runs",
+    "benchmark": "EKFs, factor graph and dead reckoning against the laser-tracker poses with degraded GNSS "
+                 "and outages",
+    "diagnose": "what the model gets wrong, its cause and the gain of a fix",
+    "report": "the whole chain as one HTML report with figures",
+    "demo": "the whole chain on a built-in simulated campaign",
+}
 
 
-def build_parser() -> tuple[argparse.ArgumentParser, dict]:
-    """Return the top-level parser and the command modules that registered with it."""
+def command_module(name: str) -> ModuleType:
+    """Return the module of command ``name`` (imported now, with the library it calls)."""
+    return importlib.import_module(f"sindy_ekf.commands.{name}")
+
+
+def build_parser(load: Iterable[str] = tuple(COMMANDS)) -> tuple[argparse.ArgumentParser, dict[str, ModuleType]]:
+    """Return the top-level parser and the modules of the commands in ``load``.
+
+    Every command is listed with its help line; only those in ``load`` get their arguments
+    (their module imported), which is all that parsing one command line needs.
+    """
     parser = argparse.ArgumentParser(prog="sindy-ekf", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"sindy-ekf {__version__}")
     common = argparse.ArgumentParser(add_help=False)
@@ -31,34 +52,41 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     common.add_argument("--verbose", action="store_true", help="debug logging and tracebacks")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     modules = {}
-    for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"sindy_ekf.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"sindy_ekf.commands.{name}":
-                raise
+    load = set(load)
+    for name, help_line in COMMANDS.items():
+        if name not in load:
+            sub.add_parser(name, parents=[common], help=help_line)
             continue
-        module.add_parser(sub, common)
+        module = command_module(name)
+        p = sub.add_parser(name, parents=[common], help=help_line, description=module.__doc__.splitlines()[0])
+        module.add_arguments(p)
         modules[name] = module
     return parser, modules
 
 
+def command_of(argv: list[str]) -> str | None:
+    """Return the command named on the command line (its first word that is not an option), or None."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the exit code."""
-    parser, modules = build_parser()
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    name = command_of(argv)
+    parser, modules = build_parser(load=(name,) if name in COMMANDS else ())
     args = parser.parse_args(argv)
     if not args.command:
         parser.print_help()
         return 2
-    verbose = getattr(args, "verbose", False)
-    quiet = getattr(args, "quiet", False)
+    verbose = args.verbose
+    quiet = args.quiet
     logging.basicConfig(
         level=logging.DEBUG if verbose else (logging.ERROR if quiet else logging.WARNING),
         format="%(levelname)s %(name)s: %(message)s",
     )
-    from groundfloor import progress
-
     progress.enable(not quiet)
+    import matplotlib  # 0.3 s to import: only when a command runs, never for --help
+
     matplotlib.use("Agg")  # figures go to files; never open a window, even where a display exists
     try:
         return int(modules[args.command].run(args) or 0)

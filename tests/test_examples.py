@@ -1,7 +1,8 @@
 """Every example's ``main()`` runs (so the examples cannot rot), and what it prints as its finding holds.
 
 Parametrised over the ``examples/*.py`` that exist (helpers starting with ``_`` excluded). An
-example whose own test file runs it (``tests/test_<name>.py``) is left to that file. The
+example whose own test file runs it (``tests/test_<name>.py``) is left to that file: not collected
+here, rather than collected and skipped. The
 findings are checked against something independent of the code under test: the baselines the
 thesis compares with, and the simulator's true dynamics.
 """
@@ -9,7 +10,6 @@ thesis compares with, and the simulator's true dynamics.
 from __future__ import annotations
 
 import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,14 +20,13 @@ TESTS = Path(__file__).resolve().parent
 
 
 def example_files() -> list[Path]:
-    """Return the example scripts (not the ``_`` helpers)."""
-    return sorted(p for p in EXAMPLES.glob("*.py") if not p.name.startswith("_"))
+    """Return the example scripts run here (not the ``_`` helpers, not those with their own test file)."""
+    return sorted(p for p in EXAMPLES.glob("*.py")
+                  if not p.name.startswith("_") and not (TESTS / f"test_{p.stem}.py").is_file())
 
 
 def load(path: Path):
-    """Import an example as a module, with ``examples/`` importable for its helpers."""
-    if str(EXAMPLES) not in sys.path:
-        sys.path.insert(0, str(EXAMPLES))
+    """Import an example as a module from its file (examples import only the installed packages)."""
     spec = importlib.util.spec_from_file_location(f"example_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -73,8 +72,6 @@ CHECKS = {"diagnose_hidden_effect": check_diagnose_hidden_effect,
 
 @pytest.mark.parametrize("path", example_files(), ids=lambda p: p.stem)
 def test_example_runs_and_its_finding_holds(path, capsys):
-    if (TESTS / f"test_{path.stem}.py").is_file():
-        pytest.skip(f"run by tests/test_{path.stem}.py")
     module = load(path)
     assert (module.__doc__ or "").strip(), f"{path.name}: no docstring stating the problem and the model"
     assert "Problem" in module.__doc__ and "Model" in module.__doc__, path.name

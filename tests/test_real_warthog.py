@@ -21,8 +21,8 @@ from identification.preprocessing.trajectory import (
     write_trajectory_campaign,
 )
 from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import evaluate_model, make_windows
-from identification.sindy.search import states_of_runs
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "real_warthog.py"
 
@@ -175,7 +175,7 @@ def test_identify_picks_the_low_rate_grid_for_lidar_poses(data, small_trajectory
 def test_diagnosis_on_real_data_names_only_what_5s_prediction_confirms(identified, data):
     """On these runs the window residuals favour mechanisms (a 0.56 s delay on wheels) whose
     re-identified models run away at rest or predict 5 s worse; such a cause must not be named."""
-    from identification.sindy.search import stable_at_rest
+    from identification.sindy.checks import stable_at_rest
     from sindy_ekf.diagnose import diagnose_states
 
     camp = read_trajectory_campaign(data / "warthog-drive-wheels")
@@ -185,7 +185,7 @@ def test_diagnosis_on_real_data_names_only_what_5s_prediction_confirms(identifie
     test, b, _ = states_of_runs(camp.split("test"), s)
     d = diagnose_states(model, train, test, a, b, ekf=False, uncertainty=False)
     if d.verdict != "none":
-        assert d.after["pos_err_5s_m"] < d.before["pos_err_5s_m"]
+        assert d.after.pos_err_5s_m < d.before.pos_err_5s_m
         assert stable_at_rest(d.extended.base)
     for c in d.ranked:
         if "not confirmed" in c.note:

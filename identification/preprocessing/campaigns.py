@@ -21,7 +21,14 @@ import yaml
 
 from groundfloor import __version__
 from groundfloor.errors import InputError
+from groundfloor.files import atomic_write_json
 from groundfloor.types import TrajectoryCampaign
+from identification.preprocessing.io_tracker import find_bags
+from identification.preprocessing.preprocess import (
+    DEFAULT_SMOOTHING,
+    preprocess_campaign,
+)
+from identification.preprocessing.trajectory import read_trajectory_campaign
 
 log = logging.getLogger(__name__)
 
@@ -29,8 +36,8 @@ CACHE_SUBDIR = Path(".sindy-ekf") / "preprocessed"
 KEY_FILE = "cache_key.json"
 # modules whose source decides what preprocessing writes: a change invalidates the cache
 _CODE_MODULES = ("io_tracker", "io_bags", "io_bag_salvage", "stamp_order", "io_survey", "calibration",
-                 "sync", "clock_sync", "extra_offset", "hub", "poses", "states", "preprocess",
-                 "trajectory")
+                 "network_transform", "body_frame", "sync", "clock_sync", "extra_offset", "hub", "poses",
+                 "smoothing_spline", "states", "preprocess", "trajectory")
 
 
 def campaign_kind(path: str | Path) -> str:
@@ -50,8 +57,6 @@ def campaign_kind(path: str | Path) -> str:
     runs = root / "runs"
     if runs.is_dir() and any(runs.glob("*/poses.csv")):
         return "trajectory"
-    from identification.preprocessing.io_tracker import find_bags
-
     if runs.is_dir() and any(find_bags(d) for d in runs.iterdir() if d.is_dir()):
         return "tracker"
     raise InputError(f"{path}: neither a trajectory campaign (no runs/*/poses.csv) nor a tracker "
@@ -101,12 +106,6 @@ def preprocessed_dir(path: str | Path, smoothing: float | None = None,
     """Return the folder of the trajectory campaign preprocessed from a tracker campaign,
     preprocessing it first (runs in ``jobs`` processes, default up to 2) unless a valid cached
     one exists."""
-    from groundfloor.files import atomic_write_json
-    from identification.preprocessing.preprocess import (
-        DEFAULT_SMOOTHING,
-        preprocess_campaign,
-    )
-
     root = Path(path)
     smoothing = DEFAULT_SMOOTHING if smoothing is None else smoothing
     out = _cache_dir(root)
@@ -139,18 +138,11 @@ def open_campaign(path: str | Path, cache: bool = True,
         ``"PATH: not a campaign (no campaign.yaml)"``, or whatever reading or preprocessing
         finds wrong, in one line.
     """
-    from identification.preprocessing.trajectory import read_trajectory_campaign
-
     root = Path(path)
     if campaign_kind(root) == "trajectory":
         return read_trajectory_campaign(root)
     if cache:
         return read_trajectory_campaign(preprocessed_dir(root, smoothing))
-    from identification.preprocessing.preprocess import (
-        DEFAULT_SMOOTHING,
-        preprocess_campaign,
-    )
-
     tmp = Path(tempfile.mkdtemp(prefix="sindy-ekf-preprocess-"))
     try:
         preprocess_campaign(root, tmp / "out",

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.interpolate import CubicSpline, PPoly
 
 from groundfloor.errors import InputError
 
@@ -55,8 +56,6 @@ def track_interpolator(s_samples: np.ndarray, xyz: np.ndarray, max_gap_s: float 
     samples without a gap over ``max_gap_s`` (exact for cubic motion); ``"linear"`` is the
     thesis's. Queries outside the samples or in a gap give NaN.
     """
-    from scipy.interpolate import CubicSpline, PPoly
-
     s_samples = np.asarray(s_samples, float)
     xyz = np.asarray(xyz, float)
     cut = np.flatnonzero(np.diff(s_samples) > max_gap_s) + 1

@@ -14,7 +14,7 @@ import numpy as np
 
 from groundfloor.figures import new_figure, save_figure
 from groundfloor.types import PoseTrack, RawRun, Survey
-from identification.preprocessing.calibration import BodyFrameFit, TransformFit
+from identification.preprocessing.body_frame import BodyFrameFit
 from identification.preprocessing.clock_sync import (
     GAP_THRESHOLD_S,
     detect_gaps,
@@ -22,6 +22,7 @@ from identification.preprocessing.clock_sync import (
     xcorr_gap_signals,
 )
 from identification.preprocessing.hub import HubModel
+from identification.preprocessing.network_transform import TransformFit
 from identification.preprocessing.sync import SyncedRun
 
 

@@ -48,6 +48,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from groundfloor.errors import InputError
 
@@ -285,8 +286,6 @@ def fit_hub_model_joint(runs) -> tuple[HubModel, ...]:
         arguments of :func:`fit_hub_model`. Each run must be fittable on its own (its linear
         fit gives the start values); :class:`InputError` otherwise, naming the argument.
     """
-    from scipy.optimize import least_squares
-
     singles = [fit_hub_model(*run) for run in runs]
     if not singles:
         raise InputError("runs: no runs to fit")

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
 
 from groundfloor.errors import InputError
 from identification.preprocessing.io_bag_salvage import salvage_ros1
@@ -85,9 +87,6 @@ def _check_type(run: str, topic: str, msgtype: str) -> None:
 def _read_group(group: list[Path], run: str) -> dict[str, _Topic]:
     """Return the known topics of bags rosbags reads as one recording (several ROS1 bags or one
     ROS2 folder); a damaged bag raises whatever rosbags raises."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
     out = {t: _Topic() for t in TOPIC_TYPES}
     with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
         conns = [c for c in reader.connections if c.topic in out]
@@ -220,8 +219,6 @@ def _ros1_columns(raw: list[bytes], msgtype: str) -> np.ndarray | None:
 def _messages(topic: _Topic) -> list:
     """Return the topic's messages deserialised (for the generic path), in stored order."""
     if any(isinstance(e, bytes) for e in topic.entries):
-        from rosbags.typesys import Stores, get_typestore
-
         store = get_typestore(Stores.ROS1_NOETIC)
         topic.entries = [store.deserialize_ros1(e, topic.msgtype) if isinstance(e, bytes) else e
                          for e in topic.entries]

@@ -40,6 +40,7 @@ from identification.preprocessing.io_bags import (
     read_topics,
     topic_columns,
 )
+from identification.preprocessing.io_survey import read_survey
 from identification.preprocessing.stamp_order import (
     MIN_PART_S,
     ClockReset,
@@ -266,8 +267,6 @@ def read_tracker_campaign(path: str | Path) -> TrackerCampaign:
         If ``path`` is not a campaign, ``campaign.yaml`` or ``calibration.yaml`` is invalid, or
         no run can be used.
     """
-    from identification.preprocessing.io_survey import read_survey
-
     root = Path(path)
     name, runs = read_campaign_yaml(root)
     calib = root / "calibration.yaml"

@@ -40,8 +40,10 @@ truth, see ``bench/results/preprocess.md``):
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
 import time
-from dataclasses import dataclass, field
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +52,20 @@ from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json, check_output_dir
 from groundfloor.progress import progress
 from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun
+from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
+from identification.preprocessing.hub import HubModel, fit_hub_model
+from identification.preprocessing.io_survey import read_survey
+from identification.preprocessing.io_tracker import (
+    BagRun,
+    ReadFacts,
+    read_campaign_yaml,
+    read_tracker_parts,
+)
+from identification.preprocessing.poses import fit_poses
+from identification.preprocessing.states import body_states_from_poses
 from identification.preprocessing.sync import SyncedRun, sync_run
+from identification.preprocessing.trajectory import write_trajectory_campaign
 
 log = logging.getLogger(__name__)
 
@@ -71,14 +85,14 @@ class RunResult:
     """Everything preprocessing found for one run."""
 
     synced: SyncedRun
-    hub: object | None  # identification.preprocessing.hub.HubModel, None without hub azimuths
+    hub: HubModel | None  # None without hub azimuths
     poses: PoseTrack
     states: BodyStates
     inputs: InputSeries
     n_one_prism: int  # trigger times where only one prism was seen (no pose)
     n_no_prism: int  # trigger times where neither was seen
     seconds: dict[str, float]  # stage -> wall time
-    facts: object | None = None  # identification.preprocessing.io_tracker.ReadFacts of a bag run
+    facts: ReadFacts | None = None  # what reading found, of a bag run
 
 
 @dataclass(frozen=True)
@@ -87,7 +101,7 @@ class PreprocessResult:
 
     out_dir: Path
     name: str
-    calibration: object  # identification.preprocessing.calibration.Calibration
+    calibration: Calibration
     runs: dict[str, RunResult]
     skipped: dict[str, str]  # run -> one-line reason
     smoothing: float
@@ -161,7 +175,7 @@ def reading_json(r: RunResult) -> dict:
     return out
 
 
-def hub_json(hub) -> dict:
+def hub_json(hub: HubModel) -> dict:
     """Return the JSON dict of a turning-hub model (eq. 5.25): c, radii, phases, stds, RMS."""
     r, r_std = hub.radius_m, hub.radius_std_m
     phi, phi_std = hub.phase_rad, hub.phase_std_rad
@@ -184,7 +198,7 @@ def inputs_from_raw(raw: RawRun) -> InputSeries:
     return InputSeries(t=raw.t_joy_utc.copy(), u1=raw.u_joy[:, 0].copy(), u2=raw.u_joy[:, 1].copy())
 
 
-def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHING,
+def preprocess_run(raw: RawRun, calibration: Calibration, smoothing: float = DEFAULT_SMOOTHING,
                    hub_correction: bool = HUB_CORRECTION) -> RunResult:
     """Return one run preprocessed: synchronised, hub model, poses and body-frame states.
 
@@ -197,10 +211,6 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
     InputError
         If the run cannot be synchronised or has too few poses (names the run).
     """
-    from identification.preprocessing.hub import fit_hub_model
-    from identification.preprocessing.poses import fit_poses
-    from identification.preprocessing.states import body_states_from_poses
-
     sec = {}
     tic = time.perf_counter()
     tf = calibration.transform
@@ -249,14 +259,12 @@ def preprocess_run(raw: RawRun, calibration, smoothing: float = DEFAULT_SMOOTHIN
     sec["states"] = time.perf_counter() - tic
     return RunResult(synced=synced, hub=hub, poses=poses, states=states, inputs=inputs,
                      n_one_prism=int((seen == 1).sum()), n_no_prism=int((seen == 0).sum()),
-                     seconds=sec, facts=getattr(raw, "facts", None))
+                     seconds=sec, facts=raw.facts if isinstance(raw, BagRun) else None)
 
 
 def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | None]]:
     """Read one run's bags and preprocess it, or each of its parts between clock resets (a
     worker: one run per call, in any process); return ``(name, result, reason)`` per part."""
-    from identification.preprocessing.io_tracker import read_tracker_parts
-
     root, name, split, calibration, smoothing, hub_correction, plots_dir = job
     tic = time.perf_counter()
     try:
@@ -271,15 +279,15 @@ def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | Non
         except InputError as exc:
             done.append((raw.name, None, str(exc)))
             continue
-        result.seconds["read"] = t_read
+        seconds = {**result.seconds, "read": t_read}
         if plots_dir is not None:
             tic = time.perf_counter()
-            # local: matplotlib is loaded only when figures are asked for
+            # local: the figures module loads matplotlib, a heavy import only --plots needs
             from identification.preprocessing.figures import plot_run
 
             plot_run(raw, result, Path(plots_dir) / raw.name)
-            result.seconds["plots"] = time.perf_counter() - tic
-        done.append((raw.name, result, None))
+            seconds["plots"] = time.perf_counter() - tic
+        done.append((raw.name, replace(result, seconds=seconds), None))
     return done
 
 
@@ -314,11 +322,6 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
         On bad input that stops the whole campaign (no campaign.yaml, bad calibration, output
         folder not writable, no usable run). Single bad runs are skipped, logged and listed.
     """
-    from identification.preprocessing.calibration import calibrate
-    from identification.preprocessing.io_survey import read_survey
-    from identification.preprocessing.io_tracker import read_campaign_yaml
-    from identification.preprocessing.trajectory import write_trajectory_campaign
-
     check_output_dir(out_dir, force=force)  # fail before the work, not after it
     root = Path(campaign_dir)
     seconds: dict[str, float] = {}
@@ -333,9 +336,6 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                  for n, split in run_list]
     tic = time.perf_counter()
     if jobs > 1 and len(jobs_args) > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
         with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)),
                                  mp_context=mp.get_context("fork")) as pool:
             done = [part for parts in progress(pool.map(_read_and_process, jobs_args),

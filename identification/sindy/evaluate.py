@@ -23,11 +23,12 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from scipy.integrate import solve_ivp
 
 from groundfloor.dynamics import Dynamics, pose_rate, rk4_rollout_step
 from groundfloor.errors import InputError
 from groundfloor.types import BodyStates
-from identification.preprocessing.trajectory import gap_threshold_s
+from identification.sindy.data import gap_threshold_s, states_of_runs
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +102,7 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
 
     Windows start at the data sample nearest to every ``window_s * (1 - overlap)``; windows
     that cross the end of a run or a data gap longer than ``max_gap_s`` are left out. The
-    default gap is the data's own, per run: :func:`identification.preprocessing.trajectory.gap_threshold_s`
+    default gap is the data's own, per run: :func:`identification.sindy.data.gap_threshold_s`
     (``max(0.5 s, 10 x`` the median interval), so 10 Hz poses with a 0.5 s hole keep their windows).
 
     Raises
@@ -233,8 +234,6 @@ def evaluate_reference(model: Dynamics, states: Sequence[BodyStates], names=None
     reference the batched integration is checked and timed against. Same windows, same linear
     input interpolation, same combined ODE.
     """
-    from scipy.integrate import solve_ivp
-
     windows = make_windows(states, window_s, overlap, dt, names)
     n = len(windows.t_rel)
     pred = np.empty((windows.n_windows, n, 6))
@@ -263,8 +262,6 @@ def evaluate_on_runs(models: dict, runs, smoothing: float, methods=("rk4",)) -> 
     states are computed with smoothing ``smoothing`` (the model's ``s``), so every model sees
     the same windows.
     """
-    from identification.sindy.search import states_of_runs
-
     segs, names, _ = states_of_runs(runs, smoothing)
     windows = make_windows(segs, names=names)
     out = {}

@@ -92,7 +92,7 @@ def term_name(atoms: tuple[tuple[int, int], ...], variables: tuple[str, ...] = L
 
 def _pysindy_library(name: str):
     """Return the unfitted pysindy library called ``name``."""
-    import pysindy as ps
+    import pysindy as ps  # local: pysindy loads scikit-learn (about 2 s); importing the package must not
 
     m = re.fullmatch(r"poly([123])(_absu|_signsq)?", name)
     if m is None:

@@ -24,8 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from groundfloor import __version__
 from groundfloor.dynamics import Dynamics, EnvelopeWarning, broadcast_inputs
 from groundfloor.errors import InputError
+from groundfloor.files import atomic_write_json
 from identification.sindy.library import (
     LIBRARY_INPUT_NAMES,
     LIBRARY_STATE_NAMES,
@@ -183,8 +185,6 @@ class SindyModel(Dynamics):
             raise InputError(f"model coefficients: shape {self.coef.shape}, expected "
                              f"{(len(LIBRARY_STATE_NAMES), self.library.n_features)} for library {self.library.name!r}")
         if not self.version:
-            from groundfloor import __version__
-
             self.version = __version__
 
     # dynamics -------------------------------------------------------------------------------
@@ -316,8 +316,6 @@ class SindyModel(Dynamics):
 
     def to_json(self, path: str | Path) -> Path:
         """Write the model to ``path`` atomically; return the path."""
-        from groundfloor.files import atomic_write_json
-
         return atomic_write_json(path, self.to_dict())
 
     @classmethod
@@ -345,8 +343,6 @@ class SindyModel(Dynamics):
             raise InputError(f"{source}: key coefficients is missing or malformed ({exc})") from None
         if not np.all(np.isfinite(coef)):
             raise InputError(f"{source}: key coefficients holds non-finite values")
-        from groundfloor import __version__
-
         if str(d.get("package_version", "")).split(".")[:2] != __version__.split(".")[:2]:
             log.warning("%s: written by sindy-ekf %s, read by %s", source, d.get("package_version"), __version__)
         return cls(library=library, coef=coef, hyperparameters=dict(d.get("hyperparameters") or {}),

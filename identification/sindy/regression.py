@@ -204,7 +204,9 @@ def fit_stlsq(theta: np.ndarray, target: np.ndarray, threshold: float, alpha: fl
     compression of :class:`IntegralProblem` (``||R e_j|| = ||Theta' e_j||``, ``Q^T Delta X``
     is the projection of the targets), so the compressed and the full problem still agree.
     """
-    from pysindy.optimizers import STLSQ
+    from pysindy.optimizers import (
+        STLSQ,  # local: pysindy loads scikit-learn (about 2 s); only fitting needs it
+    )
 
     theta = np.asarray(theta, dtype=float)
     target = np.asarray(target, dtype=float)

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import itertools
 import logging
-from dataclasses import dataclass, field
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -27,8 +28,10 @@ from threadpoolctl import threadpool_limits
 from groundfloor.errors import InputError
 from groundfloor.progress import progress
 from groundfloor.types import BodyStates, TrajectoryRun
+from identification.sindy.checks import STABILITY_TOL, max_re_eig_at_rest
+from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import errors_from_rollout, make_windows, rollout
-from identification.sindy.library import FeatureLibrary, make_library
+from identification.sindy.library import make_library
 from identification.sindy.model import SindyModel, StackedSindy, envelope_from_data
 from identification.sindy.regression import (
     check_conditioning,
@@ -38,23 +41,6 @@ from identification.sindy.regression import (
 
 log = logging.getLogger(__name__)
 
-STABILITY_TOL = 1e-9  # largest real part of an eigenvalue of J_f_x at rest still counted as stable
-
-
-def max_re_eig_at_rest(library: FeatureLibrary, coef: np.ndarray) -> np.ndarray:
-    """Return the largest real part of the eigenvalues of ``J_f_x`` at rest (x = 0, u = 0) for
-    coefficient arrays ``coef (..., 3, k)`` of ``library`` (``J_f_x = coef @ d_theta/dx``)."""
-    _, d_theta0 = library.transform_with_jacobian(np.zeros(5))
-    J = np.einsum("...ek,vk->...ev", coef, d_theta0[:3])
-    with np.errstate(invalid="ignore"):
-        eig = np.where(np.isfinite(J).all(axis=(-2, -1)), np.linalg.eigvals(np.nan_to_num(J)).real.max(axis=-1),
-                       np.inf)
-    return eig
-
-
-def stable_at_rest(model: SindyModel) -> bool:
-    """Return whether the model comes to rest by itself: :func:`max_re_eig_at_rest` <= :data:`STABILITY_TOL`."""
-    return bool(max_re_eig_at_rest(model.library, model.coef) <= STABILITY_TOL)
 SELECTION_NOTE = "sparsest admissible model within one standard error (over folds) of the best CV error"
 
 # Table 5.1 of the thesis, plus tau in {1, 2, 3, 5} s (the thesis fixed tau = 3 s).
@@ -141,7 +127,7 @@ def grid_for_runs(runs: Sequence[TrajectoryRun], quick: bool = False, kind: str 
     return (QUICK_GRID if quick else DEFAULT_GRID), f"tracker grid: {why}"
 
 
-@dataclass
+@dataclass(frozen=True)
 class SearchResult:
     """Every grid point with its cross-validated scores, and the selected, refitted model.
 
@@ -165,28 +151,6 @@ class SearchResult:
         return [self.row(i) for i in range(min(n, len(self.table["s"])))]
 
 
-def body_states(run: TrajectoryRun, smoothing: float) -> list[BodyStates]:
-    """Return the gap-free segments of ``run``'s body-frame states with spline smoothing ``smoothing``.
-
-    Uses the preprocessing's :func:`identification.preprocessing.states.body_states_segments` (eqs. 5.64 to
-    5.68), so nothing is integrated across a tracker dropout.
-    """
-    from identification.preprocessing.states import body_states_segments
-
-    return [seg for seg in body_states_segments(run.poses, run.inputs, smoothing=smoothing) if len(seg.t) >= 4]
-
-
-def states_of_runs(runs: Sequence[TrajectoryRun], smoothing: float) -> tuple[list[BodyStates], list[str], np.ndarray]:
-    """Return the segments of all ``runs``, their names (``run`` or ``run[k]``) and run index per segment."""
-    segs, names, groups = [], [], []
-    for i, run in enumerate(runs):
-        parts = body_states(run, smoothing)
-        segs += parts
-        names += [run.name] if len(parts) == 1 else [f"{run.name}[{k}]" for k in range(len(parts))]
-        groups += [i] * len(parts)
-    return segs, names, np.asarray(groups, dtype=int)
-
-
 def fold_assignment(groups: np.ndarray, n_folds: int) -> np.ndarray:
     """Return the fold of each segment: runs dealt round-robin, all segments of a run in its fold."""
     groups = np.asarray(groups)
@@ -206,7 +170,7 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     ----------
     states_by_s : dict, optional
         Precomputed body states per smoothing value ``s`` (one list of runs each). Otherwise the
-        states are computed from ``runs`` with :func:`body_states` for every ``s`` of the grid.
+        states are computed from ``runs`` with :func:`identification.sindy.data.body_states` for every ``s`` of the grid.
     grid : SearchGrid
     runs : sequence of TrajectoryRun, optional
         Training runs (poses and inputs), when ``states_by_s`` is not given.
@@ -242,8 +206,6 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     combos = list(itertools.product(states_by_s, grid.tau, grid.library))
     jobs = [(states_by_s[s_val], names, fold, s_val, tau, lib, grid) for s_val, tau, lib in combos]
     if n_jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
         with ProcessPoolExecutor(max_workers=n_jobs) as pool:
             parts = list(progress(pool.map(_score_combo, jobs), "grid (s, tau, library)", total=len(jobs)))
     else:
@@ -265,7 +227,10 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         top = [refit(states_by_s, names, hp[i], cache) for i in range(min(n_top, len(order)))]
         chosen = select_one_se(table) if rel_tol is None else select_parsimonious(table, rel_tol)
         model = top[chosen] if chosen < len(top) else refit(states_by_s, names, hp[chosen], cache)
-    model.training["selection"] = SELECTION_NOTE if rel_tol is None else f"sparsest within {rel_tol:.0%} of the best"
+    selection = SELECTION_NOTE if rel_tol is None else f"sparsest within {rel_tol:.0%} of the best"
+    model = replace(model, training={**model.training, "selection": selection})
+    if chosen < len(top):
+        top[chosen] = model  # the selected model is one of the top models, with its note
     folds = [[names[i] for i in np.flatnonzero(fold == f)] for f in range(n_folds)]
     return SearchResult(table=table, model=model, top_models=top, folds=folds, selected=chosen)
 
@@ -396,8 +361,6 @@ def _score_combo_serial(job) -> dict[str, np.ndarray]:
 
 def _last(windows):
     """Return ``windows`` with only the final pose of the truth (the 5 s error)."""
-    from dataclasses import replace
-
     return replace(windows, pose_truth=windows.pose_truth[:, -1:], t_rel=windows.t_rel[-1:])
 
 

@@ -1,8 +1,8 @@
 """Figures of the benchmark: trajectories with outages, error growth in outages, pose NEES.
 
-Each ``plot_*`` takes a :class:`~sindy_ekf.benchmark.run.BenchmarkResult`, returns a matplotlib
+Each ``plot_*`` takes a :class:`~sindy_ekf.benchmark.result.BenchmarkResult`, returns a matplotlib
 Figure and saves it as PNG when given ``path``; :func:`write_benchmark_figures` writes all three
-beside the files of :func:`~sindy_ekf.benchmark.run.write_benchmark` (``benchmark --out``).
+beside the files of :func:`~sindy_ekf.benchmark.files.write_benchmark` (``benchmark --out``).
 """
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from groundfloor.figures import new_figure, save_figure
-from sindy_ekf.benchmark.run import BenchmarkResult, pose_nees
+from sindy_ekf.benchmark.result import BenchmarkResult
+from sindy_ekf.benchmark.scoring import pose_nees
 
 
 def plot_trajectories(result: BenchmarkResult, path: str | Path | None = None):

@@ -5,13 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from groundfloor.errors import InputError
+from groundfloor.files import atomic_write_json, check_output_file
+from sindy_ekf.stages.figures import write_identification_figures
+from sindy_ekf.stages.identification import (
+    Identification,
+    grid_overrides,
+    identify,
+    plan_identification,
+)
 
 
-def add_parser(sub, common) -> argparse.ArgumentParser:
-    """Register the ``identify`` subcommand; return its parser."""
-    p = sub.add_parser("identify", parents=[common], help="identify a SINDy model on the train runs",
-                       description=__doc__.splitlines()[0])
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the ``identify`` arguments to its parser."""
     p.add_argument("campaign", type=Path, help="trajectory or tracker campaign")
     p.add_argument("--out", type=Path, required=True, metavar="MODEL.json", help="model file to write")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
@@ -37,52 +42,17 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=int, default=1, help="worker processes for the grid")
     p.add_argument("--plots", type=Path, default=None, metavar="DIR",
                    help="write figs. 7.4-7.7, 7.10, 7.11, 7.12 as PNG into DIR")
-    return p
 
 
-def run(args) -> int:
-    """Search, write the model and print its equations and the ranking; return the exit code."""
-    import dataclasses
-
-    from groundfloor.files import atomic_write_json
-    from identification.preprocessing.campaigns import open_campaign
-    from identification.sindy.library import make_library
-    from identification.sindy.search import grid_for_runs, search
-
-    check_output_file(args.out, "--out")
-    if args.json:
-        check_output_file(args.json, "--json")
-    for name in args.library or ():
-        make_library(name)  # an unknown library name fails now, not after the search
-    changes = {"library": tuple(args.library)} if args.library else {}
-    for opt, field in (("smoothing", "s"), ("tau", "tau"), ("alpha", "alpha"), ("threshold", "T")):
-        values = getattr(args, opt)
-        if values is not None:
-            bad = [v for v in values if not (v >= 0 if opt != "tau" else v > 0)]
-            if bad:
-                raise InputError(f"--{opt}: {bad[0]:g} is not a valid value "
-                                 f"({'positive' if opt == 'tau' else 'non-negative'} numbers expected)")
-            changes[field] = tuple(sorted(set(values)))
-    campaign = open_campaign(args.campaign)
-    train = campaign.split("train")
-    if not train:
-        raise InputError(f"{args.campaign}: campaign.yaml marks no run as train")
-    grid, why = grid_for_runs(train, quick=args.quick, kind=args.grid)
-    grid = dataclasses.replace(grid, **changes)
-    print(f"{why}; {grid.size} grid points")
-    result = search(runs=train, grid=grid, n_jobs=args.jobs)
-    model = result.model
-    best = result.row(result.selected)
-    model.training.update({"cv_pos_err_5s_m": best["pos_err_5s_m"], "cv_yaw_err_5s_deg": best["yaw_err_5s_deg"],
-                           "grid_size": grid.size, "grid": why, "folds": result.folds,
-                           "campaign": str(args.campaign)})
-    model.to_json(args.out)
-    print(f"identified on {len(train)} train runs of {campaign.name}; grid of {grid.size} points, "
-          f"{len(result.folds)}-fold CV by run")
-    print(model.equations())
-    print(f"\nselected: rank {result.selected + 1}, the {model.training['selection']}")
-    print(f"{'rank':>4} {'s':>7} {'tau':>4} {'alpha':>6} {'T':>5} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} "
-          f"{'yaw 5s deg':>10}  note")
+def format_ranking(ident: Identification) -> str:
+    """Return the selected model's equations and the ten best grid points (and the selected one)."""
+    result, model = ident.search, ident.model
+    lines = [f"identified on {len(ident.plan.train)} train runs of {ident.plan.name}; grid of "
+             f"{ident.plan.grid.size} points, {len(result.folds)}-fold CV by run",
+             model.equations(),
+             f"\nselected: rank {result.selected + 1}, the {model.training['selection']}",
+             f"{'rank':>4} {'s':>7} {'tau':>4} {'alpha':>6} {'T':>5} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} "
+             f"{'yaw 5s deg':>10}  note"]
     rows = list(range(min(10, len(result.table["s"]))))
     rows += [result.selected] if result.selected >= 10 else []
     for i in rows:
@@ -91,62 +61,25 @@ def run(args) -> int:
         if r["diverged_frac"] > 0:
             note += ("; " if note else "") + f"diverged on {100 * r['diverged_frac']:.0f} % of windows"
         note += ("; " if note else "") + "selected" if i == result.selected else ""
-        print(f"{i + 1:4d} {r['s']:7g} {r['tau']:4g} {r['alpha']:6g} {r['T']:5g} {r['complexity']:5.0f} "
-              f"{100 * r['pos_err_5s_m']:9.2f} {100 * r['pos_err_5s_se_m']:5.2f} {r['yaw_err_5s_deg']:10.2f}  {note}")
+        lines.append(f"{i + 1:4d} {r['s']:7g} {r['tau']:4g} {r['alpha']:6g} {r['T']:5g} {r['complexity']:5.0f} "
+                     f"{100 * r['pos_err_5s_m']:9.2f} {100 * r['pos_err_5s_se_m']:5.2f} {r['yaw_err_5s_deg']:10.2f}"
+                     f"  {note}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    """Search, write the model and print its equations and the ranking; return the exit code."""
+    check_output_file(args.out, "--out")
+    if args.json:
+        check_output_file(args.json, "--json")
+    overrides = grid_overrides(args.library, args.smoothing, args.tau, args.alpha, args.threshold)
+    plan = plan_identification(args.campaign, quick=args.quick, kind=args.grid, overrides=overrides)
+    print(f"{plan.why}; {plan.grid.size} grid points")
+    ident = identify(plan, n_jobs=args.jobs, out=args.out)
+    print(format_ranking(ident))
     print(f"model written to {args.out}")
     if args.plots:
-        _plots(result, args.plots, train, model)
+        write_identification_figures(ident, args.plots)
     if args.json:
-        atomic_write_json(args.json, {
-            "model": str(args.out), "hyperparameters": model.hyperparameters, "library": model.library.name,
-            "complexity": model.complexity, "equations": model.equations().splitlines(),
-            "cv_pos_err_5s_m": best["pos_err_5s_m"], "cv_yaw_err_5s_deg": best["yaw_err_5s_deg"],
-            "condition_number": model.training.get("condition_number"), "grid_size": grid.size,
-            "selected_rank": result.selected + 1, "ranking": result.ranking(14),
-        })
+        atomic_write_json(args.json, ident.to_json())
     return 0
-
-
-def check_output_file(path: Path, option: str) -> Path:
-    """Return ``path`` if a file can be written there, else raise InputError naming the culprit.
-
-    Checked before any work: the path must not be a folder, its nearest existing ancestor must
-    be a writable folder (not a regular file).
-    """
-    import os
-
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{option} {path}: is a folder, expected a file name")
-    probe = path.parent if str(path.parent) else Path(".")
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise InputError(f"{option} {path}: cannot be written, {probe} is a file, not a folder")
-    if not os.access(probe, os.W_OK):
-        raise InputError(f"{option} {path}: folder {probe} is not writable")
-    return path
-
-
-def _plots(result, out_dir: Path, train, model) -> None:
-    """Write the search figures (7.4-7.7, 7.10, 7.11) and the adjustment's correlations (7.12)."""
-    import numpy as np
-
-    from identification.sindy.adjust import adjust_coefficients
-    from identification.sindy.figures import (
-        plot_correlation,
-        plot_error_vs_complexity,
-        plot_grid,
-        plot_term_prevalence,
-    )
-    from identification.sindy.regression import integral_problem
-    from identification.sindy.search import states_of_runs
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for s in np.unique(result.table["s"]):
-        plot_grid(result, float(s), path=out_dir / f"grid_s{s:g}.png")
-    plot_error_vs_complexity(result, path=out_dir / "error_vs_complexity.png")
-    plot_term_prevalence(result.top_models, path=out_dir / "term_prevalence.png")
-    segs, names, _ = states_of_runs(train, model.hyperparameters["s"])
-    problem = integral_problem(segs, model.library, model.hyperparameters["tau"], names)
-    plot_correlation(adjust_coefficients(model, problem), path=out_dir / "correlation.png")

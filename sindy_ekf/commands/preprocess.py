@@ -5,14 +5,23 @@ from __future__ import annotations
 import argparse
 import os
 
+import numpy as np
 
-def add_parser(sub, common) -> argparse.ArgumentParser:
-    """Register the ``preprocess`` subcommand."""
-    p = sub.add_parser("preprocess", parents=[common],
-                       help="raw bags to synchronised poses and body-frame states",
-                       description="Preprocess a tracker campaign (data contract part 1) into a "
-                                   "trajectory campaign: clock sync, AT960 offset, hub model, "
-                                   "poses, body-frame states (thesis 5.2).")
+from groundfloor.files import atomic_write_json
+from identification.preprocessing.preprocess import (
+    DEFAULT_SMOOTHING,
+    TIMING_ERROR_R,
+    PreprocessResult,
+    preprocess_campaign,
+    reading_json,
+)
+from sindy_ekf.report.bag_facts import bag_notes
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the ``preprocess`` arguments to its parser."""
+    p.description = ("Preprocess a tracker campaign (data contract part 1) into a trajectory campaign: clock "
+                     "sync, AT960 offset, hub model, poses, body-frame states (thesis 5.2).")
     p.add_argument("campaign", help="tracker campaign folder (campaign.yaml, calibration.yaml, runs/)")
     p.add_argument("--out", required=True, help="output folder (a trajectory campaign)")
     p.add_argument("--json", metavar="PATH", help="also write the key results as JSON")
@@ -25,16 +34,10 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
                         "poses, as the thesis did not")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                    help="runs preprocessed in parallel (default: 2 or the cores there are)")
-    return p
 
 
-def format_summary(result) -> str:
+def format_summary(result: PreprocessResult) -> str:
     """Return the per-run summary table printed by the command."""
-    import numpy as np
-
-    from identification.preprocessing.preprocess import TIMING_ERROR_R, reading_json
-    from sindy_ekf.report.bag_facts import bag_notes
-
     head = (f"{'run':<10} {'split':<5} {'LTD800 ppm':>11} {'AT960 ppm':>10} {'offset ms':>10} "
             f"{'r before':>8} {'r after':>8} {'base rms mm':>12} {'poses':>6} "
             f"{'lost':>5} {'spur':>5} {'1-prism':>7} {'reord':>5} {'nan':>4}")
@@ -67,12 +70,6 @@ def format_summary(result) -> str:
 
 def run(args) -> int:
     """Preprocess, print the summary table, write ``--json``; return the exit code."""
-    from groundfloor.files import atomic_write_json
-    from identification.preprocessing.preprocess import (
-        DEFAULT_SMOOTHING,
-        preprocess_campaign,
-    )
-
     smoothing = DEFAULT_SMOOTHING if args.smoothing is None else args.smoothing
     result = preprocess_campaign(args.campaign, args.out, smoothing=smoothing, force=args.force,
                                  plots_dir=args.plots, jobs=args.jobs,

@@ -7,18 +7,30 @@ from pathlib import Path
 
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
+from simulation.campaign import simulate_campaign
+from simulation.effects import EFFECTS
+from simulation.truth import CampaignTruth, campaign_summary
+
+_FORMS = "; ".join(f"{name}: {', '.join(spec.forms)}" for name, spec in EFFECTS.items())
 
 
-def add_parser(sub, common) -> argparse.ArgumentParser:
-    """Register the ``simulate`` subcommand; return its parser."""
-    p = sub.add_parser("simulate", parents=[common], help="write a simulated tracker campaign",
-                       description=__doc__.splitlines()[0])
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the ``simulate`` arguments to its parser."""
     p.add_argument("out", type=Path, help="campaign folder to create")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
     p.add_argument("--minutes", type=float, default=None,
                    help="total driving time (default: thesis table 6.4, 45.4 min)")
-    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
-                   help="a dynamics effect of simulation.effects, e.g. input_delay=0.1")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME[:FORM]=VALUE[,KEY=VALUE]",
+                   help="a dynamics effect of simulation.effects, e.g. input_delay=0.1, "
+                        "input_delay:motor_lag=0.15, heading_dependence=1.5,azimuth_deg=120 or "
+                        "position_dependence:bumps=0.4,seed=3 (seed draws the form's geometry); "
+                        f"forms, the family's default first: {_FORMS}. truth/ records the form "
+                        "and every parameter")
+    p.add_argument("--variant", type=int, default=0, metavar="N",
+                   help="simulator variant N (simulation.variants): perturbed model B "
+                        "coefficients, lateral law, motor lag, process-noise spectrum, driver "
+                        "style and joystick rate, tracker noise, drawn from N; recorded whole in "
+                        "truth/ (default 0: the simulator before variants, byte for byte)")
     p.add_argument("--receive-jitter", nargs="?", const="2,12", default=None, metavar="MS_LO,MS_HI",
                    help="give every message its own receive latency, uniform in [MS_LO, MS_HI] ms "
                         "(2,12 without a value), and store each topic in receive order, as "
@@ -31,29 +43,9 @@ def add_parser(sub, common) -> argparse.ArgumentParser:
                         "the run); repeatable")
     p.add_argument("--force", action="store_true", help="replace a non-empty OUT")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
-    return p
 
 
-def summary(truth) -> dict:
-    """Return the JSON summary of a simulated campaign (its truth, per run)."""
-    return {
-        "seed": truth.seed, "minutes": truth.minutes,
-        "effects": [{"name": n, "value": v} for n, v in truth.effects],
-        "transform": {"translation_m": truth.transform["translation_m"],
-                      "rotation_deg": truth.transform["rotation_deg"]},
-        "lever_arms_m": truth.lever_arms_m,
-        "runs": {r.name: {"split": r.split, "duration_s": r.duration_s, "n_trigger": r.n_trigger,
-                          "clock": {k: {"drift_ppm": c["drift_ppm"]} for k, c in r.clocks.items()},
-                          "at960_extra_offset_s": r.at960["offset_s"],
-                          "at960": {k: r.at960[k] for k in ("n_messages", "n_lost", "n_spurious", "n_dropout_pulses")},
-                          "ltd800": {k: r.ltd800[k] for k in ("n_messages", "n_dropout_pulses")},
-                          "n_joy": r.joy["n_messages"], "n_hub": r.hubs["n_messages"],
-                          "reordered": r.bags.get("reordered", {}), "clock_reset": r.clock_reset}
-                 for r in truth.runs},
-    }
-
-
-def format_table(truth) -> str:
+def format_table(truth: CampaignTruth) -> str:
     """Return a short human summary: one line per run."""
     lines = [f"{'run':8} {'split':5} {'dur s':>7} {'trigger':>7} {'at960':>6} {'lost':>4} {'spur':>4} "
              f"{'ltd800':>6} {'drop a/l':>8} {'joy':>5} {'hub':>5}"]
@@ -67,17 +59,18 @@ def format_table(truth) -> str:
 
 def run(args) -> int:
     """Simulate the campaign, print a summary, write ``--json``; return the exit code."""
-    from simulation.campaign import simulate_campaign
-
     if args.json is not None and args.json.resolve().is_relative_to(args.out.resolve()):
         raise InputError(f"--json {args.json}: must not be inside the output folder {args.out}")
     truth = simulate_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
                               force=args.force, receive_jitter_s=args.receive_jitter,
-                              clock_resets=args.clock_reset)
+                              clock_resets=args.clock_reset, variant=args.variant)
     total = sum(r.duration_s for r in truth.runs) / 60.0
-    effect = ", ".join(f"{n}={v:g}" for n, v in truth.effects) or "none"
+    effect = truth.effect().label() if truth.effects else "none"
     print(f"simulated campaign {args.out}: {len(truth.runs)} runs, {total:.1f} min, seed {truth.seed}, "
           f"effect {effect}")
+    if truth.variant:
+        print(f"simulator variant {truth.variant['index']}: " + ", ".join(
+            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in truth.variant["draws"].items()))
     for r in truth.runs:
         jitter = r.bags.get("receive_jitter_s")
         if jitter:
@@ -90,5 +83,5 @@ def run(args) -> int:
                   f"stamps jump {c['jump_s']:+.3f} s)")
     print(format_table(truth))
     if args.json is not None:
-        atomic_write_json(args.json, summary(truth))
+        atomic_write_json(args.json, campaign_summary(truth))
     return 0

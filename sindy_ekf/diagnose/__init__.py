@@ -2,8 +2,9 @@
 
 Modules: :mod:`~sindy_ekf.diagnose.data` (runs stacked with integration windows),
 :mod:`~sindy_ekf.diagnose.residuals` (residual structure and its numbers),
-:mod:`~sindy_ekf.diagnose.families` (one mechanism per family, fitted on train runs, scored
-on test runs), :mod:`~sindy_ekf.diagnose.rank` (calibrated thresholds, ranking),
+:mod:`~sindy_ekf.diagnose.families` (one mechanism per family),
+:mod:`~sindy_ekf.diagnose.fitting` (each family fitted on train runs, scored on test runs),
+:mod:`~sindy_ekf.diagnose.rank` (calibrated thresholds, ranking),
 :mod:`~sindy_ekf.diagnose.extend` (extended model, re-identification, gains),
 :mod:`~sindy_ekf.diagnose.measurement` (preprocessing findings),
 :mod:`~sindy_ekf.diagnose.pipeline` (end to end), and :mod:`~sindy_ekf.diagnose.figures`

@@ -11,7 +11,7 @@ start every ``stride_s`` (neighbouring windows share almost all their samples; a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -79,8 +79,6 @@ class Split:
 
     def select_windows(self, keep: np.ndarray) -> "Split":
         """Return the same samples with only the windows where ``keep (p,)`` is true."""
-        from dataclasses import replace
-
         return replace(self, start=self.start[keep], end=self.end[keep])
 
     def windows_inside(self, inside: np.ndarray) -> np.ndarray:

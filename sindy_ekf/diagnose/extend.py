@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import logging
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
@@ -29,10 +30,21 @@ import numpy as np
 
 from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
+from groundfloor.files import atomic_write_json
 from groundfloor.types import BodyStates
+from identification.sindy.evaluate import evaluate_model
+from identification.sindy.library import parse_term
 from identification.sindy.model import SindyModel
+from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, null_prediction
+from sindy_ekf.diagnose.families import FAMILY_SPECS, Family
+from sindy_ekf.diagnose.fitting import null_prediction
+from sindy_ekf.estimation.ekf import run_ekf_batch
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    fit_process_noise,
+    state_series_from_body_states,
+)
 
 log = logging.getLogger(__name__)
 
@@ -169,8 +181,6 @@ class ExtendedModel(Dynamics):
         if self.vy_scale != 1.0:
             raise InputError(f"extended model {self.family!r}: its vx and omega equations see vy / "
                              f"{self.vy_scale:.3g}, not expressible in the SINDy library")
-        from identification.sindy.library import parse_term
-
         coef = self.base.coef.copy()
         for term, b in zip(("vx omega", "vy"), self.beta):
             j = self.base.library.atoms.index(parse_term(term, self.base.library.variables))
@@ -189,8 +199,6 @@ class ExtendedModel(Dynamics):
 
     def to_json(self, path) -> Path:
         """Write the extended model to ``path`` atomically; return the path."""
-        from groundfloor.files import atomic_write_json
-
         return atomic_write_json(path, self.to_dict())
 
     @classmethod
@@ -276,10 +284,6 @@ def multistep(model, states: Sequence[BodyStates], names: Sequence[str], window_
     An :class:`ExtendedModel` is driven by the motor inputs of its mechanism, with time counted
     from each run's start.
     """
-    import warnings
-
-    from identification.sindy.evaluate import evaluate_model
-
     if isinstance(model, ExtendedModel):
         states = [model.states_for_motors(st) for st in states]
     with warnings.catch_warnings():
@@ -318,14 +322,6 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
     holds a spurious vy term, but made a cubic model identified on a simulated campaign diverge
     in 6 of 12 outages (the plain filter in 4); the benchmark reports both filters side by side.
     """
-    from sindy_ekf.benchmark.run import outage_ekf_run
-    from sindy_ekf.estimation.ekf import run_ekf_batch
-    from sindy_ekf.estimation.process_models import (
-        ProcessModel,
-        fit_process_noise,
-        state_series_from_body_states,
-    )
-
     def prepared(model, runs):
         if isinstance(model, ExtendedModel):
             return [model.states_for_motors(st) for st in runs]
@@ -346,8 +342,8 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
                 runs.append(outage_ekf_run(st, sel, t_out, t_out + outage_s + 1.0, profile,
                                            seed + 100 * i + k, f"{name} outage {len(runs)}"))
                 ends.append((t[sel][-1], st.x[sel][-1], st.y[sel][-1]))
-        try:  # all outages in lockstep: one vectorised model call per step
-            results = run_ekf_batch(proc, runs)
+        try:  # all outages in lockstep: one vectorised model call per step (none in runs too short)
+            results = run_ekf_batch(proc, runs) if runs else []
         except InputError:  # a model diverged somewhere: run them apart, a diverged one counts as inf
             results = []
             for r in runs:

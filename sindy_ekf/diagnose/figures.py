@@ -57,7 +57,7 @@ def plot_lag_profile(profile: dict[str, np.ndarray], path=None, delay_s: float |
 def plot_family_profiles(scores, path=None):
     """Return the train residual profiles of the 1-D families (delay, deadband, time, asymmetry).
 
-    ``scores`` are :class:`~sindy_ekf.diagnose.families.FamilyScore`; those without a profile
+    ``scores`` are :class:`~sindy_ekf.diagnose.fitting.FamilyScore`; those without a profile
     are left out.
     """
     prof = [s for s in scores if s.profile]

@@ -19,10 +19,14 @@ import numpy as np
 
 from groundfloor.errors import InputError
 from groundfloor.progress import progress
+from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates
+from identification.preprocessing.campaigns import open_campaign
+from identification.sindy.checks import stable_at_rest
+from identification.sindy.data import states_of_runs
+from identification.sindy.evaluate import EvaluationResult
 from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
-from identification.sindy.model import SindyModel
-from identification.sindy.search import stable_at_rest
+from identification.sindy.model import SindyModel, read_model_json
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import (
     ExtendedModel,
@@ -30,12 +34,9 @@ from sindy_ekf.diagnose.extend import (
     outage_errors,
     reidentify,
 )
-from sindy_ekf.diagnose.families import (
-    FAMILIES,
-    equation_weights,
-    null_prediction,
-    score_family,
-)
+from sindy_ekf.diagnose.families import FAMILIES
+from sindy_ekf.diagnose.fitting import equation_weights, null_prediction, score_family
+from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
     RankedCause,
@@ -57,26 +58,32 @@ MIN_TEST_WINDOWS = 4  # fewer 5 s windows on the test runs cannot support an out
 CONFIRM_TOLERANCE = 0.10  # a named cause may not make the median 5 s error on the train runs worse by more
 
 
-@dataclass
+@dataclass(frozen=True)
 class Diagnosis:
-    """What the model gets wrong, the most likely cause, the extended model and its gain."""
+    """What the model gets wrong, the most likely cause, the extended model and its gain.
+
+    ``before`` and ``after`` are the 5 s errors of the given and the extended model on the test
+    windows where neither diverged (:func:`errors_5s`; ``after`` equals ``before`` when the
+    verdict is none), ``n_diverged`` how many windows each left out.
+    """
 
     verdict: str
     ranked: list[RankedCause]
-    before: dict  # {"pos_err_5s_m", "yaw_err_5s_deg", "n_windows"} of the given model
-    after: dict  # the same for the extended model (equal to before when the verdict is none)
+    before: PredictionError
+    after: PredictionError
     extended: ExtendedModel | None
-    outage: dict = field(default_factory=dict)  # {"outage_s", "before_m", "after_m", "n"}
-    seconds: dict = field(default_factory=dict)
+    outage: dict = field(default_factory=dict)  # {"outage_s", "before_m", "after_m", "n", "n_diverged"}
+    seconds: dict[str, float] = field(default_factory=dict)
     structure: dict = field(default_factory=dict)  # window residuals: {equation: {regressor: BinnedEffect}}
     multistep_structure: dict = field(default_factory=dict)  # 5 s errors: {error: {regressor: BinnedEffect}}
     lag: dict = field(default_factory=dict)  # residual-input lag correlation (residuals.lag_profile)
-    evaluations: dict = field(default_factory=dict)  # "before"/"after" EvaluationResult (plots)
-    measurement: list = field(default_factory=list)  # measurement.Finding of the preprocessing
-    others: dict = field(default_factory=dict)  # other significant family -> 5 s errors with its mechanism
+    evaluations: dict[str, EvaluationResult] = field(default_factory=dict)  # "before"/"after" (plots)
+    measurement: tuple[Finding, ...] = ()  # findings of the preprocessing
+    others: dict[str, PredictionError] = field(default_factory=dict)  # other significant family -> 5 s errors
     residual_map: dict = field(default_factory=dict)  # window residuals over the floor (residuals.residual_map)
+    n_diverged: dict[str, int] = field(default_factory=dict)  # "before"/"after" -> windows left out
 
-    def to_json_dict(self) -> dict:
+    def to_json(self) -> dict:
         """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
         causes = []
         for c in self.ranked:
@@ -86,24 +93,22 @@ class Diagnosis:
                 entry["note"] = c.note
             if c.name in self.others:  # another significant family: its mechanism added to the model
                 o = self.others[c.name]
-                entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": o["pos_err_5s_m"]}
-                entry["yaw_err_5s_deg"] = {"before": self.before["yaw_err_5s_deg"], "after": o["yaw_err_5s_deg"]}
+                entry["pos_err_5s_m"] = {"before": self.before.pos_err_5s_m, "after": o.pos_err_5s_m}
+                entry["yaw_err_5s_deg"] = {"before": self.before.yaw_err_5s_deg, "after": o.yaw_err_5s_deg}
             elif c.name != self.verdict:  # not significant: the model is left as it is
-                entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": self.before["pos_err_5s_m"]}
+                entry["pos_err_5s_m"] = {"before": self.before.pos_err_5s_m, "after": self.before.pos_err_5s_m}
             if c.name == self.verdict:
-                entry["pos_err_5s_m"] = {"before": self.before["pos_err_5s_m"], "after": self.after["pos_err_5s_m"]}
-                entry["yaw_err_5s_deg"] = {"before": self.before["yaw_err_5s_deg"],
-                                           "after": self.after["yaw_err_5s_deg"]}
+                entry["pos_err_5s_m"] = {"before": self.before.pos_err_5s_m, "after": self.after.pos_err_5s_m}
+                entry["yaw_err_5s_deg"] = {"before": self.before.yaw_err_5s_deg, "after": self.after.yaw_err_5s_deg}
                 if self.outage.get("n"):
                     entry["outage_pos_err_m"] = {"before": self.outage["before_m"], "after": self.outage["after_m"],
                                                  "outage_s": self.outage["outage_s"], "n": self.outage["n"]}
             causes.append(entry)
         if self.verdict == "none":
             causes.insert(0, {"name": "none", "estimate": {},
-                              "pos_err_5s_m": {"before": self.before["pos_err_5s_m"],
-                                               "after": self.before["pos_err_5s_m"]},
-                              "yaw_err_5s_deg": {"before": self.before["yaw_err_5s_deg"],
-                                                 "after": self.before["yaw_err_5s_deg"]}})
+                              "pos_err_5s_m": {"before": self.before.pos_err_5s_m, "after": self.before.pos_err_5s_m},
+                              "yaw_err_5s_deg": {"before": self.before.yaw_err_5s_deg,
+                                                 "after": self.before.yaw_err_5s_deg}})
         structure = {eq: {k: {"eta2": be.eta2, "p_value": be.p_value} for k, be in d.items()}
                      for eq, d in self.structure.items()}
         ms = {e: {k: {"eta2": be.eta2, "p_value": be.p_value} for k, be in d.items()}
@@ -115,25 +120,27 @@ class Diagnosis:
                 "thresholds": {c.name: c.threshold for c in self.ranked},
                 "threshold_provenance": THRESHOLD_PROVENANCE,
                 "measurement": [f.to_dict() for f in self.measurement],
-                "n_test_windows_5s": self.before.get("n_windows"), "seconds": self.seconds}
+                "n_test_windows_5s": self.before.n_windows, "seconds": self.seconds}
 
 
-def errors_5s(before, after) -> tuple[dict, dict]:
+def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[PredictionError, PredictionError]:
     """Return the 5 s RMS errors of two evaluations over the windows where neither diverged.
 
     A model that leaves its envelope may blow up in a few windows (``inf``); comparing on the
-    common finite windows keeps the numbers meaningful, and ``n_diverged`` says how many were left out.
+    common finite windows keeps the numbers meaningful (:func:`n_diverged` says how many each left out).
     """
     ok = (np.isfinite(before.eps_p[:, -1]) & np.isfinite(after.eps_p[:, -1])
           & (before.eps_p[:, -1] < 1e3) & (after.eps_p[:, -1] < 1e3))
-    out = []
-    for r in (before, after):
-        out.append({"pos_err_5s_m": float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else float("nan"),
-                    "yaw_err_5s_deg": float(np.degrees(np.sqrt(np.mean(r.eps_h[ok, -1] ** 2)))) if ok.any()
-                    else float("nan"),
-                    "n_windows": int(ok.sum()),
-                    "n_diverged": int(np.count_nonzero(~np.isfinite(r.eps_p[:, -1]) | (r.eps_p[:, -1] >= 1e3)))})
-    return out[0], out[1]
+    return tuple(PredictionError(
+        pos_err_5s_m=float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else float("nan"),
+        yaw_err_5s_deg=float(np.degrees(np.sqrt(np.mean(r.eps_h[ok, -1] ** 2)))) if ok.any() else float("nan"),
+        n_windows=int(ok.sum())) for r in (before, after))
+
+
+def n_diverged(evaluation: EvaluationResult) -> int:
+    """Return the number of windows in which a prediction diverged (non-finite or beyond 1 km after 5 s)."""
+    end = evaluation.eps_p[:, -1]
+    return int(np.count_nonzero(~np.isfinite(end) | (end >= 1e3)))
 
 
 def check_model_inputs(model, source: str = "model") -> None:
@@ -146,8 +153,6 @@ def check_model_inputs(model, source: str = "model") -> None:
 
 def load_model(path) -> SindyModel:
     """Return the SINDy model in ``path``, checking first that it was trained on inputs ``u1, u2``."""
-    from identification.sindy.model import read_model_json
-
     path = Path(path)
     d = read_model_json(path)
     if isinstance(d, dict):
@@ -332,18 +337,16 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
             log.info("test runs too short for a %g s GNSS outage after %g s of GNSS", res.outage_s, 10.0)
         seconds["ekf"] = time.perf_counter() - t0
     return Diagnosis(name, ranked, before, after, extended, outage, seconds, structure, ms_structure, lag,
-                     {"before": res_before, "after": res_after}, others=others, residual_map=rmap)
+                     {"before": res_before, "after": res_after}, others=others, residual_map=rmap,
+                     n_diverged={"before": n_diverged(res_before), "after": n_diverged(res_after)})
 
 
 def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:
     """Return the diagnosis of the model in ``model_path`` on a campaign (trajectory or tracker).
 
-    Body states come from the project's spline step (``identification.sindy.search.states_of_runs``,
+    Body states come from the project's spline step (``identification.sindy.data.states_of_runs``,
     smoothing ``s`` of the model's hyperparameters); a run split at a gap becomes several segments.
     """
-    from identification.preprocessing.campaigns import open_campaign
-    from identification.sindy.search import states_of_runs
-
     model = load_model(model_path)
     camp = open_campaign(campaign)
     s = model.hyperparameters.get("s")
@@ -356,7 +359,4 @@ def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence
     train, train_names, _ = states_of_runs(train_runs, s)
     test, test_names, _ = states_of_runs(test_runs, s)
     d = diagnose_states(model, train, test, train_names, test_names, families=families, ekf=ekf)
-    from sindy_ekf.diagnose.measurement import measurement_findings
-
-    d.measurement = measurement_findings(camp.root)
-    return d
+    return dataclasses.replace(d, measurement=tuple(measurement_findings(camp.root)))

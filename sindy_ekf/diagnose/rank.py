@@ -1,7 +1,7 @@
 """Ranking the families by their out-of-sample gain, with thresholds calibrated on effect-free data.
 
 A family's gain is the relative drop of the weighted window-residual sum of squares on the test
-runs (:func:`sindy_ekf.diagnose.families.score_family`). Even without any effect a flexible
+runs (:func:`sindy_ekf.diagnose.fitting.score_family`). Even without any effect a flexible
 mechanism buys a little on the test runs by chance (or by fitting what the model gets slightly
 wrong everywhere), so each family has its own significance threshold, calibrated on effect-free
 simulated campaigns: the threshold is a margin times the largest gain that family reached on
@@ -15,7 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
-from sindy_ekf.diagnose.families import FAMILIES, FamilyScore
+from sindy_ekf.diagnose.families import FAMILIES
+from sindy_ekf.diagnose.fitting import FamilyScore
 
 # Largest test-run gain per family over the effect-free calibration campaigns of
 # `bench/bench_diagnose.py --calibrate 24` (campaigns of 4 x 45 s train + 2 x 45 s test runs,

@@ -23,7 +23,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from identification.sindy.evaluate import (
+    EvaluationResult,
+    errors_from_rollout,
+    make_windows,
+    rms_over_windows,
+    rollout,
+)
 from sindy_ekf.diagnose.data import Split
+from sindy_ekf.diagnose.families import inputs_delayed
 
 EQUATIONS = ("vx", "vy", "omega")
 
@@ -133,14 +141,6 @@ def multistep_structure(evaluation, windows, states, n_bins: int = 6) -> dict[st
 
 def multistep_errors_by_window(model, states, names, window_s: float = 5.0, dt: float = 0.02):
     """Return ``(evaluation, windows)`` of a 5 s multi-step prediction with the end states kept."""
-    from identification.sindy.evaluate import (
-        EvaluationResult,
-        errors_from_rollout,
-        make_windows,
-        rms_over_windows,
-        rollout,
-    )
-
     windows = make_windows(list(states), window_s, 0.5, dt, list(names))
     pred = rollout(model, windows)
     eps_p, eps_h = errors_from_rollout(pred, windows)
@@ -156,8 +156,6 @@ def lag_profile(model, split: Split, lags_s: np.ndarray = np.arange(-0.3, 0.61, 
     model misses when the motors see the input ``L`` late. A delay shows as a peak at ``L > 0``.
     Returns ``{"lags_s": (L,), "vx": (L,) corr with u1, "omega": (L,) corr with u2}``.
     """
-    from sindy_ekf.diagnose.families import inputs_delayed
-
     r = window_residuals(model, split)
     lags_s = np.asarray(lags_s, float)
     shifted = inputs_delayed(split.t_run, split.u, split.runs_slices(), lags_s)  # (L, N, 2)

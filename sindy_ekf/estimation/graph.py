@@ -33,6 +33,8 @@ import gtsam
 import numpy as np
 
 from groundfloor.errors import InputError
+from groundfloor.gnss import check_gnss
+from sindy_ekf.estimation.ekf import GRID_TOL_S, run_ekf
 from sindy_ekf.estimation.process_models import N_X, ProcessModel
 
 log = logging.getLogger(__name__)
@@ -48,10 +50,6 @@ def X(k: int) -> int:
 def V(k: int) -> int:
     """Return the key of the body velocity at step ``k``."""
     return gtsam.symbol("v", k)
-
-
-def _wrap(a):
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def _J_world_xi(psi: np.ndarray) -> np.ndarray:
@@ -152,9 +150,6 @@ def _prior_factors(x0: np.ndarray, P0: np.ndarray) -> list:
 
 def _gnss_on_grid(gnss, t: np.ndarray, name: str):
     """Return grid indices, positions and stds of the fixes valid inside ``t`` (checked)."""
-    from groundfloor.gnss import check_gnss
-    from sindy_ekf.estimation.ekf import GRID_TOL_S
-
     gnss, _ = check_gnss(gnss, f"{name} GNSS")
     inside = (gnss.t_valid >= t[0] - GRID_TOL_S) & (gnss.t_valid <= t[-1] + GRID_TOL_S)
     kv = np.minimum(np.searchsorted(t, gnss.t_valid[inside] - GRID_TOL_S), len(t) - 1)
@@ -304,8 +299,6 @@ def smooth_batch(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
     t = np.asarray(t, float)
     graph, dyn = build_graph(model, t, u, x0, P0, gnss, robust, name, lateral)
     if x_init is None:  # the filter's estimate: close to the optimum, unlike dead reckoning
-        from sindy_ekf.estimation.ekf import run_ekf
-
         x_init = run_ekf(model, t, u, x0, P0, gnss, name=name, lateral=lateral).x
     if not np.all(np.isfinite(x_init)):
         raise InputError(f"{name}: initial trajectory for the graph is not finite")

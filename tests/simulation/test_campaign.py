@@ -366,18 +366,6 @@ def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
     assert a.runs[0].clocks == read_truth(tmp_path / "a", states=False).runs[0].clocks
 
 
-def test_pipeline_calibration_of_the_survey_reproduces_the_truth(small_campaign, truth):
-    """identification.preprocessing.calibration (H3's Gauss-Helmert fit and body frame) on the campaign's
-    calibration.yaml gives the simulator's transform and lever arms to the micrometre."""
-    io_survey = pytest.importorskip("identification.preprocessing.io_survey")
-    calibration = pytest.importorskip("identification.preprocessing.calibration")
-    cal = calibration.calibrate(io_survey.read_survey(small_campaign / "calibration.yaml"))
-    assert np.allclose(cal.transform.t_at960_ltd800, truth.t_at960_ltd800, atol=5e-6)
-    assert np.allclose(np.degrees(cal.transform.rotation_rad), truth.transform["rotation_deg"], atol=0.5 / 3600)
-    for prism in ("front", "rear"):
-        assert np.allclose(cal.body.lever_arms_body[prism], truth.lever_arms_m[prism], atol=2e-6)
-
-
 def test_states_csv_round_trip_is_exact_to_the_nanosecond(tmp_path):
     from simulation.truth import TrueStates, _read_states, format_states_csv
 

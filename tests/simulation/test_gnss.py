@@ -1,5 +1,6 @@
 """Degraded GNSS generator: noise levels, lever arm, bias, latency, outages against their
-definitions; bad series rejected or repaired with counts."""
+definitions. (The checks of a series, :func:`groundfloor.gnss.check_gnss`, are tested in
+``tests/groundfloor/test_gnss.py``.)"""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from groundfloor.gnss import FLAG_OUTLIER, check_gnss
+from groundfloor.gnss import FLAG_OUTLIER
 from simulation.gnss import PROFILES, GnssProfile, schedule_outages, simulate_gnss
 
 
@@ -90,42 +91,3 @@ def test_same_seed_same_series_other_seed_other_series():
     c = simulate_gnss(t, x, y, yaw, "dgnss", seed=12)
     np.testing.assert_array_equal(a.p_local, b.p_local)
     assert not np.allclose(a.p_local, c.p_local)
-
-
-def _series():
-    t, x, y, yaw = _circle(120)
-    return simulate_gnss(t, x, y, yaw, "dgnss", seed=2, outages=np.empty((0, 2)))
-
-
-def test_nan_fixes_are_dropped_and_counted():
-    g = _series()
-    p = g.p_local.copy()
-    p[[3, 40, 41], 0] = np.nan
-    clean, repairs = check_gnss(replace(g, p_local=p), "run_03 gnss")
-    assert repairs["nan_fixes_dropped"] == 3
-    assert len(clean.t_valid) == len(g.t_valid) - 3 and np.all(np.isfinite(clean.p_local))
-
-
-def test_duplicate_stamps_are_an_error_naming_the_stamp():
-    g = _series()
-    t = g.t_valid.copy()
-    t[10] = t[9]
-    with pytest.raises(ValueError, match=r"run_03 gnss: duplicate GNSS time of validity .*index 9"):
-        check_gnss(replace(g, t_valid=t), "run_03 gnss")
-
-
-def test_decreasing_stamps_are_an_error():
-    g = _series()
-    t = g.t_valid.copy()
-    t[10] = t[8] - 0.05
-    with pytest.raises(ValueError, match="run_03 gnss: GNSS times of validity decrease at index 10"):
-        check_gnss(replace(g, t_valid=t, t_arrival=t + 0.1), "run_03 gnss")
-
-
-def test_unscheduled_gaps_are_counted():
-    g = _series()
-    keep = (g.t_valid < 1030) | (g.t_valid > 1034)  # 4 s hole, no outage scheduled
-    clean, repairs = check_gnss(replace(g, t_valid=g.t_valid[keep], t_arrival=g.t_arrival[keep],
-                                        p_local=g.p_local[keep], std=g.std[keep],
-                                        flags=g.flags[keep]), "gnss")
-    assert repairs["unscheduled_gaps"] == 1

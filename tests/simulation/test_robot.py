@@ -7,30 +7,14 @@ import re
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 from simulation.driver import DrivingArea
 from simulation.effects import EFFECTS, Effect
-from simulation.robot import (
-    RobotParams,
-    TrueDynamics,
-    _compile_stepper,
-    exponents_from_name,
-    pitch_from_accel,
-    simulate_run,
-)
+from simulation.robot import TrueDynamics, pitch_from_accel, simulate_run
+from simulation.robot_params import RobotParams, exponents_from_name
+from tests.support.robot_synth import random_states
 
 ALL_EFFECTS = [None] + [Effect(n, s.moderate) for n, s in EFFECTS.items()]
-
-
-def _random_states(rng, n, track_max=0.9, w_max=1.2):
-    """States in and around the driving area; velocities inside the limiters' bounds (track
-    speed ``|vx| + b |omega|`` and yaw rate) unless larger bounds are asked for."""
-    omega = rng.uniform(-w_max, w_max, n)
-    v_lim = track_max - RobotParams().track_half_width_m * np.abs(omega)
-    return np.column_stack([rng.uniform(0.5, 6.5, n), rng.uniform(0.5, 5.5, n),
-                            rng.uniform(-4, 4, n), rng.uniform(-1, 1, n) * v_lim,
-                            rng.uniform(-0.08, 0.08, n), omega])
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +54,7 @@ def test_true_terms_reproduce_f_through_pysindy_features():
     import pysindy as ps
 
     rng = np.random.default_rng(3)
-    x6 = _random_states(rng, 400)
+    x6 = random_states(rng, 400)
     u = rng.uniform(-1, 1, (400, 2))
     lib = ps.PolynomialLibrary(degree=3).fit(np.zeros((2, 5)))
     theta = lib.transform(np.column_stack([x6[:, 3:], u]))
@@ -114,7 +98,7 @@ def test_speed_limiter_bounds_states_model_b_would_blow_up():
 @pytest.mark.parametrize("effect", ALL_EFFECTS, ids=lambda e: e.name if e else "none")
 def test_jacobians_match_central_differences(effect):
     rng = np.random.default_rng(11)
-    x6 = _random_states(rng, 60, track_max=1.3, w_max=1.6)  # includes the limiter's range
+    x6 = random_states(rng, 60, track_max=1.3, w_max=1.6)  # includes the limiter's range
     if effect is not None and effect.name == "position_dependence":  # around the patch edge
         c = np.array(EFFECTS["position_dependence"].fixed["patch_center_local_m"])
         ang = rng.uniform(0, 2 * np.pi, 60)
@@ -133,39 +117,12 @@ def test_jacobians_match_central_differences(effect):
 def test_accel_and_jacobians_broadcast_over_leading_axes():
     dyn = TrueDynamics()
     rng = np.random.default_rng(0)
-    x6 = _random_states(rng, 12).reshape(3, 4, 6)
+    x6 = random_states(rng, 12).reshape(3, 4, 6)
     u = np.array([0.3, -0.2])
     assert dyn.accel(x6, u).shape == (3, 4, 3)
     assert dyn.accel_and_jacobians(x6, u)[1].shape == (3, 4, 3, 6)
     np.testing.assert_allclose(dyn.accel(x6, u)[1, 2], dyn.accel(x6[1, 2], u))
     assert dyn.accel(np.zeros(6), np.zeros(2)).shape == (3,)
-
-
-# --- integrator ------------------------------------------------------------------------------
-
-@pytest.mark.parametrize("effect", ALL_EFFECTS, ids=lambda e: e.name if e else "none")
-def test_float_stepper_matches_numpy_f_and_scipy_ode(effect):
-    """The generated float code equals f; its RK4 agrees with scipy's RK45 at tight tolerance."""
-    dyn = TrueDynamics(effect=effect)
-    integrate, acc = _compile_stepper(dyn.params, effect)
-    rng = np.random.default_rng(5)
-    x6 = _random_states(rng, 50, track_max=1.3, w_max=1.6)
-    u = rng.uniform(-1, 1, (50, 2))
-    a_float = np.array([acc(*s, *v) for s, v in zip(x6.tolist(), u.tolist())])
-    np.testing.assert_allclose(a_float, dyn.accel(x6, u), rtol=1e-12, atol=1e-12)
-
-    u_step, n = [0.7, -0.4], 1000
-    x0 = (3.0, 2.5, 0.4, 0.2, 0.0, -0.3)
-    rows: list = []
-    end = integrate(0, n, x0, [u_step] * n, [0.0] * n, [0.0] * n, [0.0] * n, rows, 0.002)
-
-    def rhs(_, s):
-        c, sn = math.cos(s[2]), math.sin(s[2])
-        return [s[3] * c - s[4] * sn, s[3] * sn + s[4] * c, s[5], *dyn.accel(s, u_step)]
-
-    ref = solve_ivp(rhs, (0, 2.0), x0, rtol=1e-11, atol=1e-12).y[:, -1]
-    np.testing.assert_allclose(end, ref, atol=1e-8)
-    assert len(rows) == n and rows[0] == x0
 
 
 def test_pitch_is_second_order_response_to_acceleration():

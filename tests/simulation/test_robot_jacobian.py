@@ -4,22 +4,9 @@ import pytest
 
 from simulation.effects import EFFECTS, Effect
 from simulation.robot import TrueDynamics
+from tests.support.robot_synth import loop_poly_jacobian
 
 ALL_EFFECTS = [None] + [Effect(n, s.moderate) for n, s in EFFECTS.items()]
-
-
-def _loop_poly_jacobian(dyn: TrueDynamics, z: np.ndarray) -> np.ndarray:
-    """Return d(poly)/d[vx, vy, omega, u1, u2] by the previous implementation (a Python loop
-    over equations, monomials and variables), the independent reference."""
-    powers = np.stack([np.ones_like(z), z, z * z, z * z * z], axis=-1)
-    J = np.zeros(z.shape[:-1] + (3, 5))
-    for row, eq in enumerate(dyn._eqs):
-        for c, ex in eq:
-            for v in np.flatnonzero(ex):
-                e = ex.copy()
-                e[v] -= 1
-                J[..., row, v] += c * ex[v] * np.prod(powers[..., np.arange(5), e], axis=-1)
-    return J
 
 
 @pytest.mark.parametrize("effect", ALL_EFFECTS, ids=lambda e: e.name if e else "none")
@@ -30,7 +17,7 @@ def test_vectorised_jacobian_equals_the_loop(effect):
                           rng.uniform(-1.5, 1.5, (200, 3))])
     u = rng.uniform(-1, 1, (200, 2))
     z = np.concatenate([x6[:, 3:], u], axis=-1)
-    J_ref = _loop_poly_jacobian(dyn, z)
+    J_ref = loop_poly_jacobian(dyn, z)
     np.testing.assert_allclose(dyn._poly_jacobian(z), J_ref, rtol=1e-13, atol=1e-13)
     # the full Jacobians carry the polynomial part where no limiter or effect adds to it
     _, J_x, J_u = dyn.accel_and_jacobians(x6, u)

@@ -9,31 +9,20 @@ import numpy as np
 import pytest
 
 from sindy_ekf.benchmark.figures import write_benchmark_figures
-from sindy_ekf.benchmark.run import ate, benchmark_campaign, read_tum, write_benchmark
+from sindy_ekf.benchmark.files import read_tum, write_benchmark
+from sindy_ekf.benchmark.run import benchmark_campaign
+from sindy_ekf.benchmark.scoring import ate
 
 
 @pytest.fixture(scope="module")
 def mini(tmp_path_factory):
     """Two train runs and one test run of the simulator, written as a trajectory campaign."""
-    from groundfloor.types import InputSeries, PoseTrack, TrajectoryRun
-    from identification.preprocessing.trajectory import (
-        read_trajectory_campaign,
-        write_trajectory_campaign,
-    )
+    from identification.preprocessing.trajectory import read_trajectory_campaign
     from identification.sindy.model import model_from_terms
-    from simulation.robot import RobotParams, TrueDynamics, simulate_run
+    from simulation.robot import RobotParams, TrueDynamics
+    from tests.support.trajectory_synth import write_mini_campaign
 
-    rng = np.random.default_rng(42)
-    runs = []
-    for name, dur, split in (("run_a", 30.0, "train"), ("run_b", 30.0, "train"), ("run_c", 45.0, "test")):
-        tr = simulate_run(dur, rng, dt=0.02)
-        t = 1.7e9 + tr.t  # a UTC-like time base, as preprocess writes
-        nan = np.full_like(t, np.nan)
-        poses = PoseTrack(t, tr.x, tr.y, nan, nan, tr.psi, nan, nan, nan, nan, nan)
-        inputs = InputSeries(1.7e9 + tr.t_joy, tr.u_joy[:, 0], tr.u_joy[:, 1])
-        runs.append((TrajectoryRun(name, split, poses, inputs), None))
-    root = tmp_path_factory.mktemp("bench") / "mini"
-    write_trajectory_campaign(root, "mini", runs)
+    root = write_mini_campaign(tmp_path_factory.mktemp("bench") / "mini")
     model = model_from_terms(RobotParams().terms())  # a perfectly identified model
     campaign = read_trajectory_campaign(root)
     result = benchmark_campaign(campaign, model, "dgnss", seed=3, oracle_dynamics=TrueDynamics(),
@@ -47,8 +36,9 @@ def mini(tmp_path_factory):
 
 
 def test_our_ate_equals_evo_on_the_same_tum_files(mini):
-    evo_file = pytest.importorskip("evo.tools.file_interface")
+    # evo is GPL: a test-only dependency, imported here and never by the package
     from evo.core import metrics, sync
+    from evo.tools import file_interface as evo_file
 
     _, _, result, out = mini
     ref_path = out / "tum" / "truth" / "run_c.tum"
@@ -137,7 +127,7 @@ def test_command_rejects_an_unknown_estimator(mini, tmp_path, capsys):
 
 def test_nees_curve_of_the_figure_matches_the_score(mini):
     """The NEES drawn in nees.png is the one scored: its mean over the one test run is nees_mean."""
-    from sindy_ekf.benchmark.run import pose_nees
+    from sindy_ekf.benchmark.scoring import pose_nees
 
     _, _, result, _ = mini
     curves = pose_nees(result, "run_c")

@@ -19,12 +19,10 @@ import pytest
 
 from groundfloor.errors import InputError  # noqa: E402
 from simulation.effects import EFFECTS, Effect  # noqa: E402
+from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose import diagnose_states  # noqa: E402
 from tests.support import REPO
-from tests.support.diagnose_synth import (  # noqa: E402
-    fit_reference_with_lateral_law,
-    simulate_states_campaign,
-)
+from tests.support.diagnose_synth import fit_reference_with_lateral_law
 
 # The magnitude and campaign seed of each hidden effect are drawn from this master seed; the code
 # under test never sees them. CI uses a fixed master seed so that a green run is reproducible;
@@ -73,10 +71,10 @@ def test_hidden_effect_is_found_estimated_and_fixed(reference_model, index, fami
     key, truth = TRUE_PARAMETER[family](value)
     est = d.ranked[0].score.estimate[key]
     assert abs(est - truth) <= 0.25 * abs(truth), f"{key} = {est:.4g}, truth {truth:.4g} {why}"
-    assert d.after["pos_err_5s_m"] < d.before["pos_err_5s_m"], f"5 s error {d.before} -> {d.after} {why}"
+    assert d.after.pos_err_5s_m < d.before.pos_err_5s_m, f"5 s error {d.before} -> {d.after} {why}"
     if family == "lateral_slip":  # the forward and yaw equations keep the base's drift: heading not spoilt
         # (fed the larger drift, the base's vy terms of the yaw equation took it from 2.8 to 5.1 deg)
-        assert d.after["yaw_err_5s_deg"] < 1.25 * d.before["yaw_err_5s_deg"], f"{d.before} -> {d.after} {why}"
+        assert d.after.yaw_err_5s_deg < 1.25 * d.before.yaw_err_5s_deg, f"{d.before} -> {d.after} {why}"
     if family == "heading_dependence":  # the residual structure shows it too: vx residual vs heading
         be = d.structure["vx"]["heading"]
         assert be.eta2 > 0.3 and be.p_value < 1e-3, f"vx residual vs heading eta2 {be.eta2:.2f} {why}"
@@ -103,7 +101,7 @@ def test_effect_free_campaign_says_none(reference_model):
     d = diagnose_states(reference_model, train, test, a, b)
     ranking = [(c.name, round(c.gain, 4), round(c.threshold, 4)) for c in d.ranked[:3]]
     assert d.verdict == "none", f"false alarm {ranking} (SINDY_EKF_TEST_SEED={MASTER_SEED}, seed {seed})"
-    out = d.to_json_dict()
+    out = d.to_json()
     assert out["causes"][0]["name"] == "none"
     assert out["causes"][0]["pos_err_5s_m"]["before"] == out["causes"][0]["pos_err_5s_m"]["after"]
     assert all({"name", "estimate", "pos_err_5s_m"} <= set(c) for c in out["causes"])  # INTERFACES.md keys
@@ -286,7 +284,7 @@ def test_a_cause_whose_extension_predicts_5s_worse_is_not_named(reference_model)
     import dataclasses
 
     from sindy_ekf.diagnose.data import split_from_states
-    from sindy_ekf.diagnose.families import equation_weights, score_family
+    from sindy_ekf.diagnose.fitting import equation_weights, score_family
     from sindy_ekf.diagnose.pipeline import confirm_on_train, in_envelope
     from sindy_ekf.diagnose.rank import RankedCause
 
@@ -304,3 +302,13 @@ def test_a_cause_whose_extension_predicts_5s_worse_is_not_named(reference_model)
     assert not ranked[-1].significant and "not confirmed" in ranked[-1].note, why  # the wrong delay, last
     assert ranked[0].significant and ranked[0].score is fitted, why
     assert extended is not None and extended.theta[0] == pytest.approx(fitted.theta[0]), why
+
+
+def test_test_runs_too_short_for_an_outage_give_no_outage_errors(reference_model):
+    # runs of 15 s hold no 10 s outage after 10 s of GNSS: nothing to score, not a crash
+    from sindy_ekf.diagnose.extend import outage_errors
+
+    train, test, _, _ = simulate_states_campaign(7, None, n_train=2, n_test=2, run_s=15.0, rate_hz=RATE_HZ)
+    res = outage_errors({"before": reference_model}, train, test)
+    assert res.outage_s == 10.0 and res.errors_m["before"].size == 0
+    assert np.isnan(res.rms()["before"]) and res.n_diverged() == {"before": 0}

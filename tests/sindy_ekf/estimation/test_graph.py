@@ -14,7 +14,12 @@ from simulation.gnss import PROFILES, simulate_gnss
 from sindy_ekf.estimation.ekf import estimation_grid, run_ekf
 from sindy_ekf.estimation.graph import DynamicsFactors, V, X, smooth_batch, smooth_isam2
 from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
-from tests.support.estimation_helpers import LinearDynamics, PolyBody, simulate_truth, simulate_truths
+from tests.support.estimation_helpers import (
+    LinearDynamics,
+    PolyBody,
+    simulate_truth,
+    simulate_truths,
+)
 
 P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
 

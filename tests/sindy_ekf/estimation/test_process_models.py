@@ -8,7 +8,11 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from groundfloor.dynamics import Dynamics
-from identification.sindy.baselines import ConstantVelocityModel, LagModel, UnicycleModel
+from identification.sindy.baselines import (
+    ConstantVelocityModel,
+    LagModel,
+    UnicycleModel,
+)
 from identification.sindy.model import model_from_terms
 from simulation.robot import RobotParams, TrueDynamics
 from sindy_ekf.estimation.process_models import (

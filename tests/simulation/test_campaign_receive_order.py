@@ -95,14 +95,3 @@ def test_clock_reset_specs_and_bad_ones_named():
                           ("a:b:c:d", "expected RUN")):
         with pytest.raises(InputError, match=culprit):
             check_clock_resets([spec])
-
-
-def test_simulate_command_takes_and_reports_jitter_and_reset(tmp_path, capsys):
-    from sindy_ekf.cli import main
-
-    assert main(["simulate", str(tmp_path / "c"), "--minutes", "2.25", "--receive-jitter", "2,12",
-                 "--clock-reset", "run_06:at960:0.5", "--quiet"]) == 0
-    printed = capsys.readouterr().out
-    assert "receive latency 2-12 ms" in printed
-    assert "run_06: at960 clock restarted (topic /at960/measurement, message" in printed
-    assert "receive jitter 2-12 ms" in (tmp_path / "c" / "campaign.yaml").read_text()

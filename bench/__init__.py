@@ -1,0 +1,1 @@
+"""Benchmarks: run each as a module from the checkout, ``python -m bench.bench_<area>`` (``make bench`` runs all)."""

@@ -1,0 +1,1 @@
+"""Examples: each a script (``python examples/<name>.py``) that imports only the installed packages."""

@@ -1,0 +1,398 @@
+"""Families fitted on train runs and scored on test runs, on the integral regression.
+
+Everything is scored on the integral regression (eqs. 5.55 to 5.57): over windows of ``tau``
+the residual ``Delta v - int f(x, T_theta(u)) dt - int C beta dt`` per equation, each equation
+weighted by the inverse of the model's residual variance on the train runs. ``theta`` and
+``beta`` come from the train runs; the gain is the relative drop of the weighted residual sum
+of squares on the *test* runs (out of sample, by run). Per-run sums are kept so that the
+leave-one-run-out (jackknife) uncertainty of every estimate costs no new design matrices.
+The mechanisms themselves are :mod:`sindy_ekf.diagnose.families`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from identification.sindy.checks import (
+    STABILITY_TOL,
+    max_re_eig_at_rest,
+    stable_at_rest,
+)
+from identification.sindy.library import FeatureLibrary
+from identification.sindy.model import SindyModel
+from sindy_ekf.diagnose.data import Split
+from sindy_ekf.diagnose.families import FAMILY_SPECS, Family
+
+log = logging.getLogger(__name__)
+
+_MAX_CHUNK_ELEMENTS = 6_000_000  # candidates x samples x features per chunk (memory bound)
+
+
+@dataclass(frozen=True)
+class Design:
+    """Weighted per-run normal equations of candidates: ``G (C, R, m, m)``, ``b (C, R, m)``, ``yy (C, R)``."""
+
+    G: np.ndarray
+    b: np.ndarray
+    yy: np.ndarray
+
+
+class ActiveTerms:
+    """The model restricted to its active features: same ``f``, fewer columns to evaluate."""
+
+    def __init__(self, model):
+        keep = np.flatnonzero(np.any(model.coef != 0, axis=0))
+        names = tuple(model.library.feature_names[j] for j in keep) or ("1",)
+        self.library = FeatureLibrary(name=model.library.name, feature_names=names,
+                                      variables=model.library.variables)
+        self.coef = model.coef[:, keep] if len(keep) else np.zeros((3, 1))
+
+    def f(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return ``(..., 3)`` accelerations (eq. 5.53)."""
+        x, u = np.asarray(x, float)[..., :3], np.asarray(u, float)[..., :2]
+        lead = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
+        z = np.concatenate([np.broadcast_to(x, lead + (3,)), np.broadcast_to(u, lead + (2,))], axis=-1)
+        return self.library.transform(z) @ self.coef.T
+
+
+def null_prediction(model, split: Split) -> np.ndarray:
+    """Return the window integrals ``(p, 3)`` of the model's accelerations on the recorded inputs."""
+    return split.integrate(model.f(split.v_body, split.u))
+
+
+def equation_weights(model, split: Split) -> np.ndarray:
+    """Return ``1 / var`` (3,) of the model's window residual per equation on ``split`` (train)."""
+    r = split.delta_v - null_prediction(model, split)
+    return 1.0 / np.maximum(np.mean(r * r, axis=0), 1e-12)
+
+
+def _chunks(n_cand: int, per_candidate: int):
+    size = max(1, _MAX_CHUNK_ELEMENTS // max(per_candidate, 1))
+    for a in range(0, n_cand, size):
+        yield slice(a, min(a + size, n_cand))
+
+
+def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
+                         base_pred: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Return window targets ``y (C, p, 3)`` after the fixed part and columns ``X (C, p, 3, m)``."""
+    theta = np.atleast_2d(theta)
+    C, p, m = len(theta), split.n_windows, family.n_columns
+    dv = split.delta_v
+    if family.kind == "input":
+        y = np.empty((C, p, 3))
+        model = ActiveTerms(model)
+        k = model.library.n_features
+        for sl in _chunks(C, len(split.t_run) * k):
+            u_m = family.motor_inputs(split.t_run, split.u, split.runs_slices(), theta[sl])
+            y[sl] = dv - split.integrate(model.f(split.v_body, u_m))
+        return y, np.zeros((C, p, 3, 0))
+    base_pred = null_prediction(model, split) if base_pred is None else base_pred
+    y = np.broadcast_to(dv - base_pred, (C, p, 3))
+    X = np.empty((C, p, 3, m))
+    x6 = split.x6
+    for sl in _chunks(C, len(split.t_run) * 3 * m):
+        cols = family.columns(x6, split.u, split.t_run, theta[sl])
+        n = cols.shape[0]
+        X[sl] = split.integrate(cols.reshape(n, len(x6), 3 * m)).reshape(n, p, 3, m)
+    return y, X
+
+
+def normal_equations(y: np.ndarray, X: np.ndarray, weights: np.ndarray, window_run: np.ndarray,
+                     n_runs: int) -> Design:
+    """Return the weighted normal equations per candidate and per run (sums over windows of a run)."""
+    onehot = (window_run[:, None] == np.arange(n_runs)[None, :]).astype(float)  # (p, R)
+    wy = y * weights
+    yy = np.einsum("cpe,cpe,pr->cr", wy, y, onehot, optimize=True)
+    if X.shape[-1] == 0:
+        C = y.shape[0]
+        return Design(np.zeros((C, n_runs, 0, 0)), np.zeros((C, n_runs, 0)), yy)
+    wX = X * weights[:, None]
+    G = np.einsum("cpem,cpen,pr->crmn", wX, X, onehot, optimize=True)
+    b = np.einsum("cpem,cpe,pr->crm", wX, y, onehot, optimize=True)
+    return Design(G, b, yy)
+
+
+def design_for(family: Family, model, split: Split, grid: np.ndarray, weights: np.ndarray,
+               base_pred: np.ndarray | None = None) -> Design:
+    """Return the per-run normal equations of all candidates ``grid``, built in memory-bounded chunks."""
+    parts = []
+    per = split.n_windows * 3 * max(family.n_columns, 1)
+    for sl in _chunks(len(grid), per):
+        y, X = residual_and_columns(family, model, split, grid[sl], base_pred)
+        parts.append(normal_equations(y, X, weights, split.window_run, len(split.names)))
+    return Design(*(np.concatenate([getattr(d, k) for d in parts]) for k in ("G", "b", "yy")))
+
+
+def solve_design(d: Design, runs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``beta (C, m)`` and the weighted residual sum of squares ``(C,)`` over ``runs``."""
+    sel = slice(None) if runs is None else runs
+    G, b, yy = d.G[:, sel].sum(1), d.b[:, sel].sum(1), d.yy[:, sel].sum(1)
+    m = G.shape[-1]
+    if m == 0:
+        return np.zeros((len(yy), 0)), yy
+    # a tiny ridge keeps candidates without support (a patch nobody drove through) solvable
+    ridge = 1e-9 * np.trace(G, axis1=-2, axis2=-1)[:, None, None] * np.eye(m) + 1e-12 * np.eye(m)
+    beta = np.linalg.solve(G + ridge, b[..., None])[..., 0]
+    return beta, yy - np.einsum("cm,cm->c", beta, b)
+
+
+@dataclass(frozen=True)
+class FamilyScore:
+    """One family fitted on the train runs and scored on the test runs.
+
+    ``gain`` is ``1 - SSE_ext / SSE_model`` of the weighted window residuals on the test runs;
+    ``gain_per_run`` the same per test run; ``estimate`` the physical parameters and
+    ``estimate_std`` their leave-one-train-run-out (jackknife) standard deviations.
+    """
+
+    family: str
+    theta: np.ndarray
+    beta: np.ndarray
+    gain: float
+    gain_per_run: dict[str, float]
+    train_gain: float
+    estimate: dict
+    estimate_std: dict = field(default_factory=dict)
+    profile: dict = field(default_factory=dict)  # theta grid and train SSE (1-D families)
+
+    def to_dict(self) -> dict:
+        """Return a JSON-ready dict."""
+        return {"gain": self.gain, "gain_per_test_run": self.gain_per_run, "train_gain": self.train_gain,
+                "estimate": self.estimate, "estimate_std": self.estimate_std,
+                "theta": [float(v) for v in self.theta], "beta": [float(v) for v in self.beta]}
+
+
+def _sse_at(family, model, split, theta, weights, base_pred):
+    y, X = residual_and_columns(family, model, split, theta, base_pred)
+    d = normal_equations(y, X, weights, split.window_run, len(split.names))
+    return solve_design(d)[1][0]
+
+
+def _refine(family: Family, model, split: Split, grid: np.ndarray, sse: np.ndarray, weights, base_pred):
+    """Return the train-SSE minimiser near the best grid point (bounded 1-D search or Nelder-Mead)."""
+    i = int(np.argmin(sse))
+    if grid.shape[1] == 1:
+        lo_b, hi_b = family.bounds[0]
+        lo = grid[max(i - 1, 0), 0]
+        hi = grid[min(i + 1, len(grid) - 1), 0]
+        if hi <= lo:
+            return grid[i]
+        res = minimize_scalar(lambda v: _sse_at(family, model, split, [[v]], weights, base_pred),
+                              bounds=(max(lo, lo_b), min(hi, hi_b)), method="bounded",
+                              options={"xatol": 2e-3 * (hi_b - lo_b)})
+        return np.array([res.x]) if res.fun <= sse[i] else grid[i]
+    if grid.shape[1] == 3:
+        def obj(th):
+            th = np.array([th[0], th[1], np.clip(th[2], *family.bounds[2])])
+            return _sse_at(family, model, split, th[None], weights, base_pred)
+
+        res = minimize(obj, grid[i], method="Nelder-Mead",
+                       options={"xatol": 0.01, "fatol": 1e-6 * sse[i], "maxfev": 150,
+                                "initial_simplex": grid[i] + np.array([[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0],
+                                                                       [0, 0, 0.2]])})
+        th = res.x.copy()
+        th[2] = np.clip(th[2], *family.bounds[2])
+        return th if res.fun <= sse[i] else grid[i]
+    return grid[i]
+
+
+def _parabolic_argmin(grid: np.ndarray, sse: np.ndarray) -> np.ndarray:
+    """Return the vertex of the parabola through the best grid point and its neighbours (1-D)."""
+    i = int(np.argmin(sse))
+    if grid.shape[1] != 1 or i == 0 or i == len(grid) - 1 or not np.all(np.isfinite(sse[i - 1:i + 2])):
+        return grid[i]
+    x, y = grid[i - 1:i + 2, 0], sse[i - 1:i + 2]
+    den = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
+    a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / den
+    b = (x[2] ** 2 * (y[0] - y[1]) + x[1] ** 2 * (y[2] - y[0]) + x[0] ** 2 * (y[1] - y[2])) / den
+    return np.array([-b / (2 * a)]) if a > 0 else grid[i]
+
+
+def _jackknife(values: list[dict]) -> dict:
+    """Return jackknife standard deviations of the numeric (and list) entries of estimate dicts."""
+    if len(values) < 2:
+        return {}
+    R = len(values)
+    out = {}
+    for key in values[0]:
+        if isinstance(values[0][key], (bool, str)):
+            continue
+        arr = np.array([np.nan if v[key] is None else v[key] for v in values], dtype=float)
+        if key == "psi_down_rad":  # circular: deviations wrapped to (-pi, pi]
+            dev = np.angle(np.exp(1j * (arr - np.angle(np.exp(1j * arr).mean()))))
+        else:
+            dev = arr - arr.mean(axis=0)
+        std = np.sqrt((R - 1) / R * np.sum(dev ** 2, axis=0))
+        out[key] = std.tolist() if np.ndim(std) else float(std)
+    return out
+
+
+def refit_columns(family: Family, model, split: Split, theta: np.ndarray) -> np.ndarray:
+    """Return the re-identification columns ``(p, 3, n)`` at ``theta``: the model's terms per equation
+    (integrated library features on the motor inputs, eq. 5.56) and then the mechanism's columns."""
+    theta = np.asarray(theta, float).reshape(-1)
+    act = ActiveTerms(model)
+    u_m = family.motor_inputs(split.t_run, split.u, split.runs_slices(), theta[None])[0]
+    feats = split.integrate(act.library.transform(np.concatenate([split.v_body, u_m], axis=-1)))  # (p, k)
+    support = act.coef != 0
+    blocks = [np.flatnonzero(support[e]) for e in range(3)]
+    n_xi, m = sum(len(b) for b in blocks), family.n_columns
+    X = np.zeros((split.n_windows, 3, n_xi + m))
+    col = 0
+    for e, b in enumerate(blocks):
+        X[:, e, col:col + len(b)] = feats[:, b]
+        col += len(b)
+    if m:
+        cols = family.columns(split.x6, split.u, split.t_run, theta[None])[0]
+        X[:, :, n_xi:] = split.integrate(cols.reshape(len(cols), 3 * m)).reshape(-1, 3, m)
+    return X
+
+
+def _coefs_from_refit(model, sols: np.ndarray) -> np.ndarray:
+    """Return coefficient arrays ``(C, 3, k)`` with the model's support refitted to each row of
+    ``sols (C, n)`` (their xi part: the support's coefficients equation by equation)."""
+    sols = np.atleast_2d(sols)
+    rows, cols = np.nonzero(model.coef)  # row-major: equation by equation, as refit_columns orders them
+    coefs = np.zeros((len(sols),) + model.coef.shape)
+    coefs[:, rows, cols] = sols[:, :len(rows)]
+    return coefs
+
+
+def _coef_from_refit(model, sol: np.ndarray):
+    """Return a model-like object with the model's support refitted to ``sol`` (the xi part)."""
+    return SindyModel(library=model.library, coef=_coefs_from_refit(model, sol)[0],
+                      hyperparameters=dict(model.hyperparameters))
+
+
+def refit_score(family: Family, model, train: Split, test: Split, weights: np.ndarray,
+                theta_fixed: np.ndarray) -> dict:
+    """Return the family scored with the model re-identified around it (same support, eqs. 5.55 to 5.59).
+
+    The null is the model re-identified on the train runs without the mechanism. This is what
+    finds a mechanism the given model has partly absorbed (a model identified on the very runs
+    that hold the effect). Input-side families search ``theta`` on the grid (train residual);
+    additive families keep the geometry ``theta_fixed`` of the fixed-model search.
+    """
+    R = len(train.names)
+    y_tr = train.delta_v[None]
+    null_theta = np.zeros(len(family.theta_names)) if family.kind == "input" else theta_fixed
+    null_fam = Family(family.name, family.kind, family.theta_names) if family.kind == "additive" else family
+    grid = family.grid(train) if family.kind == "input" else np.asarray(theta_fixed, float)[None]
+    designs = [normal_equations(y_tr, refit_columns(family, model, train, th)[None], weights, train.window_run, R)
+               for th in grid]
+    d = Design(*(np.concatenate([getattr(x, k) for x in designs]) for k in ("G", "b", "yy")))
+    sols, sse = solve_design(d)
+    # Admissible as in the identification's search (identification.sindy.search.admissible): a
+    # re-identified model that runs away at rest is no explanation, however well its windows fit
+    # (on 10 Hz real data a long input delay refits to positive self-damping: measured, wheels).
+    ok = (max_re_eig_at_rest(model.library, _coefs_from_refit(model, sols)) <= STABILITY_TOL) | \
+        ~stable_at_rest(model)
+    if not ok.any():
+        return {"gain": float("-inf"), "gain_runs": {}, "theta": np.asarray(grid[0], float),
+                "beta": np.zeros(family.n_columns), "estimate": family.estimate(grid[0], np.zeros(family.n_columns),
+                                                                                model),
+                "std": {}, "profile": {}}
+    sse = np.where(ok, sse, np.inf)
+
+    def refit_at(th):
+        X = refit_columns(family, model, train, th)
+        return X, solve_design(normal_equations(y_tr, X[None], weights, train.window_run, R))[0][0]
+
+    theta = _parabolic_argmin(grid, sse) if grid.shape[1] == 1 else grid[0]
+    X_tr, sol = refit_at(theta)
+    if not stable_at_rest(_coef_from_refit(model, sol)):
+        theta = grid[int(np.argmin(sse))]  # the vertex between grid points is not admissible: the best point
+        X_tr, sol = refit_at(theta)
+    X0_tr = refit_columns(null_fam, model, train, null_theta)
+    sol0 = solve_design(normal_equations(y_tr, X0_tr[None], weights, train.window_run, R))[0][0]
+    r1 = test.delta_v - np.einsum("pen,n->pe", refit_columns(family, model, test, theta), sol)
+    r0 = test.delta_v - np.einsum("pen,n->pe", refit_columns(null_fam, model, test, null_theta), sol0)
+    w1, w0 = np.sum(r1 * r1 * weights, 1), np.sum(r0 * r0 * weights, 1)
+    gain_runs = {n: float(1 - w1[test.window_run == i].sum() / w0[test.window_run == i].sum())
+                 for i, n in enumerate(test.names) if np.any(test.window_run == i)}
+    m = family.n_columns
+    beta = sol[len(sol) - m:] if m else np.zeros(0)
+    std = {}
+    if family.kind == "input" and R > 1:
+        loo = [{family.theta_names[0]: float(_parabolic_argmin(
+                   grid, np.where(ok, solve_design(d, np.flatnonzero(np.arange(R) != r))[1], np.inf))[0])}
+               for r in range(R)]
+        std = _jackknife(loo)
+    return {"gain": float(1 - w1.sum() / w0.sum()), "gain_runs": gain_runs, "theta": np.asarray(theta, float),
+            "beta": beta, "estimate": family.estimate(theta, beta, _coef_from_refit(model, sol)), "std": std,
+            "profile": {"theta": grid[:, 0].tolist(), "train_sse": sse.tolist()} if grid.shape[1] == 1 else {}}
+
+
+def score_family(family: Family | str, model, train: Split, test: Split, weights: np.ndarray | None = None,
+                 base_pred: dict | None = None, uncertainty: bool = True, refit: bool = True) -> FamilyScore:
+    """Return ``family`` fitted on ``train`` (grid, refinement, linear part) and scored on ``test``.
+
+    Two scorings, the better kept: the mechanism added to the given model as it is, and (``refit``)
+    the model re-identified around the mechanism against the model re-identified without it
+    (:func:`refit_score`), which finds what a model identified on the same runs has absorbed.
+
+    Parameters
+    ----------
+    family : Family or its name.
+    model : the given model (``f``, ``library``, ``coef``): kept fixed.
+    weights : (3,) equation weights; default :func:`equation_weights` on ``train``.
+    base_pred : optional cache ``{"train": (p, 3), "test": (p, 3)}`` of :func:`null_prediction`.
+    uncertainty : compute leave-one-train-run-out standard deviations of the estimates.
+    """
+    family = FAMILY_SPECS[family] if isinstance(family, str) else family
+    weights = equation_weights(model, train) if weights is None else weights
+    base_pred = base_pred or {"train": null_prediction(model, train), "test": null_prediction(model, test)}
+    grid = family.grid(train)
+    design = design_for(family, model, train, grid, weights, base_pred["train"])
+    _, sse_grid = solve_design(design)
+    theta = _refine(family, model, train, grid, sse_grid, weights, base_pred["train"])
+    y, X = residual_and_columns(family, model, train, theta[None], base_pred["train"])
+    d_best = normal_equations(y, X, weights, train.window_run, len(train.names))
+    beta, sse_train = solve_design(d_best)
+    beta = beta[0]
+    r0 = train.delta_v - base_pred["train"]
+    sse0_train = float(np.sum(r0 * r0 * weights))
+    # out of sample: the test runs with theta and beta from the train runs
+    y_t, X_t = residual_and_columns(family, model, test, theta[None], base_pred["test"])
+    res_t = y_t[0] - np.einsum("pem,m->pe", X_t[0], beta)
+    r0_t = test.delta_v - base_pred["test"]
+    per_win_ext = np.sum(res_t * res_t * weights, axis=1)
+    per_win_0 = np.sum(r0_t * r0_t * weights, axis=1)
+    run_w = test.window_run
+    gain_runs = {}
+    for i, name in enumerate(test.names):
+        sel = run_w == i
+        if sel.any():
+            gain_runs[name] = float(1.0 - per_win_ext[sel].sum() / per_win_0[sel].sum())
+    gain = float(1.0 - per_win_ext.sum() / per_win_0.sum())
+    estimate = family.estimate(theta, beta, model)
+    std = {}
+    if uncertainty and len(train.names) > 1:
+        loo = []
+        for r in range(len(train.names)):
+            keep = np.flatnonzero(np.arange(len(train.names)) != r)
+            _, sse_r = solve_design(design, keep)
+            th_r = _parabolic_argmin(grid, sse_r) if grid.shape[1] == 1 else grid[int(np.argmin(sse_r))]
+            if grid.shape[1] == 3:  # patch geometry kept at the full-data optimum (the grid is coarser
+                th_r = theta  # than the patch); the spread of beta given the patch is resampled
+            yr, Xr = residual_and_columns(family, model, train, np.atleast_1d(th_r)[None], base_pred["train"])
+            b_r = solve_design(normal_equations(yr, Xr, weights, train.window_run, len(train.names)), keep)[0][0]
+            loo.append(family.estimate(np.atleast_1d(th_r), b_r, model))
+        std = _jackknife(loo)
+    profile = {}
+    if grid.shape[1] == 1:
+        profile = {"theta": grid[:, 0].tolist(), "train_sse": sse_grid.tolist()}
+    score = FamilyScore(family.name, np.asarray(theta, float), np.asarray(beta, float), gain, gain_runs,
+                        float(1.0 - sse_train[0] / sse0_train), estimate, std, profile)
+    if refit and family.name != "lateral_slip":  # lateral terms are library terms: a refit absorbs them
+        alt = refit_score(family, model, train, test, weights, theta)
+        if alt["gain"] > gain:
+            score = FamilyScore(family.name, alt["theta"], alt["beta"], alt["gain"], alt["gain_runs"], float("nan"),
+                                {**alt["estimate"], "scored_with": "refit"}, alt["std"], alt["profile"] or profile)
+    log.debug("%s: theta %s, beta %s, test gain %.4f, estimate %s", family.name, score.theta, score.beta,
+              score.gain, score.estimate)
+    return score

@@ -1,0 +1,273 @@
+"""The sections of the report, one builder per stage of the chain.
+
+Each ``section_*`` takes the finished :class:`~sindy_ekf.stages.chain.ChainResult` and returns
+a :class:`~sindy_ekf.report.blocks.Section`: campaign overview, calibration, synchronisation,
+poses, identification, evaluation, estimation, diagnosis. A section that does not apply (a
+trajectory campaign has no raw tracker data) or whose stage failed says so in one line.
+"""
+
+from __future__ import annotations
+
+import html
+
+import numpy as np
+
+from identification.preprocessing.figures import (
+    plot_baseline,
+    plot_baseline_vs_speed,
+    plot_body_frame,
+    plot_body_states,
+    plot_clock_residuals,
+    plot_gap_signal,
+    plot_hub_model,
+    plot_network,
+    plot_offset_fit,
+    plot_poses,
+    plot_xcorr,
+)
+from identification.preprocessing.network_transform import ARCSEC_PER_RAD
+from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
+from identification.sindy.data import states_of_runs
+from identification.sindy.figures import (
+    plot_error_curves,
+    plot_error_vs_complexity,
+    plot_grid,
+    plot_term_prevalence,
+)
+from sindy_ekf.benchmark.figures import plot_nees, plot_outage_errors, plot_trajectories
+from sindy_ekf.diagnose.figures import plot_lag_profile, plot_residual_structure
+from sindy_ekf.report.bag_facts import bag_notes, bag_words
+from sindy_ekf.report.blocks import Section, table_html
+from sindy_ekf.report.figures import (
+    plot_driven_paths,
+    plot_family_gains,
+    plot_input_coverage,
+    run_overview,
+)
+from sindy_ekf.stages.chain import ChainResult
+
+
+def _vec(v, k: float = 1.0, fmt: str = "{:+.3f}") -> str:
+    return "[" + ", ".join(fmt.format(x * k) for x in np.asarray(v, float).ravel()) + "]"
+
+
+def _absent_or_failed(sec: Section, chain: ChainResult, stages: tuple[str, ...]) -> bool:
+    """Mark ``sec`` absent/failed (with its reason) if one of ``stages`` did not give a result."""
+    for st in stages:
+        if st in chain.errors:
+            sec.status = "failed"
+            sec.note(f"stage '{st}' failed: {chain.errors[st]}", "fail")
+            return True
+        if st in chain.skipped:
+            sec.status = "absent"
+            sec.note(f"not available: {chain.skipped[st]}.")
+            return True
+    return False
+
+
+# Sections
+# --------------------------------------------------------------------------------------------
+
+def section_overview(chain: ChainResult) -> Section:
+    """Return the campaign overview: runs, durations, driven paths, input coverage (fig. 6.3)."""
+    sec = Section("overview", "Campaign overview")
+    traj = chain.trajectory
+    rows = run_overview(traj)
+    sec.note(f"{chain.campaign_path} ({chain.kind} campaign '{traj.name}'): {len(rows)} runs, "
+             f"{sum(r['duration_s'] for r in rows) / 60:.1f} min, {sum(r['path_m'] for r in rows):.0f} m driven.")
+    sec.add(table_html(["run", "split", "duration s", "poses", "rate Hz", "path m", "speed p99 m/s", "inputs"],
+                       [[r["name"], r["split"], f"{r['duration_s']:.1f}", r["n_poses"], f"{r['rate_hz']:.1f}",
+                         f"{r['path_m']:.1f}", f"{r['max_speed_m_s']:.2f}", r["n_inputs"]] for r in rows], left=2))
+    skipped = (chain.preprocess or {}).get("skipped_runs") or {}
+    for name, why in skipped.items():
+        sec.note(f"run {name} skipped by preprocessing: {why}")
+    states = chain.states.get("train", []) + chain.states.get("test", [])
+    if not states:
+        states = states_of_runs(traj.runs, DEFAULT_SMOOTHING)[0]
+    sec.figures([(lambda: plot_driven_paths(traj.runs), "driven paths in the local frame"),
+                 (lambda: plot_input_coverage(states), "density of control inputs and driving states (fig. 6.3)")])
+    return sec
+
+
+def section_calibration(chain: ChainResult) -> Section:
+    """Return the calibration: transform (eq. 5.1, table 7.2), lever arms (table 7.1), residuals."""
+    sec = Section("calibration", "Calibration")
+    if _absent_or_failed(sec, chain, ("calibration",)):
+        return sec
+    cal, tf = chain.calibration, chain.calibration.transform
+    std = tf.params_std
+    sec.note("x_at960 = t + R x_ltd800 with R = Rz(rz) Ry(ry) Rx(rx) (eqs. 5.1 to 5.5); table 7.2 lists "
+             "t_table = R^T t. Standard deviations a priori, from the survey sigmas.")
+    sec.add(table_html(["quantity", "value", "std"], [
+        ["t [m]", _vec(tf.t_at960_ltd800, fmt="{:+.6f}"), _vec(std[:3], 1e6, "{:.1f}") + " um"],
+        ["t_table = R^T t [m]", _vec(tf.t_table, fmt="{:+.6f}"), _vec(tf.t_table_std, 1e6, "{:.1f}") + " um"],
+        ["(rx, ry, rz) [deg]", _vec(np.degrees(tf.rotation_rad), fmt="{:+.6f}"),
+         _vec(std[3:], ARCSEC_PER_RAD, "{:.2f}") + " arcsec"],
+        ["a posteriori variance factor s0^2", f"{tf.variance_factor:.3f} (dof {tf.dof})", ""],
+        ["outlier test", tf.blunder_message(), ""]]))
+    lever_std = cal.body.lever_arms_std
+    sec.add(table_html(["prism", "tracker", "lever arm, body frame [m]", "std [um]"],
+                       [[k, cal.prism_tracker[k], _vec(v, fmt="{:+.5f}"), _vec(lever_std[k], 1e6, "{:.1f}")]
+                        for k, v in cal.lever_arms_body.items()], left=2))
+    sec.add(table_html(["network point", "residual [um]", "normalised", "leave-one-out T"],
+                       [[pid, _vec(tf.residuals_m[i], 1e6, "{:+.1f}"), _vec(tf.normalised_residuals[i], fmt="{:+.2f}"),
+                         f"{tf.point_test[i]:.2f}"] for i, pid in enumerate(tf.point_ids)]))
+    sec.figures([(lambda: plot_network(chain.survey, tf), "network points and tracker frames (fig. 6.1), "
+                  "residuals exaggerated"),
+                 (lambda: plot_body_frame(chain.survey, cal.body), "body frame from the wheel hubs (fig. 7.1)")])
+    return sec
+
+
+def section_synchronisation(chain: ChainResult) -> Section:
+    """Return the synchronisation: per-run clocks, offsets, baselines; figures of one run (5.2.2)."""
+    sec = Section("synchronisation", "Synchronisation")
+    if _absent_or_failed(sec, chain, ("calibration",)):
+        return sec
+    runs = (chain.preprocess or {}).get("runs", {})
+    rows = []
+    for name, r in runs.items():
+        b, hub = r["baseline_rms_m"], r.get("hub") or {}
+        rows.append([name, r["split"], f"{r['clock']['ltd800']['drift_ppm']:+.3f}",
+                     f"{r['clock']['at960']['drift_ppm']:+.3f}", f"{r['at960_extra_offset_s'] * 1e3:+.3f}",
+                     f"{r['timing_error']['r_baseline_speed_before']:+.2f}",
+                     f"{r['timing_error']['r_baseline_speed_after']:+.2f}",
+                     f"{b['before'] * 1e3:.3f}", f"{b['after'] * 1e3:.3f}",
+                     f"{b['after_hub_model'] * 1e3:.3f}" if "after_hub_model" in b else "-",
+                     f"{hub['r1'] * 1e3:.3f} / {hub['r2'] * 1e3:.3f}" if hub else "-", bag_words(r)])
+    sec.note("Clock model t_trigger = k t_tracker + d per tracker (drift = (k - 1) 1e6), the AT960's "
+             "extra offset, the correlation r of the baseline length with forward speed before and after "
+             "it, the baseline RMS and the turning-hub model of eq. 5.25; what reading the bags found.")
+    sec.add(table_html(["run", "split", "LTD800 ppm", "AT960 ppm", "AT960 offset ms", "r before", "r after",
+                        "baseline RMS before mm", "after", "after hub", "hub r1/r2 mm", "bags"], rows, left=2))
+    for line in bag_notes(runs):
+        sec.note(line)
+    if _absent_or_failed(sec, chain, ("synchronisation",)):
+        return sec
+    raw, run = chain.showcase.raw, chain.showcase.run
+    s = run.synced
+    sec.note(f"Figures for test run {raw.name}.")
+    items = [(lambda: plot_gap_signal(raw, "ltd800"), "gap signals and detected gaps (fig. 5.1)"),
+             (lambda: plot_xcorr(raw, s), "cross-correlation of the gap signals (fig. 5.2)"),
+             (lambda: plot_clock_residuals(s), "clock fit residuals (fig. 5.4)"),
+             (lambda: plot_baseline(s), "baseline length before and after the offset (fig. 5.5)"),
+             (lambda: plot_offset_fit(s), "AT960 extra offset fit (fig. 5.6)"),
+             (lambda: plot_baseline_vs_speed(s), "baseline against forward speed")]
+    if run.hub is not None:
+        items.append((lambda: plot_hub_model(run.hub), "turning-hub model, eq. 5.25 (fig. 5.7)"))
+    sec.figures(items)
+    return sec
+
+
+def section_poses(chain: ChainResult) -> Section:
+    """Return the poses of one test run with their sigmas (figs. 7.2, 7.3) and its body states (7.9)."""
+    sec = Section("poses", "Poses and body-frame states")
+    run = chain.trajectory.split("test")[0]
+    poses = chain.showcase.run.poses if chain.showcase is not None else run.poses
+    items = [(lambda: plot_poses(poses), f"run {run.name}: position, attitude and their sigmas (figs. 7.2, 7.3)")]
+    test_states = chain.states.get("test")
+    if test_states:
+        s = float(chain.model.hyperparameters.get("s") or 0.0)
+        items.append((lambda: plot_body_states({s: test_states[0]}, t_range=(0.0, 40.0)),
+                      f"body-frame velocities of the first test segment, s = {s:g} (eqs. 5.64-5.68, fig. 7.9)"))
+    sec.figures(items)
+    return sec
+
+
+def section_identification(chain: ChainResult) -> Section:
+    """Return the identification: grid search, selected model's equations, term prevalence."""
+    sec = Section("identification", "Identification")
+    if _absent_or_failed(sec, chain, ("identification",)):
+        return sec
+    model = chain.model
+    hp = ", ".join(f"{k} = {v:g}" for k, v in model.hyperparameters.items())
+    src = f"loaded from {chain.model_path}" if chain.search is None else f"selected by the grid search ({hp})"
+    sec.note(f"Integral SINDy (eqs. 5.55 to 5.59), library {model.library.name}, {model.complexity} active "
+             f"terms, {src}.")
+    sec.add(f"<pre>{html.escape(model.equations())}</pre>")
+    if chain.search is None:
+        return sec
+    res = chain.search
+    rows = [[i, f"{r['s']:g}", f"{r['tau']:g}", f"{r['alpha']:g}", f"{r['T']:g}", f"{r['complexity']:.0f}",
+             f"{100 * r['pos_err_5s_m']:.2f}", f"{r['yaw_err_5s_deg']:.2f}"] for i, r in enumerate(res.ranking(8), 1)]
+    sec.add(table_html(["rank", "s", "tau s", "alpha", "T", "terms", "CV pos 5 s cm", "CV yaw 5 s deg"], rows))
+    s = float(model.hyperparameters["s"])
+    items = [(lambda: plot_grid(res, s), f"grid over alpha and T at s = {s:g} (figs. 7.4-7.7)"),
+             (lambda: plot_error_vs_complexity(res), "5 s errors against complexity (fig. 7.10)")]
+    if res.top_models:
+        items.append((lambda: plot_term_prevalence(res.top_models),
+                      f"term prevalence in the {len(res.top_models)} best models (fig. 7.11)"))
+    sec.figures(items)
+    return sec
+
+
+def section_evaluation(chain: ChainResult) -> Section:
+    """Return the multi-step evaluation on the test runs: s_p(t), s_h(t) (eqs. 5.76-5.78, fig. 7.8)."""
+    sec = Section("evaluation", "Evaluation")
+    if _absent_or_failed(sec, chain, ("identification", "evaluation")):
+        return sec
+    ev = chain.evaluation
+    sindy = ev["sindy"]
+    errors = chain.prediction_errors()
+    sec.note(f"{errors['sindy'].n_windows} windows of 5 s (50 % overlap) on the test runs, RK4 on eq. 5.75. "
+             "Thesis (model B, real data): 14.0 cm and 4.2 deg after 5 s.")
+    sec.add(table_html(["model", "pos. error 5 s cm", "heading error 5 s deg"],
+                       [[n, f"{100 * e.pos_err_5s_m:.2f}", f"{e.yaw_err_5s_deg:.2f}"] for n, e in errors.items()]))
+    sec.figures([(lambda: plot_error_curves([sindy]), "SINDy model: per-window errors and s_p(t), s_h(t)"),
+                 (lambda: plot_error_curves(list(ev.values()), stacked=False), "all models: s_p(t), s_h(t)")])
+    return sec
+
+
+def section_estimation(chain: ChainResult) -> Section:
+    """Return the estimator benchmark: trajectories with outages, error against outage time, NEES."""
+    sec = Section("estimation", "Estimation")
+    if _absent_or_failed(sec, chain, ("identification", "estimation")):
+        return sec
+    b = chain.benchmark
+    lo, hi = b.nees_bounds_95
+    sec.note(f"GNSS profile {b.profile} on the test runs, outages as scheduled; the laser-tracker poses are the "
+             f"truth (alignment: {b.alignment}). NEES of the pose (3 dof): a consistent filter has mean 3 and "
+             f"95 % of the samples inside [{lo:.2f}, {hi:.2f}].")
+    durations = sorted({k for sc in b.scores.values() for k in sc.outage_pos_err_m}, key=float)
+    rows = [[n, f"{sc.ate_pos_m:.3f}", f"{sc.ate_yaw_deg:.2f}",
+             *[f"{sc.outage_pos_err_m[d]:.3f}" if d in sc.outage_pos_err_m else "-" for d in durations],
+             f"{sc.nees_mean:.2f}", f"{100 * sc.nees_inside_95:.0f}", f"{sc.runtime_s:.2f}",
+             f"{sc.realtime_factor:.0f}"] for n, sc in b.scores.items()]
+    sec.add(table_html(["estimator", "ATE pos m", "ATE yaw deg", *[f"end of {d} s outage m" for d in durations],
+                        "NEES mean", "NEES in 95 % %", "runtime s", "x real time"], rows))
+    sec.figures([(lambda: plot_trajectories(b), "trajectories of the test runs, outages shaded"),
+                 (lambda: plot_outage_errors(b), "RMS position error against time since the outage began"),
+                 (lambda: plot_nees(b), "pose NEES of the first test run with the 95 % bounds (consistency)")])
+    return sec
+
+
+def section_diagnosis(chain: ChainResult) -> Section:
+    """Return the diagnosis: ranked causes with gain and threshold, verdict, gain of the extension."""
+    sec = Section("diagnosis", "Diagnosis")
+    if _absent_or_failed(sec, chain, ("identification", "diagnosis")):
+        return sec
+    d = chain.diagnosis
+    sec.note(f"Most likely cause: {d.verdict}. 5 s position error on the test runs {100 * d.before.pos_err_5s_m:.2f} "
+             f"cm before, {100 * d.after.pos_err_5s_m:.2f} cm with the extended model.")
+    if d.outage:
+        sec.note(f"EKF error at the end of {d.outage['outage_s']:g} s GNSS outages (RMS over {d.outage['n']}): "
+                 f"{d.outage['before_m']:.3f} m before, {d.outage['after_m']:.3f} m after.")
+    rows = [[c.name, f"{100 * c.gain:.2f}", f"{100 * c.threshold:.2f}", "yes" if c.significant else "no",
+             ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                       for k, v in (c.score.estimate or {}).items())] for c in d.ranked]
+    sec.add(table_html(["family", "test gain %", "threshold %", "significant", "estimate"], rows))
+    for f in d.measurement:
+        sec.note(f"measurement finding '{f.name}' ({f.runs} runs): {f.cause}; correction: {f.correction}")
+    items = [(lambda: plot_family_gains(d.ranked), "out-of-sample gain of each family against its threshold")]
+    if d.structure:
+        items.insert(0, (lambda: plot_residual_structure(d.structure, title="test runs"),
+                         "residual structure: binned window residuals (eq. 5.56) against each regressor"))
+    if d.lag:
+        items.insert(1, (lambda: plot_lag_profile(d.lag), "residual-input lag correlation"))
+    sec.figures(items)
+    return sec
+
+
+SECTION_BUILDERS = {"overview": section_overview, "calibration": section_calibration,
+                    "synchronisation": section_synchronisation, "poses": section_poses,
+                    "identification": section_identification, "evaluation": section_evaluation,
+                    "estimation": section_estimation, "diagnosis": section_diagnosis}

@@ -1,0 +1,77 @@
+"""The stages the commands and the report share: what they score, on which windows, with which oracle."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from groundfloor.errors import InputError
+from identification.preprocessing.trajectory import read_trajectory_campaign
+from identification.sindy.model import model_from_terms
+from simulation.effects import Effect
+from simulation.robot import RobotParams, TrueDynamics
+from sindy_ekf.benchmark.run import ESTIMATORS
+from sindy_ekf.stages.estimation import estimators_for
+from sindy_ekf.stages.evaluation import evaluate_files, evaluation_stage
+from tests.support.trajectory_synth import write_mini_campaign
+from tests.support.truth_synth import write_bare_truth
+
+
+def perfect_model():
+    """The simulator's dynamics without effect, as an identified model would be at best."""
+    return model_from_terms(RobotParams().terms(), hyperparameters={"s": 0.0005, "tau": 1.0})
+
+
+@pytest.fixture(scope="module")
+def mini(tmp_path_factory):
+    """A trajectory campaign of the simulator (no truth) and :func:`perfect_model` as a model file."""
+    root = write_mini_campaign(tmp_path_factory.mktemp("stages") / "mini")
+    return root, perfect_model().to_json(root.parent / "model.json")
+
+
+def test_evaluation_scores_every_model_on_the_same_windows(mini):
+    root, path = mini
+    out = evaluate_files(root, path, methods=("rk4", "euler2")).to_json()
+    assert set(out) == {"pos_err_5s_m", "yaw_err_5s_deg", "n_windows", "euler2", "baselines"}  # no truth: no oracle
+    assert set(out["baselines"]) == {"constant_velocity", "unicycle"}
+    assert out["n_windows"] > 0
+    assert all(b["n_windows"] == out["n_windows"] for b in [out["euler2"], *out["baselines"].values()])
+    # the simulator's own dynamics predict better than a model that ignores the inputs
+    assert out["pos_err_5s_m"] < out["baselines"]["constant_velocity"]["pos_err_5s_m"]
+
+
+def test_the_oracle_of_a_simulated_campaign_is_its_truths_dynamics(mini, tmp_path):
+    root, path = mini
+    sim = shutil.copytree(root, tmp_path / "sim")
+    effect = Effect("heading_dependence", 1.5)
+    write_bare_truth(sim, effects=((effect.name, effect.value),))
+    ev = evaluate_files(sim, path, methods=("rk4",))
+    campaign = read_trajectory_campaign(sim)
+    given = evaluation_stage(campaign, perfect_model(), TrueDynamics(effect=effect))
+    assert ev.to_json()["oracle"] == given.to_json()["oracle"]
+    without = evaluation_stage(campaign, perfect_model(), TrueDynamics())
+    assert ev.to_json()["oracle"]["pos_err_5s_m"] != pytest.approx(without.to_json()["oracle"]["pos_err_5s_m"])
+
+
+def test_estimators_by_default_and_the_oracle_only_where_a_truth_is():
+    oracle = TrueDynamics()
+    assert estimators_for(None, oracle, "c") == ESTIMATORS
+    assert estimators_for(None, None, "c") == tuple(n for n in ESTIMATORS if n != "oracle_ekf")
+    assert estimators_for(["sindy_ekf", "oracle_ekf"], oracle, "c") == ("sindy_ekf", "oracle_ekf")
+    with pytest.raises(InputError, match=r"measured_campaign: oracle_ekf needs a simulated campaign"):
+        estimators_for(["sindy_ekf", "oracle_ekf"], None, "measured_campaign")
+
+
+def test_prediction_errors_are_one_value_type(mini):
+    from groundfloor.results import PredictionError
+    from sindy_ekf.stages.evaluation import prediction_error
+
+    root, path = mini
+    ev = evaluate_files(root, path, methods=("rk4",))
+    errors = ev.errors()
+    assert all(isinstance(e, PredictionError) for e in errors.values())
+    r = ev.results["sindy"]["rk4"]
+    # the triple at 5 s is the last sample of the RMS curves (eqs. 5.77, 5.78)
+    assert prediction_error(r) == PredictionError(float(r.s_p[-1]), float(np.degrees(r.s_h[-1])), r.eps_p.shape[0])
