@@ -37,6 +37,7 @@ from scipy.linalg.lapack import dpotrf as potrf
 from scipy.stats import chi2
 
 from groundfloor.errors import InputError
+from groundfloor.gnss import check_gnss
 from groundfloor.progress import progress
 from sindy_ekf.estimation.process_models import N_X, ProcessModel
 
@@ -291,8 +292,6 @@ class _RunState:
         self.repairs = {}
         gnss = run.gnss
         if gnss is not None:
-            from groundfloor.gnss import check_gnss
-
             gnss, self.repairs = check_gnss(gnss, f"{name} GNSS")
             inside = (gnss.t_valid >= t[0] - GRID_TOL_S) & (gnss.t_valid <= t[-1] + GRID_TOL_S)
             kv = np.minimum(np.searchsorted(t, gnss.t_valid[inside] - GRID_TOL_S), n - 1)
