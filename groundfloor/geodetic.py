@@ -21,7 +21,8 @@ import pymap3d
 
 from groundfloor.errors import InputError
 
-OUTLIER_SIGMA = 4.0  # residuals above this many stated stds are left out of the second fit
+OUTLIER_SIGMA = 4.0  # residuals above this many stated stds are left out of the refits
+MAX_REFITS = 10
 
 
 @dataclass(frozen=True)
@@ -121,8 +122,8 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     """Return the ENU -> local transform fitted to fixes and true antenna positions, with its covariance.
 
     Weighted least squares over the horizontal plane (weights from the fixes' stated horizontal
-    std), in closed form (2-D Procrustes), refitted once without residuals above
-    :data:`OUTLIER_SIGMA` stated stds (multipath). The vertical offset is the weighted mean of
+    std), in closed form (2-D Procrustes), refitted without residuals above
+    :data:`OUTLIER_SIGMA` stated stds (multipath) until the set kept no longer changes. The vertical offset is the weighted mean of
     ``local z - up``. The covariance of (yaw, t_x, t_y) is the Gauss-Newton one,
     ``sigma0^2 (J^T W J)^-1`` with the a posteriori variance factor ``sigma0^2``.
 
@@ -140,13 +141,17 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     if np.linalg.norm(e[:, :2] - e[:, :2].mean(0), axis=1).max() < 1.0:
         raise InputError(f"{source}: the antenna moved less than 1 m; ENU -> local yaw not observable")
     keep = np.ones(len(e), bool)
-    for rejecting in (True, False):
+    for _ in range(MAX_REFITS):
         yaw, t2 = _fit(e[keep, :2], loc[keep, :2], w[keep])
         c, s = np.cos(yaw), np.sin(yaw)
         res = e[:, :2] @ np.array([[c, -s], [s, c]]).T + t2 - loc[:, :2]
-        if rejecting:  # a second fit without the outliers of the first
-            keep = np.hypot(res[:, 0], res[:, 1]) * np.sqrt(w) < OUTLIER_SIGMA * np.sqrt(2.0)
-            keep = keep if keep.sum() >= 3 else np.ones(len(e), bool)
+        norm = np.hypot(res[:, 0], res[:, 1]) * np.sqrt(w)  # in stated stds
+        # a fit pulled by outliers has large residuals everywhere: the threshold shrinks from
+        # three median residuals to OUTLIER_SIGMA stated stds as the refits clean it up
+        new = norm < max(OUTLIER_SIGMA * np.sqrt(2.0), 3.0 * float(np.median(norm[keep])))
+        if new.sum() < 3 or np.array_equal(new, keep):
+            break
+        keep = new
     r = res[keep].ravel()
     wk = np.repeat(w[keep], 2)
     dof = max(r.size - 3, 1)

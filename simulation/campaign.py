@@ -344,7 +344,7 @@ def simulate_campaign(
                 runs.append(run_truth)
                 if gnss is not None:
                     st = run_truth.states
-                    fixes[setup.name] = record_fixes(st.t_utc_ns, st.x, st.y, st.z + BODY_ORIGIN_Z_LOCAL_M, st.psi,
+                    fixes[setup.name] = record_fixes(st.t_utc_ns, st.x, st.y, st.z, st.psi,
                                                      gnss, seed=int(seed) * 100 + r)
                     bag = run_dir / (f"gnss_{stamp}" + ("" if gnss.ros2 else ".bag"))
                     write_gnss_bag(bag, fixes[setup.name], gnss.topic, gnss.ros2)

@@ -74,12 +74,18 @@ class RecordedFixes:
     n_outliers: int  # fixes hit by multipath (generator truth)
 
 
+def _to_ns(t_s: np.ndarray) -> np.ndarray:
+    """Return UTC seconds as int64 ns, rounded to the microsecond (float64 holds ~0.2 us at 1.7e9 s)."""
+    return np.round(np.asarray(t_s) * 1e6).astype(np.int64) * 1000
+
+
 def record_fixes(t_utc_ns: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarray, yaw: np.ndarray,
                  spec: GnssTopicSpec, seed: int) -> RecordedFixes:
     """Return the NavSatFix contents of one run from its true poses (local frame, UTC ns)."""
     t = np.asarray(t_utc_ns, np.int64)
-    t0_ns = int(t[0])
-    t_s = (t - t0_ns) * 1e-9  # relative times keep the fix epochs exact
+    # epochs on the UTC time base, as the benchmark's internal simulation puts them: with the same
+    # seed, the recorded fixes are the internal ones (bench/bench_recorded_gnss.py pairs them)
+    t_s = t * 1e-9
     series = simulate_gnss(t_s, x, y, yaw, spec.profile, seed=seed, z=z, lever_arm_body=spec.lever_arm_body_m,
                            outages=np.empty((0, 2)))
     lla = enu_to_geodetic(spec.transform.inverse(series.p_local), spec.origin)
@@ -92,8 +98,7 @@ def record_fixes(t_utc_ns: np.ndarray, x: np.ndarray, y: np.ndarray, z: np.ndarr
     bad = rng.choice(n, size=n_bad, replace=False)  # at least one NO_FIX and one NaN fix per run
     status[bad[::2]] = STATUS_NO_FIX
     lla[bad[1::2], :2] = np.nan
-    return RecordedFixes(t0_ns + np.round(series.t_valid * 1e9).astype(np.int64),
-                         t0_ns + np.round(series.t_arrival * 1e9).astype(np.int64), lla, cov, status,
+    return RecordedFixes(_to_ns(series.t_valid), _to_ns(series.t_arrival), lla, cov, status,
                          int(np.count_nonzero(series.flags)))
 
 
