@@ -331,9 +331,9 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     seconds: dict[str, float] = {}
     tic = time.perf_counter()
     name, run_list = read_campaign_yaml(root)
+    sensors_config = read_sensors_config(root)  # an unknown sensor type fails before the work
     if not (root / "calibration.yaml").is_file():
         raise InputError(f"{root}: calibration.yaml missing")
-    sensors_config = read_sensors_config(root)  # an unknown sensor type fails before the work
     calibration = calibrate(read_survey(root / "calibration.yaml"))
     seconds["calibrate"] = time.perf_counter() - tic
 
