@@ -71,12 +71,17 @@ def _reseeded(traj: Path, tracker: Path, out: Path, seed: int) -> Path:
         shutil.rmtree(out)
     shutil.copytree(traj, out)
     truth = read_truth(tracker)
-    test = [r.name for r in read_trajectory_campaign(traj).split("test")]
+    runs = {r.name: r for r in read_trajectory_campaign(traj).runs}
+    test = [n for n, r in runs.items() if r.split == "test"]
     spec = GnssTopicSpec("dgnss")
     for j, r in enumerate(truth.runs):
         st = r.states
+        t_pose = np.asarray(runs[r.name].poses.t)  # the span the internal simulation samples: same draws
+        p = runs[r.name].poses
+        t_pose = t_pose[np.isfinite(t_pose) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)]
+        sel = (st.t_utc_ns * 1e-9 >= t_pose[0] - 1e-6) & (st.t_utc_ns * 1e-9 <= t_pose[-1] + 1e-6)
         k = seed + test.index(r.name) if r.name in test else 1000 + seed * 10 + j
-        f = record_fixes(st.t_utc_ns, st.x, st.y, st.z, st.psi, spec, seed=k)
+        f = record_fixes(st.t_utc_ns[sel], st.x[sel], st.y[sel], st.z[sel], st.psi[sel], spec, seed=k)
         write_gnss_csv(out / "runs" / r.name / GNSS_CSV, GnssFixes(
             f.t_valid_ns * 1e-9, f.t_arrival_ns * 1e-9, f.lla, f.cov_enu.reshape(-1, 3, 3), f.status))
     return out
