@@ -269,4 +269,5 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     for name in estimates:
         scores[name], curves[name] = score_estimator(estimates[name], truth, outages, runtimes[name])
     return BenchmarkResult(profile, ALIGNMENT, scores, estimates, truth, outages, curves,
-                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name)
+                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name,
+                           recorded_gnss=None if recorded is None else recorded.to_json_dict())

@@ -53,4 +53,9 @@ def run(args) -> int:
     if args.json is not None:
         atomic_write_json(args.json, result.to_json())
     print(format_scores(result))
+    if result.recorded_gnss:
+        tr = result.recorded_gnss["enu_to_local"]
+        std = f" +- {tr['yaw_std_deg']:.3f}" if tr["estimated"] else " (given)"
+        print(f"recorded GNSS: ENU -> local yaw {tr['enu_to_local_yaw_deg']:.3f}{std} deg, t "
+              f"({tr['enu_to_local_t_m'][0]:.3f}, {tr['enu_to_local_t_m'][1]:.3f}) m")
     return 0

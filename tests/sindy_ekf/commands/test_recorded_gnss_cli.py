@@ -28,8 +28,12 @@ def test_ros2_gnss_through_simulate_preprocess_and_benchmark(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(["benchmark", str(traj), "--model", str(model), "--gnss", "recorded", "--estimators",
                      "sindy_ekf,cv_ekf", "--json", str(tmp_path / "b.json")]) == 0
-    assert "GNSS recorded" in capsys.readouterr().out
-    scores = json.loads((tmp_path / "b.json").read_text())["estimators"]
+    out = capsys.readouterr().out
+    assert "GNSS recorded" in out and "recorded GNSS: ENU -> local yaw" in out
+    doc = json.loads((tmp_path / "b.json").read_text())
+    scores, rec = doc["estimators"], doc["recorded_gnss"]
+    true_yaw = yaml.safe_load((camp / "truth" / "gnss.yaml").read_text())["enu_to_local_yaw_deg"]
+    assert abs(rec["enu_to_local"]["enu_to_local_yaw_deg"] - true_yaw) < 4 * rec["enu_to_local"]["yaw_std_deg"]
     assert scores["sindy_ekf"]["ate_pos_m"] < 0.05  # rtk: 2 cm fixes
     assert scores["cv_ekf"]["ate_pos_m"] > scores["sindy_ekf"]["ate_pos_m"]
 
