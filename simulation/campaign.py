@@ -35,6 +35,7 @@ from simulation import bags
 from simulation import truth as truth_io
 from simulation.clocks import NS, simulate_tracker_clock
 from simulation.effects import Effect, parse_effect
+from simulation.gnss_topic import check_gnss_spec, gnss_truth, record_fixes, write_gnss_bag, write_gnss_truth
 from simulation.hubs import baseline_geometry
 from simulation.tracker_run import RunSetup, simulate_tracker_run
 from simulation.variant import Variant
@@ -239,7 +240,7 @@ def _campaign_truth(seed, minutes, effects, runs, variant: Variant) -> truth_io.
 
 
 def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=None,
-                   variant: Variant | None = None) -> str:
+                   variant: Variant | None = None, gnss=None) -> str:
     what = "table 6.4 durations" if minutes is None else f"{minutes:g} min"
     effect = f", simulator variant {variant.index}" if variant is not None and not variant.is_default else ""
     effect += "".join(f", effect {e.label()}" for e in effects)
@@ -252,12 +253,15 @@ def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=N
         "notes": (f"Simulated by sindy-ekf (simulation.campaign, seed {seed}, {what}{effect}). Mirrors the "
                   "thesis campaign of 21.12.2022; truth/ holds the true values."),
     }
+    if gnss is not None:  # recorded GNSS (issue 16): declared, origin given, ENU -> local left to estimate
+        doc["sensors"] = [gnss.campaign_entry()]
+        doc["geodetic_origin"] = gnss.origin.to_yaml()
     return yaml.safe_dump(doc, sort_keys=False, width=100)
 
 
 def simulate_campaign(
     out: str | Path, seed: int = 0, minutes: float | None = None, effects=(), force: bool = False,
-    receive_jitter_s=None, clock_resets=None, variant: int | Variant | None = None,
+    receive_jitter_s=None, clock_resets=None, variant: int | Variant | None = None, gnss=None,
 ) -> truth_io.CampaignTruth:
     """Return the truth of a simulated tracker campaign written to ``out``.
 
@@ -289,6 +293,12 @@ def simulate_campaign(
         :func:`simulation.variants.draw_variant`) or a :class:`simulation.variant.Variant`.
         ``None`` or 0: the simulator before variants, byte for byte. truth/ records the variant
         whole (``variant``), so that its true dynamics are rebuilt from truth/.
+    gnss
+        ``None`` (no GNSS recorded), a profile name of :data:`simulation.gnss.PROFILES` or a
+        :class:`simulation.gnss_topic.GnssTopicSpec`: each run also gets a bag of recorded
+        ``sensor_msgs/NavSatFix`` fixes, declared under ``sensors:`` in ``campaign.yaml``, the
+        true origin and ENU -> local transform in ``truth/gnss.yaml``. The other files keep
+        their bytes (the fixes draw from their own random stream).
 
     Raises
     ------
@@ -301,6 +311,7 @@ def simulate_campaign(
     variant = check_variant(variant)
     receive_jitter_s = check_receive_jitter(receive_jitter_s)
     clock_resets = check_clock_resets(clock_resets)
+    gnss = check_gnss_spec(gnss)
     durations = run_durations(minutes)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed={seed!r}: must be a non-negative integer")
@@ -316,7 +327,7 @@ def simulate_campaign(
     t_boot_ns = {k: start_ns - int(rng_campaign.uniform(2, 8) * 3600 * NS) for k in ("at960", "ltd800")}
     effect = effects[0] if effects else None
 
-    t0_ns, runs = start_ns, []
+    t0_ns, runs, fixes = start_ns, [], {}
     try:
         with atomic_output_dir(out, force=force) as tmp:
             tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
@@ -331,12 +342,20 @@ def simulate_campaign(
                 bags.write_bag(run_dir / f"husky_{stamp}.bag", husky)
                 bags.write_bag(run_dir / f"server_{stamp}.bag", server)
                 runs.append(run_truth)
+                if gnss is not None:
+                    st = run_truth.states
+                    fixes[setup.name] = record_fixes(st.t_utc_ns, st.x, st.y, st.z, st.psi,
+                                                     gnss, seed=int(seed) * 100 + r)
+                    bag = run_dir / (f"gnss_{stamp}" + ("" if gnss.ros2 else ".bag"))
+                    write_gnss_bag(bag, fixes[setup.name], gnss.topic, gnss.ros2)
                 t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
             (tmp / "campaign.yaml").write_text(_campaign_yaml(seed, minutes, effects, receive_jitter_s,
-                                                              clock_resets, variant))
+                                                              clock_resets, variant, gnss))
             shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
             truth = _campaign_truth(seed, minutes, effects, runs, variant)
             truth_io.write_truth(tmp, truth)
+            if gnss is not None:
+                write_gnss_truth(tmp, gnss_truth(gnss, fixes))
     except OSError as exc:  # unwritable or vanished output, full disk: one line, nothing left
         raise InputError(f"{out}: cannot write the campaign there ({exc.strerror or exc})") from None
     log.info("simulated campaign %s: %d runs, %.1f min", out, len(runs), durations.sum() / 60)

@@ -55,6 +55,7 @@ from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, Trajec
 from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
 from identification.preprocessing.hub import HubModel, fit_hub_model
+from identification.preprocessing.io_sensors import read_sensors_config, write_run_gnss
 from identification.preprocessing.io_survey import read_survey
 from identification.preprocessing.io_tracker import (
     BagRun,
@@ -107,6 +108,7 @@ class PreprocessResult:
     smoothing: float
     hub_correction: bool = HUB_CORRECTION
     seconds: dict[str, float] = field(default_factory=dict)  # stage -> total wall time
+    sensors: dict = field(default_factory=dict)  # recorded sensors: kind -> run -> counts (issue 16)
 
     def to_json_dict(self) -> dict:
         """Return the ``preprocess --json`` dict: the INTERFACES.md keys and more."""
@@ -117,6 +119,8 @@ class PreprocessResult:
         out["hub_correction"] = self.hub_correction
         out["out_dir"] = str(self.out_dir)
         out["seconds"] = {k: round(v, 3) for k, v in self.seconds.items()}
+        if self.sensors:
+            out["sensors"] = self.sensors
         return out
 
 
@@ -327,6 +331,7 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     seconds: dict[str, float] = {}
     tic = time.perf_counter()
     name, run_list = read_campaign_yaml(root)
+    sensors_config = read_sensors_config(root)  # an unknown sensor type fails before the work
     if not (root / "calibration.yaml").is_file():
         raise InputError(f"{root}: calibration.yaml missing")
     calibration = calibrate(read_survey(root / "calibration.yaml"))
@@ -365,11 +370,13 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     write_trajectory_campaign(out_dir, name, traj, force=force,
                               source=f"sindy-ekf preprocess {root.resolve()}",
                               ground_truth="laser trackers AT960 + LTD800 (thesis 5.2)",
-                              skipped_runs=dict(skipped))
+                              skipped_runs=dict(skipped), **sensors_config.to_yaml())
+    gnss = write_run_gnss(root, Path(out_dir), {n: r.poses.t for n, r in runs.items()})
     seconds["write"] = time.perf_counter() - tic
     result = PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
                               runs=runs, skipped=skipped, smoothing=smoothing,
-                              hub_correction=hub_correction, seconds=seconds)
+                              hub_correction=hub_correction, seconds=seconds,
+                              sensors={"gnss": gnss} if gnss else {})
     # the report beside the data (readers ignore unknown files); the data folder is complete
     # before it, so a crash in between loses only the report, never half the data
     atomic_write_json(Path(out_dir) / REPORT_FILE, result.to_json_dict())

@@ -53,10 +53,12 @@ class BenchmarkResult:
     nees_bounds_95: tuple[float, float]  # per-sample, 3 dof
     nis_bounds_95: tuple[float, float]  # per-sample, 2 dof
     campaign: str = ""  # the campaign's name
+    recorded_gnss: dict | None = None  # --gnss recorded: origin, ENU -> local (with std), counts per run
 
     def to_json(self) -> dict:
         """Return the ``benchmark --json`` content (INTERFACES.md keys and more)."""
         return {"profile": self.profile, "alignment": self.alignment,
                 "nees_bounds_95": list(self.nees_bounds_95), "nis_bounds_95": list(self.nis_bounds_95),
                 "estimators": {n: {k: (v if not isinstance(v, float) or np.isfinite(v) else None)
-                                   for k, v in s.__dict__.items()} for n, s in self.scores.items()}}
+                                   for k, v in s.__dict__.items()} for n, s in self.scores.items()},
+                **({"recorded_gnss": self.recorded_gnss} if self.recorded_gnss else {})}

@@ -34,6 +34,7 @@ from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
 from identification.sindy.data import body_states
 from simulation.gnss import schedule_outages, simulate_gnss
+from sindy_ekf.benchmark.gnss_source import RECORDED, RecordedGnss, load_recorded_gnss
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, score_estimator
 from sindy_ekf.estimation.ekf import (
@@ -137,7 +138,8 @@ class _TestRun:
 
 
 def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float,
-                 outage_warmup_s: float, outage_recovery_s: float) -> _TestRun:
+                 outage_warmup_s: float, outage_recovery_s: float,
+                 recorded: RecordedGnss | None = None) -> _TestRun:
     """Return the GNSS series, grid, inputs and initial state of one test run."""
     p = run.poses
     ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
@@ -150,7 +152,7 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
     outages = schedule_outages(t_pose[0], t_pose[-1], warmup_s=outage_warmup_s,
                                recovery_s=outage_recovery_s)
     gnss = simulate_gnss(t_pose, truth[:, 1], truth[:, 2], yaw, profile, seed=seed, z=z,
-                         outages=outages)
+                         outages=outages) if recorded is None else recorded.series(run.name, outages)
     grid = estimation_grid(t_pose, gnss.t_valid)
     at_pose = np.searchsorted(grid, t_pose - GRID_TOL_S)
     inp = run.inputs
@@ -177,7 +179,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     ----------
     campaign : ``groundfloor.types.TrajectoryCampaign`` (its test runs are scored).
     sindy_body : the identified body model (``identification.sindy.model.SindyModel``).
-    profile : GNSS profile of :mod:`simulation.gnss`; ``seed`` seeds it (run ``i`` uses seed + i).
+    profile : GNSS profile of :mod:`simulation.gnss`; ``seed`` seeds it (run ``i`` uses seed + i);
+        ``"recorded"``: the campaign's own fixes (:mod:`sindy_ekf.benchmark.gnss_source`).
     oracle_dynamics : ``simulation.robot.TrueDynamics`` for ``oracle_ekf`` (simulated campaigns).
     estimators : names to run, a subset of :data:`ESTIMATORS` and :data:`OPTIONAL_ESTIMATORS`
         (``sindy_ekf_lateral`` and ``sindy_graph_lateral``: sindy_ekf and sindy_graph with the
@@ -200,7 +203,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         raise InputError(f"{campaign.root}: no run marked train to fit process noise on")
     series = train_series(train, s)
     models = fit_models(train, sindy_body, oracle_dynamics, s, series)
-    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s)
+    recorded = load_recorded_gnss(campaign) if profile == RECORDED else None
+    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s, recorded)
             for i, r in enumerate(test)]
     P0 = np.diag(P0_STD ** 2)
     estimates: dict[str, dict[str, Estimate]] = {}
@@ -265,4 +269,5 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     for name in estimates:
         scores[name], curves[name] = score_estimator(estimates[name], truth, outages, runtimes[name])
     return BenchmarkResult(profile, ALIGNMENT, scores, estimates, truth, outages, curves,
-                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name)
+                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name,
+                           recorded_gnss=None if recorded is None else recorded.to_json_dict())

@@ -9,6 +9,8 @@ from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
 from simulation.campaign import simulate_campaign
 from simulation.effects import EFFECTS
+from simulation.gnss import PROFILES
+from simulation.gnss_topic import GnssTopicSpec
 from simulation.truth import CampaignTruth, campaign_summary
 
 _FORMS = "; ".join(f"{name}: {', '.join(spec.forms)}" for name, spec in EFFECTS.items())
@@ -41,6 +43,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="restart a tracker's clock in that run (a backward jump of hours in its "
                         "stamps), e.g. run_05 or run_05:ltd800:0.3 (default tracker at960, at 0.5 of "
                         "the run); repeatable")
+    p.add_argument("--gnss", default=None, choices=sorted(PROFILES), metavar="PROFILE",
+                   help="also record GNSS: a sensor_msgs/NavSatFix bag per run from that profile "
+                        f"({', '.join(PROFILES)}) around a geodetic origin, declared under sensors: in "
+                        "campaign.yaml, the true ENU -> local transform in truth/gnss.yaml "
+                        "(default: none; the other files keep their bytes)")
+    p.add_argument("--gnss-ros2", action="store_true", help="write the GNSS bags as ROS2 folders")
     p.add_argument("--force", action="store_true", help="replace a non-empty OUT")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
 
@@ -61,9 +69,12 @@ def run(args) -> int:
     """Simulate the campaign, print a summary, write ``--json``; return the exit code."""
     if args.json is not None and args.json.resolve().is_relative_to(args.out.resolve()):
         raise InputError(f"--json {args.json}: must not be inside the output folder {args.out}")
+    if args.gnss_ros2 and args.gnss is None:
+        raise InputError("--gnss-ros2: needs --gnss PROFILE")
     truth = simulate_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
                               force=args.force, receive_jitter_s=args.receive_jitter,
-                              clock_resets=args.clock_reset, variant=args.variant)
+                              clock_resets=args.clock_reset, variant=args.variant,
+                              gnss=None if args.gnss is None else GnssTopicSpec(args.gnss, ros2=args.gnss_ros2))
     total = sum(r.duration_s for r in truth.runs) / 60.0
     effect = truth.effect().label() if truth.effects else "none"
     print(f"simulated campaign {args.out}: {len(truth.runs)} runs, {total:.1f} min, seed {truth.seed}, "
