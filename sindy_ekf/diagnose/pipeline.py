@@ -34,8 +34,8 @@ from sindy_ekf.diagnose.extend import (
     outage_errors,
     reidentify,
 )
-from sindy_ekf.diagnose.families import FAMILIES
-from sindy_ekf.diagnose.fitting import equation_weights, null_prediction, score_family
+from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
+from sindy_ekf.diagnose.fitting import FamilyScore, equation_weights, null_prediction, score_family
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
@@ -200,7 +200,7 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
         keep = tr.window_run != r
         if not keep.any() or st.t[-1] - st.t[0] < WINDOW_S:
             continue
-        refit = reidentify(model, name, best.theta, tr.select_windows(keep), weights)
+        refit = reidentify(model, name, best.theta, tr.select_windows(keep), weights, best.estimate)
         for i, cand in enumerate((refit, added)):
             e = multistep(cand, [st], [train_names[r]]).eps_p[:, -1]
             sq[i] += float(np.sum(np.where(np.isfinite(e), np.minimum(e, 1e3), 1e3) ** 2))
@@ -246,6 +246,18 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
             f"(median 5 s position error {100 * base:.1f} -> {100 * after:.1f} cm, more than "
             f"{100 * CONFIRM_TOLERANCE:.0f} % worse)"))
     return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
+
+
+def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:
+    """Return family ``name`` scored with the one of its mechanisms (families.MECHANISMS) that fits
+    the *train* runs best (the given model kept fixed), so that the choice of form never looks at
+    the test runs that score it."""
+    specs = MECHANISMS[name]
+    if len(specs) > 1:
+        trial = [score_family(s, model, tr, te, weights, base_pred, uncertainty=False, refit=False).train_gain
+                 for s in specs]
+        specs = (specs[int(np.nanargmax(np.where(np.isfinite(trial), trial, -np.inf)))],)
+    return score_family(specs[0], model, tr, te, weights, base_pred, uncertainty=uncertainty)
 
 
 def in_envelope(model, split, margin: float = 0.1):
@@ -297,7 +309,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     te = in_envelope(model, split_from_states(test, test_names, tau, what="test runs"))
     weights = equation_weights(model, tr)
     base_pred = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
-    scores = [score_family(f, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+    scores = [score_mechanisms(f, model, tr, te, weights, base_pred, uncertainty=uncertainty)
               for f in progress(list(families), "diagnose: families")]
     ranked = rank_families(scores, thresholds)
     name = verdict(ranked)
@@ -314,7 +326,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     others = {}
     for c in ranked[1:]:
         if c.significant:  # what each other significant mechanism alone would buy
-            ext = (reidentify(model, c.name, c.score.theta, tr, weights)
+            ext = (reidentify(model, c.name, c.score.theta, tr, weights, dict(c.score.estimate))
                    if c.score.estimate.get("scored_with") == "refit"
                    else ExtendedModel.added(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate)))
             others[c.name] = errors_5s(res_before, multistep(ext, test, test_names))[1]
