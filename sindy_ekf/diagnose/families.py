@@ -97,20 +97,20 @@ def inputs_lagged(t_run: np.ndarray, u: np.ndarray, slices, lag_s: np.ndarray) -
     live = T > 0
     if not live.any():
         return out
-    Tl = T[live][:, None]
+    Tl = T[live][:, None, None]
     for sl in slices:
         t, uu = t_run[sl], u[sl]
+        h = np.diff(t)[None, :, None]  # (1, N-1, 1)
+        a = np.exp(-h / Tl)  # (C, N-1, 1)
+        slope = np.divide(np.diff(uu, axis=0)[None], h, out=np.zeros((1,) + uu[1:].shape), where=h > 0)
+        # over a step of length h with u(s) = u0 + slope s: y1 = u1 - slope T - (u0 - slope T - y0) exp(-h/T)
+        c = uu[1:][None] - slope * Tl - (uu[:-1][None] - slope * Tl) * a  # (C, N-1, 2)
         ys = np.empty((len(Tl), len(t), 2))
         y = np.broadcast_to(uu[0], (len(Tl), 2)).copy()
         ys[:, 0] = y
-        dt = np.diff(t)
-        for k in range(1, len(t)):  # one pass per sample, vectorised over candidates
-            h = dt[k - 1]
-            a = np.exp(-h / Tl)
-            slope = (uu[k] - uu[k - 1]) / h if h > 0 else 0.0 * uu[k]
-            # y(h) for u(s) = u0 + slope s: u1 - slope T - (u0 - slope T - y0) exp(-h/T)
-            y = uu[k] - slope * Tl - (uu[k - 1] - slope * Tl - y) * a
-            ys[:, k] = y
+        for k in range(len(t) - 1):  # the recursion itself, vectorised over candidates
+            y = c[:, k] + a[:, k] * y
+            ys[:, k + 1] = y
         out[live, sl] = ys
     return out
 

@@ -35,7 +35,14 @@ from sindy_ekf.diagnose.extend import (
     reidentify,
 )
 from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
-from sindy_ekf.diagnose.fitting import FamilyScore, equation_weights, null_prediction, score_family
+from sindy_ekf.diagnose.fitting import (
+    FamilyScore,
+    design_for,
+    equation_weights,
+    null_prediction,
+    score_family,
+    solve_design,
+)
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
@@ -248,15 +255,32 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
     return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
 
 
+def parabolic_min(grid: np.ndarray, sse: np.ndarray) -> float:
+    """Return the minimum of the parabola through the best of ``sse`` on ``grid`` and its neighbours
+    (the best value itself at an edge or without curvature): mechanisms on grids of different
+    spacing compared near their optima, not at wherever their grid points happen to fall."""
+    i = int(np.nanargmin(np.where(np.isfinite(sse), sse, np.inf)))
+    if i == 0 or i == len(sse) - 1 or not np.all(np.isfinite(sse[i - 1:i + 2])):
+        return float(sse[i])
+    (x0, x1, x2), (y0, y1, y2) = grid[i - 1:i + 2], sse[i - 1:i + 2]
+    c2 = ((y2 - y1) / (x2 - x1) - (y1 - y0) / (x1 - x0)) / (x2 - x0)  # second divided difference
+    if c2 <= 0:
+        return float(y1)
+    c1 = (y1 - y0) / (x1 - x0) - c2 * (x0 + x1)  # y = c2 x^2 + c1 x + c0 through the three points
+    x_min = -c1 / (2 * c2)
+    return float(min(y1, y1 + c1 * (x_min - x1) + c2 * (x_min ** 2 - x1 ** 2)))
+
+
 def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:
     """Return family ``name`` scored with the one of its mechanisms (families.MECHANISMS) that fits
-    the *train* runs best (the given model kept fixed), so that the choice of form never looks at
-    the test runs that score it."""
+    the *train* runs best on its search grid (the given model kept fixed), so that the choice of
+    form never looks at the test runs that score it."""
     specs = MECHANISMS[name]
-    if len(specs) > 1:
-        trial = [score_family(s, model, tr, te, weights, base_pred, uncertainty=False, refit=False).train_gain
-                 for s in specs]
-        specs = (specs[int(np.nanargmax(np.where(np.isfinite(trial), trial, -np.inf)))],)
+    if len(specs) > 1:  # compared on their grids: the refinement and the refit only for the one kept
+        best_sse = [parabolic_min(s.grid(tr)[:, 0], solve_design(design_for(s, model, tr, s.grid(tr), weights,
+                                                                           base_pred["train"]))[1])
+                    for s in specs]
+        specs = (specs[int(np.nanargmin(np.where(np.isfinite(best_sse), best_sse, np.inf)))],)
     return score_family(specs[0], model, tr, te, weights, base_pred, uncertainty=uncertainty)
 
 

@@ -63,3 +63,12 @@ def test_extended_model_round_trips_its_mechanism(tmp_path):
     back = ExtendedModel.load(ext.to_json(tmp_path / "ext.json"))
     assert back.spec.mechanism == "throttle_to_turn_coupling"
     np.testing.assert_allclose(back.motor_inputs(np.zeros(2), u), ext.motor_inputs(np.zeros(2), u))
+
+
+def test_parabolic_min_by_hand():
+    from sindy_ekf.diagnose.pipeline import parabolic_min
+
+    x = np.array([0.0, 0.1, 0.2, 0.3])
+    y = 2.0 + 5.0 * (x - 0.17) ** 2  # minimum 2.0 at 0.17, between grid points
+    assert parabolic_min(x, y) == pytest.approx(2.0, abs=1e-12)
+    assert parabolic_min(x, -x) == -0.3  # at the edge: the edge value
