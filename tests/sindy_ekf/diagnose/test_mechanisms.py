@@ -15,6 +15,7 @@ from identification.sindy.library import make_library
 from identification.sindy.model import SindyModel
 from sindy_ekf.diagnose.extend import ExtendedModel
 from sindy_ekf.diagnose.families import FAMILY_SPECS, MECHANISMS, mechanism_spec
+from sindy_ekf.diagnose.pipeline import parabolic_min
 
 
 def test_first_order_lag_against_an_ode_solver():
@@ -66,8 +67,6 @@ def test_extended_model_round_trips_its_mechanism(tmp_path):
 
 
 def test_parabolic_min_by_hand():
-    from sindy_ekf.diagnose.pipeline import parabolic_min
-
     x = np.array([0.0, 0.1, 0.2, 0.3])
     y = 2.0 + 5.0 * (x - 0.17) ** 2  # minimum 2.0 at 0.17, between grid points
     assert parabolic_min(x, y) == pytest.approx(2.0, abs=1e-12)
