@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import lfilter
 
 from identification.sindy.library import LIBRARY_STATE_NAMES, parse_term
 from sindy_ekf.diagnose.data import Split
@@ -106,8 +107,19 @@ def inputs_lagged(t_run: np.ndarray, u: np.ndarray, slices, lag_s: np.ndarray) -
         # over a step of length h with u(s) = u0 + slope s: y1 = u1 - slope T - (u0 - slope T - y0) exp(-h/T)
         c = uu[1:][None] - slope * Tl - (uu[:-1][None] - slope * Tl) * a  # (C, N-1, 2)
         ys = np.empty((len(Tl), len(t), 2))
-        y = np.broadcast_to(uu[0], (len(Tl), 2)).copy()
-        ys[:, 0] = y
+        ys[:, 0] = uu[0]
+        hv = h[0, :, 0]
+        edges = np.concatenate([[0], np.flatnonzero(np.abs(np.diff(hv)) > 1e-9 * hv[1:]) + 1, [len(hv)]])
+        if len(t) > 1 and len(edges) < len(t) / 20:  # stretches of even sampling: a linear filter each
+            y = ys[:, 0].copy()
+            for s0, e0 in zip(edges[:-1], edges[1:]):
+                for i in range(len(Tl)):
+                    ai = a[i, s0, 0]
+                    ys[i, s0 + 1:e0 + 1] = lfilter([1.0], [1.0, -ai], c[i, s0:e0], axis=0, zi=ai * y[i][None])[0]
+                y = ys[:, e0].copy()
+            out[live, sl] = ys
+            continue
+        y = ys[:, 0].copy()
         for k in range(len(t) - 1):  # the recursion itself, vectorised over candidates
             y = c[:, k] + a[:, k] * y
             ys[:, k + 1] = y

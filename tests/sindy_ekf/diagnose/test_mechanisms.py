@@ -71,3 +71,24 @@ def test_parabolic_min_by_hand():
     y = 2.0 + 5.0 * (x - 0.17) ** 2  # minimum 2.0 at 0.17, between grid points
     assert parabolic_min(x, y) == pytest.approx(2.0, abs=1e-12)
     assert parabolic_min(x, -x) == -0.3  # at the edge: the edge value
+
+
+def test_first_order_lag_evenly_sampled_equals_the_recursion():
+    """The linear filters taken for stretches of even sampling (one stamp moved a nanosecond splits a
+    run in two) against the sample-by-sample recursion (every stamp jittered), and an ODE solver."""
+    rng = np.random.default_rng(4)
+    t = np.arange(300) * 0.02
+    u = rng.uniform(-1, 1, (300, 2))
+    lag = mechanism_spec("input_delay", "first_order_lag")
+    theta = np.array([[0.05], [0.3]])
+    even = lag.motor_inputs(t, u, [slice(0, 150), slice(150, 300)], theta)
+    t_odd = t.copy()
+    t_odd[[70, 220]] += 1e-9
+    split = lag.motor_inputs(t_odd, u, [slice(0, 150), slice(150, 300)], theta)
+    jitter = t + rng.uniform(-1e-9, 1e-9, 300)
+    stepwise = lag.motor_inputs(jitter, u, [slice(0, 150), slice(150, 300)], theta)
+    np.testing.assert_allclose(even, stepwise, atol=1e-6)
+    np.testing.assert_allclose(split, stepwise, atol=1e-6)
+    sol = solve_ivp(lambda s, y: (np.interp(s, t[150:], u[150:, 1]) - y) / 0.3, (t[150], t[-1]), [u[150, 1]],
+                    t_eval=t[150:], rtol=1e-10, atol=1e-12, max_step=0.005)
+    np.testing.assert_allclose(even[1, 150:, 1], sol.y[0], atol=1e-6)
