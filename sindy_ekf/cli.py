@@ -29,6 +29,7 @@ COMMANDS = {  # name -> help line; the module sindy_ekf.commands.<name> is impor
     "benchmark": "EKFs, factor graph and dead reckoning against the laser-tracker poses with degraded GNSS "
                  "and outages",
     "diagnose": "what the model gets wrong, its cause and the gain of a fix",
+    "inject": "hide an input-side effect (delay, deadband, asymmetry, gain decay) in a campaign's recorded inputs",
     "report": "the whole chain as one HTML report with figures",
     "demo": "the whole chain on a built-in simulated campaign",
 }
