@@ -44,7 +44,7 @@ def plot_grid(result: SearchResult, s: float, tau: float | None = None, library:
         for (r, c), v in np.ndenumerate(img):
             text = f"{v:.3g}" if np.isfinite(v) else ("diverged" if np.isinf(v) else "")
             ax.text(c, r, text, ha="center", va="center", fontsize=7,
-                    color="k" if not np.isfinite(v) or v < np.nanmean(shown) else "w")
+                    color="w" if np.isfinite(v) and v < np.nanmean(shown) else "k")  # viridis: dark below the mean
         ax.set(xticks=range(len(Ts)), xticklabels=[f"{t:g}" for t in Ts], yticks=range(len(alphas)),
                yticklabels=[f"{a:g}" for a in alphas], xlabel="T", title=title)
         if ax is axes[0][0]:
