@@ -2,10 +2,16 @@
 
 Keep them small: the whole suite must run in a few minutes on 2 cores. A test that needs a
 special campaign (an effect, another seed) simulates its own, as short as it can.
+
+No test skips for a missing dependency: what a test needs is installed by ``make test`` (evo,
+Chromium) or is there in CI (``../shared/``), and a missing one fails the test with a message
+saying what to do. With ``SINDY_EKF_NO_SKIPS=1`` (set by ``make test``) a skipped test anyway
+fails the session, so that a skip added later cannot hide a test.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -17,8 +23,28 @@ from tests.support import SHARED
 def shared_dir() -> Path:
     """The sibling ``shared/`` folder (data contract, thesis, real campaigns)."""
     if not SHARED.is_dir():
-        pytest.skip("shared/ folder beside the repository is missing")
+        pytest.fail(f"{SHARED} is missing: this test reads the thesis text or the real Warthog data "
+                    "of the project's shared/ folder, which must sit beside the checkout (CI has it; "
+                    "in a clone elsewhere, link it: ln -s /path/to/shared ../shared)", pytrace=False)
     return SHARED
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """With ``SINDY_EKF_NO_SKIPS=1``, name the skipped tests (``pytest_sessionfinish`` fails the run)."""
+    skipped = terminalreporter.stats.get("skipped", [])
+    if os.environ.get("SINDY_EKF_NO_SKIPS") == "1" and skipped:
+        terminalreporter.write_line(f"SINDY_EKF_NO_SKIPS=1: {len(skipped)} test(s) skipped, which make test "
+                                    "does not allow (install what they need instead):", red=True)
+        for report in skipped:
+            terminalreporter.write_line(f"  {report.nodeid}: {report.longrepr[-1] if report.longrepr else ''}")
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """With ``SINDY_EKF_NO_SKIPS=1``, a session with a skipped test exits non-zero."""
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if (os.environ.get("SINDY_EKF_NO_SKIPS") == "1" and reporter is not None
+            and reporter.stats.get("skipped") and exitstatus == 0):
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 @pytest.fixture(scope="session")

@@ -1,7 +1,8 @@
 """Every example's ``main()`` runs (so the examples cannot rot), and what it prints as its finding holds.
 
 Parametrised over the ``examples/*.py`` that exist (helpers starting with ``_`` excluded). An
-example whose own test file runs it (``tests/test_<name>.py``) is left to that file. The
+example whose own test file runs it (``tests/test_<name>.py``) is left to that file: not collected
+here, rather than collected and skipped. The
 findings are checked against something independent of the code under test: the baselines the
 thesis compares with, and the simulator's true dynamics.
 """
@@ -19,8 +20,9 @@ TESTS = Path(__file__).resolve().parent
 
 
 def example_files() -> list[Path]:
-    """Return the example scripts (not the ``_`` helpers)."""
-    return sorted(p for p in EXAMPLES.glob("*.py") if not p.name.startswith("_"))
+    """Return the example scripts run here (not the ``_`` helpers, not those with their own test file)."""
+    return sorted(p for p in EXAMPLES.glob("*.py")
+                  if not p.name.startswith("_") and not (TESTS / f"test_{p.stem}.py").is_file())
 
 
 def load(path: Path):
@@ -70,8 +72,6 @@ CHECKS = {"diagnose_hidden_effect": check_diagnose_hidden_effect,
 
 @pytest.mark.parametrize("path", example_files(), ids=lambda p: p.stem)
 def test_example_runs_and_its_finding_holds(path, capsys):
-    if (TESTS / f"test_{path.stem}.py").is_file():
-        pytest.skip(f"run by tests/test_{path.stem}.py")
     module = load(path)
     assert (module.__doc__ or "").strip(), f"{path.name}: no docstring stating the problem and the model"
     assert "Problem" in module.__doc__ and "Model" in module.__doc__, path.name

@@ -8,7 +8,10 @@ from pathlib import Path
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
 from simulation.campaign import simulate_campaign
+from simulation.effects import EFFECTS
 from simulation.truth import CampaignTruth, campaign_summary
+
+_FORMS = "; ".join(f"{name}: {', '.join(spec.forms)}" for name, spec in EFFECTS.items())
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -17,8 +20,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
     p.add_argument("--minutes", type=float, default=None,
                    help="total driving time (default: thesis table 6.4, 45.4 min)")
-    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
-                   help="a dynamics effect of simulation.effects, e.g. input_delay=0.1")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME[:FORM]=VALUE[,KEY=VALUE]",
+                   help="a dynamics effect of simulation.effects, e.g. input_delay=0.1, "
+                        "input_delay:motor_lag=0.15, heading_dependence=1.5,azimuth_deg=120 or "
+                        "position_dependence:bumps=0.4,seed=3 (seed draws the form's geometry); "
+                        f"forms, the family's default first: {_FORMS}. truth/ records the form "
+                        "and every parameter")
+    p.add_argument("--variant", type=int, default=0, metavar="N",
+                   help="simulator variant N (simulation.variants): perturbed model B "
+                        "coefficients, lateral law, motor lag, process-noise spectrum, driver "
+                        "style and joystick rate, tracker noise, drawn from N; recorded whole in "
+                        "truth/ (default 0: the simulator before variants, byte for byte)")
     p.add_argument("--receive-jitter", nargs="?", const="2,12", default=None, metavar="MS_LO,MS_HI",
                    help="give every message its own receive latency, uniform in [MS_LO, MS_HI] ms "
                         "(2,12 without a value), and store each topic in receive order, as "
@@ -51,11 +63,14 @@ def run(args) -> int:
         raise InputError(f"--json {args.json}: must not be inside the output folder {args.out}")
     truth = simulate_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
                               force=args.force, receive_jitter_s=args.receive_jitter,
-                              clock_resets=args.clock_reset)
+                              clock_resets=args.clock_reset, variant=args.variant)
     total = sum(r.duration_s for r in truth.runs) / 60.0
-    effect = ", ".join(f"{n}={v:g}" for n, v in truth.effects) or "none"
+    effect = truth.effect().label() if truth.effects else "none"
     print(f"simulated campaign {args.out}: {len(truth.runs)} runs, {total:.1f} min, seed {truth.seed}, "
           f"effect {effect}")
+    if truth.variant:
+        print(f"simulator variant {truth.variant['index']}: " + ", ".join(
+            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in truth.variant["draws"].items()))
     for r in truth.runs:
         jitter = r.bags.get("receive_jitter_s")
         if jitter:
