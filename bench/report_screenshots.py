@@ -48,7 +48,8 @@ def main(argv: list[str] | None = None) -> int:
             lines += [f"- {title}: not rendered", ""]
             continue
         path = save_png(cuts[sid], DOCS / f"{sid}.png")
-        lines += [f"## {title}", "", f"{LOOK_AT.get(sid, '')}.", "", f"![{title}]({path.name})", ""]
+        look = LOOK_AT.get(sid, "")
+        lines += [f"## {title}", "", f"{look[:1].upper()}{look[1:]}.", "", f"![{title}]({path.name})", ""]
         print(f"{path.relative_to(ROOT)}: {cuts[sid].shape[1]} x {cuts[sid].shape[0]} px")
     (DOCS / "README.md").write_text("\n".join(lines))
     return 0
