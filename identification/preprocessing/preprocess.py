@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundfloor.adjustment import VarianceFactorTest
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json, check_output_dir
 from groundfloor.progress import progress
@@ -63,7 +64,7 @@ from identification.preprocessing.io_tracker import (
     read_campaign_yaml,
     read_tracker_parts,
 )
-from identification.preprocessing.poses import fit_poses
+from identification.preprocessing.poses import fit_poses_full
 from identification.preprocessing.states import body_states_from_poses
 from identification.preprocessing.sync import SyncedRun, sync_run
 from identification.preprocessing.trajectory import write_trajectory_campaign
@@ -94,6 +95,7 @@ class RunResult:
     n_no_prism: int  # trigger times where neither was seen
     seconds: dict[str, float]  # stage -> wall time
     facts: ReadFacts | None = None  # what reading found, of a bag run
+    pose_test: VarianceFactorTest | None = None  # global test of the pose adjustment over the run's epochs
 
 
 @dataclass(frozen=True)
@@ -155,6 +157,8 @@ def run_json(r: RunResult) -> dict:
         "seconds": {k: round(v, 4) for k, v in r.seconds.items()},
         **reading_json(r),
     }
+    if r.pose_test is not None:
+        out["pose_variance_factor_test"] = r.pose_test.to_json()
     if r.hub is not None:
         out["hub"] = hub_json(r.hub)
         rms_after = out["hub"].get("rms_after_m")
@@ -253,8 +257,9 @@ def preprocess_run(raw: RawRun, calibration: Calibration, smoothing: float = DEF
         tracker = calibration.prism_tracker[prism]
         std[prism] = np.repeat(point_std_m(tracker, p, origin[tracker])[:, None], 3, axis=1)
     levers = calibration.lever_arms_body
-    poses = fit_poses(synced.t_utc[both], p_front, p_rear, levers["front"], levers["rear"],
-                      std["front"], std["rear"])
+    pose_fit = fit_poses_full(synced.t_utc[both], p_front, p_rear, levers["front"], levers["rear"],
+                              std["front"], std["rear"])
+    poses = pose_fit.track
     sec["poses"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
@@ -263,7 +268,8 @@ def preprocess_run(raw: RawRun, calibration: Calibration, smoothing: float = DEF
     sec["states"] = time.perf_counter() - tic
     return RunResult(synced=synced, hub=hub, poses=poses, states=states, inputs=inputs,
                      n_one_prism=int((seen == 1).sum()), n_no_prism=int((seen == 0).sum()),
-                     seconds=sec, facts=raw.facts if isinstance(raw, BagRun) else None)
+                     seconds=sec, facts=raw.facts if isinstance(raw, BagRun) else None,
+                     pose_test=pose_fit.variance_factor_test)
 
 
 def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | None]]:

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from groundfloor.gnss import GnssSeries
+
 
 @dataclass(frozen=True)
 class Estimate:
@@ -53,6 +55,7 @@ class BenchmarkResult:
     nees_bounds_95: tuple[float, float]  # per-sample, 3 dof
     nis_bounds_95: tuple[float, float]  # per-sample, 2 dof
     campaign: str = ""  # the campaign's name
+    gnss: dict[str, GnssSeries] = field(default_factory=dict)  # run -> the fixes the estimators had
     recorded_gnss: dict | None = None  # --gnss recorded: origin, ENU -> local (with std), counts per run
 
     def to_json(self) -> dict:

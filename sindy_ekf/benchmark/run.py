@@ -33,7 +33,7 @@ from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
 from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
 from identification.sindy.data import body_states
-from simulation.gnss import schedule_outages, simulate_gnss
+from simulation.gnss import OUTAGE_DURATIONS_S, schedule_outages, simulate_gnss
 from sindy_ekf.benchmark.gnss_source import RECORDED, RecordedGnss, load_recorded_gnss
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, score_estimator
@@ -139,7 +139,7 @@ class _TestRun:
 
 def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float,
                  outage_warmup_s: float, outage_recovery_s: float,
-                 recorded: RecordedGnss | None = None) -> _TestRun:
+                 outage_durations_s=OUTAGE_DURATIONS_S, recorded: RecordedGnss | None = None) -> _TestRun:
     """Return the GNSS series, grid, inputs and initial state of one test run."""
     p = run.poses
     ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
@@ -149,7 +149,7 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
     yaw = np.unwrap(np.asarray(p.yaw, float)[ok])
     truth = np.column_stack([t_pose, p.x[ok], p.y[ok], yaw])
     z = np.asarray(p.z, float)[ok] if p.z is not None else None
-    outages = schedule_outages(t_pose[0], t_pose[-1], warmup_s=outage_warmup_s,
+    outages = schedule_outages(t_pose[0], t_pose[-1], durations=tuple(outage_durations_s), warmup_s=outage_warmup_s,
                                recovery_s=outage_recovery_s)
     gnss = simulate_gnss(t_pose, truth[:, 1], truth[:, 2], yaw, profile, seed=seed, z=z,
                          outages=outages) if recorded is None else recorded.series(run.name, outages)
@@ -172,7 +172,7 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
 def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int = 0,
                        oracle_dynamics=None, estimators=ESTIMATORS, smoothing: float | None = None,
                        train_campaign=None, outage_warmup_s: float = 30.0,
-                       outage_recovery_s: float = 30.0) -> BenchmarkResult:
+                       outage_recovery_s: float = 30.0, outage_durations_s=OUTAGE_DURATIONS_S) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign``.
 
     Parameters
@@ -187,8 +187,9 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         ``v_y = 0`` pseudo-measurement of :func:`sindy_ekf.estimation.ekf.fit_lateral_constraint` on the train runs, every
         :data:`LATERAL_EVERY` steps).
     train_campaign : where to fit Q and the unicycle gains (default ``campaign``'s train runs).
-    outage_warmup_s, outage_recovery_s : GNSS before the first outage and between outages
-        (:func:`simulation.gnss.schedule_outages`: 5, 10, 30, 60 s outages in turn).
+    outage_warmup_s, outage_recovery_s, outage_durations_s : GNSS before the first outage and
+        between outages, and the outage lengths taken in turn (:func:`simulation.gnss.schedule_outages`;
+        default 5, 10, 30, 60 s).
     """
     known = ESTIMATORS + OPTIONAL_ESTIMATORS
     unknown = set(estimators) - set(known)
@@ -204,8 +205,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     series = train_series(train, s)
     models = fit_models(train, sindy_body, oracle_dynamics, s, series)
     recorded = load_recorded_gnss(campaign) if profile == RECORDED else None
-    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s, recorded)
-            for i, r in enumerate(test)]
+    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s,
+                         outage_durations_s, recorded) for i, r in enumerate(test)]
     P0 = np.diag(P0_STD ** 2)
     estimates: dict[str, dict[str, Estimate]] = {}
     runtimes: dict[str, float] = {}
@@ -269,5 +270,5 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     for name in estimates:
         scores[name], curves[name] = score_estimator(estimates[name], truth, outages, runtimes[name])
     return BenchmarkResult(profile, ALIGNMENT, scores, estimates, truth, outages, curves,
-                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name,
+                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name, {r.name: r.gnss for r in runs},
                            recorded_gnss=None if recorded is None else recorded.to_json_dict())
