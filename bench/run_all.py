@@ -3,7 +3,8 @@
 Usage: ``.venv/bin/python -m bench.run_all [--assemble-only]`` from the checkout. Each ``bench/bench_*.py``
 writes its own ``bench/results/<area>.md`` with the figures and the command that produced
 them; this script runs them one after another (never in parallel: timings are for 2 cores)
-and concatenates the sections in pipeline order.
+and concatenates the sections in pipeline order; then it writes the README's results table
+from them (:mod:`bench.readme_table`).
 """
 
 from __future__ import annotations
@@ -12,6 +13,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from bench import readme_table
 
 HERE = Path(__file__).resolve().parent
 ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "estimation", "ekf_speed", "real", "real_cli",
@@ -39,7 +42,7 @@ def main() -> int:
             rc = subprocess.call([sys.executable, "-m", f"bench.{script.stem}"], cwd=HERE.parent)
             print(f"== {script.name}: exit {rc} after {time.perf_counter() - t0:.1f} s", flush=True)
     print(assemble())
-    return 0
+    return readme_table.main([])
 
 
 if __name__ == "__main__":

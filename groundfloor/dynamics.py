@@ -36,6 +36,8 @@ BODY_STATE_NAMES = ("vx", "vy", "omega")  # the body velocities a dynamics model
 INPUT_NAMES = ("u1", "u2")  # throttle (forward +) and steering (left +)
 N_X = len(STATE_NAMES)
 N_U = len(INPUT_NAMES)
+_CONJUGATE = np.array([1.0, -1.0])  # [cos, sin] -> [cos, -sin], the first row of R(psi)
+_QUARTER_TURN = np.array([-1.0, 1.0])  # [y_dot, x_dot] -> [-y_dot, x_dot] = d R(psi) v / d psi
 
 
 class EnvelopeWarning(UserWarning):
@@ -54,9 +56,33 @@ def broadcast_inputs(x6: np.ndarray, u) -> tuple[np.ndarray, np.ndarray]:
 
 def pose_rate(psi: np.ndarray, v_body: np.ndarray) -> np.ndarray:
     """Return ``[x_dot, y_dot, psi_dot]`` ``(..., 3)``: body velocities into the local frame (eq. 5.75)."""
-    c, s = np.cos(psi), np.sin(psi)
-    vx, vy, om = v_body[..., 0], v_body[..., 1], v_body[..., 2]
-    return np.stack([vx * c - vy * s, vx * s + vy * c, om], axis=-1)
+    psi, v_body = np.asarray(psi, dtype=float), np.asarray(v_body, dtype=float)
+    lead = np.broadcast_shapes(psi.shape, v_body.shape[:-1])
+    out = np.empty(lead + (3,))
+    _pose_rate_into(out, np.empty(lead + (2,)), psi, v_body)
+    return out
+
+
+def _pose_rate_into(out: np.ndarray, cs: np.ndarray, psi: np.ndarray, v_body: np.ndarray) -> None:
+    """Write :func:`pose_rate` into ``out (..., 3)`` and ``[cos psi, sin psi]`` into ``cs (..., 2)``.
+
+    The rotation by ``psi`` is the complex product ``e^{i psi} (vx + i vy) = x_dot + i y_dot``:
+    one numpy call instead of six, on the small batches of the filters where each call, not the
+    arithmetic, is the cost.
+    """
+    np.cos(psi, out=cs[..., 0])
+    np.sin(psi, out=cs[..., 1])
+    rotated = out[..., :2].view(np.complex128)[..., 0]
+    np.multiply(cs.view(np.complex128)[..., 0], _complex(v_body[..., :2]), out=rotated)
+    out[..., 2] = v_body[..., 2]
+
+
+def _complex(xy: np.ndarray) -> np.ndarray:
+    """Return pairs ``xy (..., 2)`` as complex numbers ``x + i y`` ``(...)``: a view when each pair is
+    contiguous in memory (the filters' states), else a new array."""
+    if xy.strides[-1] == xy.itemsize:
+        return xy.view(np.complex128)[..., 0]
+    return xy[..., 0] + 1j * xy[..., 1]
 
 
 class Dynamics(ABC):
@@ -113,7 +139,10 @@ class Dynamics(ABC):
     def derivative(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
         """Return the six-state derivative ``(..., 6)`` of eq. 5.75."""
         x6, u = broadcast_inputs(x6, u)
-        return np.concatenate([pose_rate(x6[..., 2], self.pose_velocity(x6, u)), self.accel(x6, u, t)], axis=-1)
+        f = np.empty(x6.shape)
+        _pose_rate_into(f[..., :3], np.empty(x6.shape[:-1] + (2,)), x6[..., 2], self.pose_velocity(x6, u))
+        f[..., 3:] = self.accel(x6, u, t)
+        return f
 
     def derivative_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0, input_jacobian: bool = True
                                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -129,27 +158,24 @@ class Dynamics(ABC):
         a, J_a_x, J_a_u = self.accel_and_jacobians(x6, u, t)
         v, J_v_x, J_v_u = self.pose_velocity_and_jacobians(x6, u)
         lead = x6.shape[:-1]
-        psi = x6[..., 2]
-        c, s = np.cos(psi), np.sin(psi)
-        vx, vy = v[..., 0], v[..., 1]
-        x_dot = c * vx - s * vy
-        y_dot = s * vx + c * vy
-        f = np.empty(lead + (N_X,))
-        f[..., 0], f[..., 1], f[..., 2], f[..., 3:] = x_dot, y_dot, v[..., 2], a
+        f, cs = np.empty(lead + (N_X,)), np.empty(lead + (2,))
+        _pose_rate_into(f[..., :3], cs, x6[..., 2], v)
+        f[..., 3:] = a
         J_x = np.zeros(lead + (N_X, N_X))
-        J_x[..., 0, 2], J_x[..., 1, 2] = -y_dot, x_dot
+        np.multiply(f[..., 1::-1], _QUARTER_TURN, out=J_x[..., :2, 2])  # d pose_rate / d psi
         J_x[..., 3:, :] = J_a_x
-        J_u = np.zeros(lead + (N_X, N_U)) if input_jacobian else None
-        if J_v_x is None:  # the pose moves with the velocity states
-            J_x[..., 0, 3], J_x[..., 0, 4], J_x[..., 1, 3], J_x[..., 1, 4], J_x[..., 2, 5] = c, -s, s, c, 1.0
-        else:  # d pose_rate / d v_pose is the rotation R(psi) on (vx, vy), 1 on omega
-            R = np.zeros(lead + (3, 3))
-            R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1], R[..., 2, 2] = c, -s, s, c, 1.0
-            J_x[..., :3, :] += R @ J_v_x
-            if input_jacobian:
-                J_u[..., :3, :] = R @ J_v_u
+        # d pose_rate / d v_pose: the rotation R(psi) on (vx, vy), 1 on omega
+        R = J_x[..., :3, 3:] if J_v_x is None else np.zeros(lead + (3, 3))
+        np.multiply(cs, _CONJUGATE, out=R[..., 0, :2])
+        R[..., 1, :2] = cs[..., ::-1]
+        R[..., 2, 2] = 1.0
+        J_u = None
         if input_jacobian:
+            J_u = np.empty(lead + (N_X, N_U))
             J_u[..., 3:, :] = J_a_u
+            J_u[..., :3, :] = 0.0 if J_v_u is None else R @ J_v_u
+        if J_v_x is not None:  # a kinematic model: the pose moves with velocities of its own
+            J_x[..., :3, :] += R @ J_v_x
         return f, J_x, J_u
 
 

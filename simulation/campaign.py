@@ -35,10 +35,11 @@ from simulation import bags
 from simulation import truth as truth_io
 from simulation.clocks import NS, simulate_tracker_clock
 from simulation.effects import Effect, parse_effect
+from simulation.gnss_topic import check_gnss_spec, gnss_truth, record_fixes, write_gnss_bag, write_gnss_truth
 from simulation.hubs import baseline_geometry
-from simulation.measurement import AT960, LTD800
-from simulation.robot_params import RobotParams
 from simulation.tracker_run import RunSetup, simulate_tracker_run
+from simulation.variant import Variant
+from simulation.variants import check_variant
 
 log = logging.getLogger(__name__)
 
@@ -179,9 +180,9 @@ def check_clock_resets(value) -> dict[str, tuple[str, float]]:
     return out
 
 
-def _robot_summary() -> dict:
+def _robot_summary(variant: Variant) -> dict:
     """Return the robot's parameters as plain values for truth/ (``RobotParams`` as a dict)."""
-    return truth_io._plain(asdict(RobotParams()))
+    return truth_io._plain(asdict(variant.robot))
 
 
 def _umask() -> int:
@@ -195,7 +196,7 @@ def _bag_stamp(t_ns: int) -> str:
 
 
 def _run_setup(r: int, duration_s: float, t0_ns: int, t_boot_ns: dict, rng: np.random.Generator,
-               effect, receive_jitter_s=None, clock_reset=None) -> RunSetup:
+               effect, receive_jitter_s=None, clock_reset=None, variant: Variant | None = None) -> RunSetup:
     """Return the true parameters of run ``r``: thesis tables 7.1-7.5 plus small deviations."""
     name, _, split = RUNS_TABLE_6_4[r]
     levers = {k: np.array(v) for k, v in LEVER_ARMS_TABLE_7_1_M.items()}
@@ -210,7 +211,7 @@ def _run_setup(r: int, duration_s: float, t0_ns: int, t_boot_ns: dict, rng: np.r
         lever_arms_m=levers, R_at960_ltd800=np.array(transform["R"]),
         t_at960_ltd800=np.array(transform["translation_m"]), body_origin_z_m=BODY_ORIGIN_Z_LOCAL_M,
         ntp_offset_s=rng.choice([-1, 1]) * rng.uniform(1e-4, 1e-3), effect=effect,
-        receive_jitter_s=receive_jitter_s, clock_reset=clock_reset,
+        receive_jitter_s=receive_jitter_s, clock_reset=clock_reset, variant=variant or Variant(),
     )
 
 
@@ -220,9 +221,10 @@ def hub_radii_m() -> dict:
     return {k: v / cos_elev for k, v in HUB_RADIUS_TABLE_7_5_M.items()}
 
 
-def _campaign_truth(seed, minutes, effects, runs) -> truth_io.CampaignTruth:
+def _campaign_truth(seed, minutes, effects, runs, variant: Variant) -> truth_io.CampaignTruth:
     levers = {k: list(v) for k, v in LEVER_ARMS_TABLE_7_1_M.items()}
     radius = hub_radii_m()
+    forms = any(not e.is_default_form for e in effects)
     return truth_io.CampaignTruth(
         seed=int(seed), minutes=None if minutes is None else float(minutes),
         effects=tuple((e.name, float(e.value)) for e in effects), transform=true_transform(),
@@ -230,14 +232,18 @@ def _campaign_truth(seed, minutes, effects, runs) -> truth_io.CampaignTruth:
         baseline_length_m=float(np.linalg.norm(np.subtract(levers["front"], levers["rear"]))),
         hubs={k: {"radius_m": radius[k], "radius_eq525_m": HUB_RADIUS_TABLE_7_5_M[k]} for k in radius},
         noise={s.name: {"a_m": s.noise_a_m, "b": s.noise_b, "timing_std_s": s.timing_std_s,
-                        "resolution_s": s.resolution_s} for s in (AT960, LTD800)},
-        robot=_robot_summary(), runs=tuple(runs),
+                        "resolution_s": s.resolution_s} for s in variant.trackers().values()},
+        robot=_robot_summary(variant), runs=tuple(runs),
+        effect_specs=tuple(e.to_dict() for e in effects) if forms else (),
+        variant=None if variant.is_default else truth_io._plain(variant.to_dict()),
     )
 
 
-def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=None) -> str:
+def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=None,
+                   variant: Variant | None = None, gnss=None) -> str:
     what = "table 6.4 durations" if minutes is None else f"{minutes:g} min"
-    effect = "".join(f", effect {e.name}={e.value:g}" for e in effects)
+    effect = f", simulator variant {variant.index}" if variant is not None and not variant.is_default else ""
+    effect += "".join(f", effect {e.label()}" for e in effects)
     if receive_jitter_s is not None:
         effect += f", receive jitter {receive_jitter_s[0] * 1e3:g}-{receive_jitter_s[1] * 1e3:g} ms"
     effect += "".join(f", {tr} clock reset in {run}" for run, (tr, _) in (clock_resets or {}).items())
@@ -247,12 +253,15 @@ def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=N
         "notes": (f"Simulated by sindy-ekf (simulation.campaign, seed {seed}, {what}{effect}). Mirrors the "
                   "thesis campaign of 21.12.2022; truth/ holds the true values."),
     }
+    if gnss is not None:  # recorded GNSS (issue 16): declared, origin given, ENU -> local left to estimate
+        doc["sensors"] = [gnss.campaign_entry()]
+        doc["geodetic_origin"] = gnss.origin.to_yaml()
     return yaml.safe_dump(doc, sort_keys=False, width=100)
 
 
 def simulate_campaign(
     out: str | Path, seed: int = 0, minutes: float | None = None, effects=(), force: bool = False,
-    receive_jitter_s=None, clock_resets=None,
+    receive_jitter_s=None, clock_resets=None, variant: int | Variant | None = None, gnss=None,
 ) -> truth_io.CampaignTruth:
     """Return the truth of a simulated tracker campaign written to ``out``.
 
@@ -279,17 +288,30 @@ def simulate_campaign(
     clock_resets
         ``{run: (tracker, fraction)}`` or texts ``RUN[:TRACKER[:FRACTION]]``: that tracker's
         clock restarts at that fraction of the run (a backward jump of hours in its stamps).
+    variant
+        A simulator variant (:mod:`simulation.variants`): its index (drawn by
+        :func:`simulation.variants.draw_variant`) or a :class:`simulation.variant.Variant`.
+        ``None`` or 0: the simulator before variants, byte for byte. truth/ records the variant
+        whole (``variant``), so that its true dynamics are rebuilt from truth/.
+    gnss
+        ``None`` (no GNSS recorded), a profile name of :data:`simulation.gnss.PROFILES` or a
+        :class:`simulation.gnss_topic.GnssTopicSpec`: each run also gets a bag of recorded
+        ``sensor_msgs/NavSatFix`` fixes, declared under ``sensors:`` in ``campaign.yaml``, the
+        true origin and ENU -> local transform in ``truth/gnss.yaml``. The other files keep
+        their bytes (the fixes draw from their own random stream).
 
     Raises
     ------
     InputError
-        Unknown effect or value out of range, ``minutes`` or ``seed`` out of range, a bad
-        receive jitter or clock reset, output folder not empty (without ``force``) or not
-        writable. Nothing is left behind.
+        Unknown effect, form or value out of range, ``minutes``, ``seed`` or ``variant`` out of
+        range, a bad receive jitter or clock reset, output folder not empty (without ``force``)
+        or not writable. Nothing is left behind.
     """
     effects = check_effects(effects)
+    variant = check_variant(variant)
     receive_jitter_s = check_receive_jitter(receive_jitter_s)
     clock_resets = check_clock_resets(clock_resets)
+    gnss = check_gnss_spec(gnss)
     durations = run_durations(minutes)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed={seed!r}: must be a non-negative integer")
@@ -305,14 +327,14 @@ def simulate_campaign(
     t_boot_ns = {k: start_ns - int(rng_campaign.uniform(2, 8) * 3600 * NS) for k in ("at960", "ltd800")}
     effect = effects[0] if effects else None
 
-    t0_ns, runs = start_ns, []
+    t0_ns, runs, fixes = start_ns, [], {}
     try:
         with atomic_output_dir(out, force=force) as tmp:
             tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
             for r in progress(range(len(RUNS_TABLE_6_4)), desc="simulate runs"):
                 rng = np.random.default_rng(seeds[r + 1])
                 setup = _run_setup(r, durations[r], t0_ns, t_boot_ns, rng, effect, receive_jitter_s,
-                                   clock_resets.get(RUNS_TABLE_6_4[r][0]))
+                                   clock_resets.get(RUNS_TABLE_6_4[r][0]), variant)
                 husky, server, run_truth = simulate_tracker_run(setup, rng)
                 run_dir = tmp / "runs" / setup.name
                 run_dir.mkdir(parents=True)
@@ -320,12 +342,20 @@ def simulate_campaign(
                 bags.write_bag(run_dir / f"husky_{stamp}.bag", husky)
                 bags.write_bag(run_dir / f"server_{stamp}.bag", server)
                 runs.append(run_truth)
+                if gnss is not None:
+                    st = run_truth.states
+                    fixes[setup.name] = record_fixes(st.t_utc_ns, st.x, st.y, st.z, st.psi,
+                                                     gnss, seed=int(seed) * 100 + r)
+                    bag = run_dir / (f"gnss_{stamp}" + ("" if gnss.ros2 else ".bag"))
+                    write_gnss_bag(bag, fixes[setup.name], gnss.topic, gnss.ros2)
                 t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
             (tmp / "campaign.yaml").write_text(_campaign_yaml(seed, minutes, effects, receive_jitter_s,
-                                                              clock_resets))
+                                                              clock_resets, variant, gnss))
             shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
-            truth = _campaign_truth(seed, minutes, effects, runs)
+            truth = _campaign_truth(seed, minutes, effects, runs, variant)
             truth_io.write_truth(tmp, truth)
+            if gnss is not None:
+                write_gnss_truth(tmp, gnss_truth(gnss, fixes))
     except OSError as exc:  # unwritable or vanished output, full disk: one line, nothing left
         raise InputError(f"{out}: cannot write the campaign there ({exc.strerror or exc})") from None
     log.info("simulated campaign %s: %d runs, %.1f min", out, len(runs), durations.sum() / 60)

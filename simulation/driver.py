@@ -67,14 +67,15 @@ class DrivingArea:
 
 def simulate_joy_stamps(duration_s: float, rng: np.random.Generator, rate_hz: float = 20.0,
                         jitter_std_s: float = 0.006, gap_prob: float = 0.012,
-                        gap_s: tuple[float, float] = (0.1, 0.3)) -> np.ndarray:
+                        gap_s: tuple[float, float] = (0.1, 0.3), min_step_s: float = 0.01) -> np.ndarray:
     """Return increasing joystick message times (s since run start) in ``[0, duration_s)``.
 
     A Bluetooth joystick on ROS (``joy_node`` with autorepeat) publishes at about ``rate_hz``,
-    with scheduling jitter and occasional radio dropouts of 100 to 300 ms.
+    with scheduling jitter, steps never below ``min_step_s``, and occasional radio dropouts of
+    100 to 300 ms.
     """
     n_max = int(duration_s * rate_hz * 1.2) + 10
-    step = np.maximum(1.0 / rate_hz + rng.normal(0.0, jitter_std_s, n_max), 0.01)
+    step = np.maximum(1.0 / rate_hz + rng.normal(0.0, jitter_std_s, n_max), min_step_s)
     step += np.where(rng.random(n_max) < gap_prob, rng.uniform(*gap_s, n_max), 0.0)
     t = rng.uniform(0.0, 1.0 / rate_hz) + np.concatenate([[0.0], np.cumsum(step[:-1])])
     return t[t < duration_s]
@@ -82,8 +83,23 @@ def simulate_joy_stamps(duration_s: float, rng: np.random.Generator, rate_hz: fl
 
 @dataclass(frozen=True)
 class DriverParams:
-    """Tuning of the human-like driver (look-ahead, soft limits, reaction of the supervisor)."""
+    """Tuning of the human-like driver: look-ahead, soft limits and reaction of the supervisor,
+    style of the manoeuvres and the joystick's message clock.
 
+    The defaults are the thesis-like driver; simulator variants (:mod:`simulation.variants`)
+    draw gentle drivers (smaller, longer, calmer manoeuvres) and aggressive ones (saturated,
+    short, slalom- and turn-heavy manoeuvres) and joysticks publishing at 10 to 50 Hz.
+    """
+
+    style: str = "thesis"  # name only: thesis | gentle | aggressive
+    amplitude: float = 1.0  # the free manoeuvres' commands are scaled by this
+    target_range: float = 1.25  # hold/sweep targets uniform in +-target_range, then clipped to +-1
+    duration_scale: float = 1.0  # manoeuvre lengths scaled by this
+    kind_probs: tuple = (0.24, 0.22, 0.18, 0.12, 0.16, 0.08)  # of HumanDriver.KINDS
+    slalom_period_s: tuple = (1.5, 4.0)
+    joy_rate_hz: float = 20.0
+    joy_jitter_std_s: float = 0.006
+    joy_min_step_s: float = 0.01
     lookahead_s: float = 0.5
     soft_radius: float = 0.92  # supervisor takes over beyond this normalised elliptic radius
     soft_tracker_distance_m: float = 1.85
@@ -114,7 +130,6 @@ class HumanDriver:
     """
 
     KINDS = ("hold", "sweep", "slalom", "turn", "reverse", "stop")
-    PROBS = (0.24, 0.22, 0.18, 0.12, 0.16, 0.08)
 
     def __init__(self, rng: np.random.Generator, psi0: float, area: DrivingArea | None = None,
                  params: DriverParams | None = None, latency_s: float = 0.0):
@@ -134,29 +149,30 @@ class HumanDriver:
 
     # -- manoeuvres ---------------------------------------------------------------------------
     def _new_manoeuvre(self, t: float) -> None:
-        rng = self.rng
-        kind = self.KINDS[rng.choice(len(self.KINDS), p=self.PROBS)]
-        dur = float(rng.uniform(1.0, 6.0))
+        rng, p = self.rng, self.p
+        ds, tr = p.duration_scale, p.target_range
+        kind = self.KINDS[rng.choice(len(self.KINDS), p=p.kind_probs)]
+        dur = float(rng.uniform(1.0 * ds, 6.0 * ds))
         u_now = self.u_prev.copy()
         if kind == "hold":
-            target = np.clip(rng.uniform(-1.25, 1.25, 2), -1, 1)
+            target = np.clip(rng.uniform(-tr, tr, 2), -1, 1)
             plan = ("const", target)
-            dur = float(rng.uniform(0.8, 4.0))
+            dur = float(rng.uniform(0.8 * ds, 4.0 * ds))
         elif kind == "sweep":
-            target = np.clip(rng.uniform(-1.25, 1.25, 2), -1, 1)
+            target = np.clip(rng.uniform(-tr, tr, 2), -1, 1)
             plan = ("ramp", u_now, target)
         elif kind == "slalom":
             plan = ("slalom", float(rng.choice([-1, 1]) * rng.uniform(0.2, 1.0)),
-                    float(rng.uniform(0.3, 1.0)), float(rng.uniform(1.5, 4.0)), float(rng.uniform(0, 6.3)))
+                    float(rng.uniform(0.3, 1.0)), float(rng.uniform(*p.slalom_period_s)), float(rng.uniform(0, 6.3)))
         elif kind == "turn":
             plan = ("const", np.array([rng.uniform(-0.1, 0.1), rng.choice([-1, 1]) * rng.uniform(0.3, 1.0)]))
-            dur = float(rng.uniform(1.0, 3.0))
+            dur = float(rng.uniform(1.0 * ds, 3.0 * ds))
         elif kind == "reverse":
             plan = ("const", np.array([-rng.uniform(0.3, 1.0), rng.uniform(-0.8, 0.8)]))
-            dur = float(rng.uniform(1.0, 4.0))
+            dur = float(rng.uniform(1.0 * ds, 4.0 * ds))
         else:
             plan = ("const", np.zeros(2))
-            dur = float(rng.uniform(0.4, 1.5))
+            dur = float(rng.uniform(0.4 * ds, 1.5 * ds))
         self.plan, self.t_start, self.t_end = plan, t, t + dur
 
     def _planned(self, t: float) -> np.ndarray:
@@ -222,7 +238,8 @@ class HumanDriver:
         if self.mode == "free":
             if t >= self.t_end:
                 self._new_manoeuvre(t)
-            u = np.clip(self._planned(t), -1.0, 1.0)
+            u = self._planned(t)
+            u = np.clip(u * p.amplitude if p.amplitude != 1.0 else u, -1.0, 1.0)
         return self._thumb(t, np.asarray(u, float))
 
     def _thumb(self, t: float, u: np.ndarray) -> tuple[float, float]:

@@ -24,7 +24,9 @@ import math
 
 import numpy as np
 
-from simulation.effects import EFFECTS, Effect
+from simulation.body_effects import body_source, effective_lateral
+from simulation.effects import Effect
+from simulation.lateral import LateralLaw, lateral_source
 from simulation.robot_params import RobotParams, exponents_from_name
 
 
@@ -43,15 +45,22 @@ def _horner(poly: dict, names: tuple) -> str:
 
 
 def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple, indent: str,
-               vectorised: bool = False) -> list[str]:
+               vectorised: bool = False, lateral: LateralLaw | None = None) -> list[str]:
     """Return source lines computing ``ax, ay, aw`` from the states named ``sv`` (x, y, psi, vx,
     vy, om) and the per-input coefficients ``coef`` (state monomial -> variable name); the
-    limiters branch on floats and use ``relu(s) = (s + |s|) / 2`` on arrays."""
-    x, y, psi, vx, vy, om = sv
+    limiters branch on floats and use ``relu(s) = (s + |s|) / 2`` on arrays. A non-linear
+    lateral law replaces the polynomial ``vy`` equation; the effect's body mechanism follows
+    the limiters (:mod:`simulation.body_effects`)."""
+    vx, vy, om = sv[3:]
     names = (vx, vy, om)
+    law, gain = effective_lateral(lateral or LateralLaw(), effect)
     lines = []
     for key, out in (("vx", "ax"), ("vy", "ay"), ("omega", "aw")):
-        lines.append(f"{indent}{out} = {_horner(coef[key], names)}")
+        if key == "vy" and law.form != "linear":
+            k_y, c_y = params.lateral_damping_1_s, gain * params.lateral_coupling
+            lines.append(f"{indent}ay = {lateral_source(law, k_y, c_y, vx, vy, om)}")
+        else:
+            lines.append(f"{indent}{out} = {_horner(coef[key], names)}")
     g, gw, kg = params.guard_track_speed_m_s, params.guard_omega_rad_s, params.guard_gain
     b = params.track_half_width_m
     if vectorised:
@@ -74,30 +83,13 @@ def _acc_lines(params: RobotParams, effect: Effect | None, coef: dict, sv: tuple
                   f"{indent}    ax += 0.5*(al + ar); aw += (ar - al)*{0.5 / b!r}",
                   f"{indent}if {om} > {gw!r}: aw -= {kg!r}*({om} - {gw!r})**2",
                   f"{indent}elif {om} < {-gw!r}: aw += {kg!r}*({om} + {gw!r})**2"]
-    name = effect.name if effect is not None else None
-    if name == "heading_dependence":
-        a_g = params.g_m_s2 * math.sin(math.radians(effect.value))
-        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
-        lines += [f"{indent}ax = ax + {a_g!r}*cos({psi} - {pd!r})",
-                  f"{indent}ay = ay - {a_g!r}*sin({psi} - {pd!r})"]
-    elif name == "position_dependence":
-        fx = EFFECTS["position_dependence"].fixed
-        (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
-        half_scale = fx["patch_edge_m"] / (2.0 * math.log(9.0))
-        d_vx, d_om = -dict(params.terms_vx)["vx"], -dict(params.terms_omega)["omega"]
-        lines += [f"{indent}s_ = 0.5*(1.0 + tanh(({r!r} - sqrt(({x} - {cx!r})**2 + ({y} - {cy!r})**2"
-                  f" + 1e-12))/{half_scale!r}))",
-                  f"{indent}ax = ax - {effect.value * d_vx!r}*s_*{vx}",
-                  f"{indent}aw = aw - {effect.value * d_om!r}*s_*{om}"]
-    elif name == "lateral_slip":
-        lines.append(f"{indent}ay = ay - {(effect.value - 1.0) * params.lateral_coupling!r}*{vx}*{om}")
-    return lines
+    return lines + body_source(params, effect, lateral or LateralLaw(), sv, indent)
 
 
-def _collect_by_state(params: RobotParams) -> tuple[dict, list[str]]:
+def _collect_by_state(terms: dict) -> tuple[dict, list[str]]:
     """Return ``({eq: {state exps: coefficient name}}, lines computing the coefficients from
-    u1, u2)``: the polynomial regrouped by state monomial, its coefficients polynomials in u."""
-    terms = params.terms()
+    u1, u2)``: the polynomial ``terms`` regrouped by state monomial, its coefficients
+    polynomials in u."""
     coef, lines, powers = {}, [], set()
     for key in ("vx", "vy", "omega"):
         groups: dict[tuple, list[str]] = {}
@@ -119,7 +111,7 @@ def _collect_by_state(params: RobotParams) -> tuple[dict, list[str]]:
     return coef, pre + lines
 
 
-def compile_stepper(params: RobotParams, effect: Effect | None):
+def compile_stepper(params: RobotParams, effect: Effect | None, lateral: LateralLaw | None = None):
     """Return ``(integrate, acc)`` compiled from the term table for the float RK4 loop.
 
     ``integrate(k0, k1, state, U, N1, N2, N3, out, h)`` advances ``state`` (6 floats) over the
@@ -127,9 +119,10 @@ def compile_stepper(params: RobotParams, effect: Effect | None):
     appending the state at each step start to ``out``; ``acc`` is the same code as a function
     of floats (for tests). The polynomial is regrouped by state monomial with coefficients recomputed
     only when the motor input changes (it is constant over a joystick message), which makes a
-    stage about three times cheaper than the expanded form.
+    stage about three times cheaper than the expanded form. ``lateral`` is the robot's lateral
+    law (default linear, part of the polynomial).
     """
-    coef, coef_lines = _collect_by_state(params)
+    coef, coef_lines = _collect_by_state(params.terms())
     src = ["def integrate(k0, k1, state, U, N1, N2, N3, out, h):",
             "    x, y, psi, vx, vy, om = state",
             "    h2 = 0.5*h; h6 = h/6.0; u1p = u2p = None",
@@ -144,7 +137,7 @@ def compile_stepper(params: RobotParams, effect: Effect | None):
     step = ["h2", "h2", "h", None]
     for i in range(4):
         sv = stage_in[i]
-        src += _acc_lines(params, effect, coef, sv, "        ")
+        src += _acc_lines(params, effect, coef, sv, "        ", lateral=lateral)
         src += [f"        c = cos({sv[2]}); s = sin({sv[2]})",
                 f"        kx{i} = {sv[3]}*c - {sv[4]}*s; ky{i} = {sv[3]}*s + {sv[4]}*c; kp{i} = {sv[5]}",
                 f"        kv{i} = ax + a1; kw{i} = ay + a2; ko{i} = aw + a3"]
@@ -155,20 +148,20 @@ def compile_stepper(params: RobotParams, effect: Effect | None):
     for var, kn in (("x", "kx"), ("y", "ky"), ("psi", "kp"), ("vx", "kv"), ("vy", "kw"), ("om", "ko")):
         src.append(f"        {var} += h6*({kn}0 + 2.0*({kn}1 + {kn}2) + {kn}3)")
     src.append("    return x, y, psi, vx, vy, om")
-    namespace = {"cos": math.cos, "sin": math.sin, "tanh": math.tanh, "sqrt": math.sqrt}
+    namespace = {"cos": math.cos, "sin": math.sin, "tanh": math.tanh, "sqrt": math.sqrt, "exp": math.exp}
     exec("\n".join(src), namespace)  # noqa: S102 - source generated from the numeric term table
-    return namespace["integrate"], compile_acc(params, effect, vectorised=False)
+    return namespace["integrate"], compile_acc(params, effect, vectorised=False, lateral=lateral)
 
 
-def compile_acc(params: RobotParams, effect: Effect | None, vectorised: bool):
+def compile_acc(params: RobotParams, effect: Effect | None, vectorised: bool, lateral: LateralLaw | None = None):
     """Return ``acc(x, y, psi, vx, vy, om, u1, u2) -> (ax, ay, aw)`` generated from the term
     table: on numpy arrays (``vectorised``, for :meth:`TrueDynamics.accel`) or on floats."""
-    coef, coef_lines = _collect_by_state(params)
+    coef, coef_lines = _collect_by_state(params.terms())
     src = ["def acc(x, y, psi, vx, vy, om, u1, u2):"]
     src += ["    " + ln for ln in coef_lines]
-    src += _acc_lines(params, effect, coef, ("x", "y", "psi", "vx", "vy", "om"), "    ", vectorised)
+    src += _acc_lines(params, effect, coef, ("x", "y", "psi", "vx", "vy", "om"), "    ", vectorised, lateral)
     src.append("    return ax, ay, aw")
     lib = np if vectorised else math
-    namespace = {"cos": lib.cos, "sin": lib.sin, "tanh": lib.tanh, "sqrt": lib.sqrt}
+    namespace = {"cos": lib.cos, "sin": lib.sin, "tanh": lib.tanh, "sqrt": lib.sqrt, "exp": lib.exp}
     exec("\n".join(src), namespace)  # noqa: S102 - source generated from the numeric term table
     return namespace["acc"]

@@ -31,9 +31,12 @@ them):
 - Pose: eq. 5.75 kinematics ``x_dot = vx cos psi - vy sin psi``, ``y_dot = vx sin psi + vy cos
   psi``, ``psi_dot = omega`` in the local (AT960) frame.
 
-The coefficients and constants are :class:`simulation.robot_params.RobotParams`. Effects
-(:mod:`simulation.effects`) act either on the motor inputs (:meth:`TrueDynamics.motor_inputs`)
-or on :meth:`TrueDynamics.accel` (heading, position, lateral slip). Integration: classical RK4
+The coefficients and constants are :class:`simulation.robot_params.RobotParams`. A simulator
+variant (:class:`simulation.variant.Variant`) changes them and adds structure: another lateral
+law (:mod:`simulation.lateral`), a first-order motor lag, another process-noise spectrum
+(:mod:`simulation.process_noise`), another driver. Effects (:mod:`simulation.effects`) act
+either on the motor inputs (:meth:`TrueDynamics.motor_inputs`, :mod:`simulation.actuator`) or
+on :meth:`TrueDynamics.accel` (:mod:`simulation.body_effects`). Integration: classical RK4
 at ``dt`` with the motor inputs and the noise held over each step (the motor controller updates
 at ``1/dt``), through code generated on Python floats (:mod:`simulation.rk4_codegen`, which says
 why); the driver (:mod:`simulation.driver`) closes the loop at each joystick message.
@@ -42,17 +45,22 @@ why); the driver (:mod:`simulation.driver`) closes the loop at each joystick mes
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import signal
 
 from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
+from simulation.actuator import InputChain, InputMemo
+from simulation.body_effects import add_body_jacobians, effective_lateral, slope
 from simulation.driver import DrivingArea, HumanDriver, simulate_joy_stamps
-from simulation.effects import EFFECTS, Effect
+from simulation.effects import Effect
+from simulation.lateral import LateralLaw, lateral_accel_and_jacobian, lateral_terms
+from simulation.process_noise import simulate_ou_noise, simulate_process_noise  # noqa: F401 - re-export
 from simulation.rk4_codegen import compile_acc, compile_stepper
 from simulation.robot_params import RobotParams, exponents_from_name
+from simulation.variant import Variant
 
 
 class TrueDynamics(Dynamics):
@@ -62,21 +70,39 @@ class TrueDynamics(Dynamics):
     the pose follows the inherited eq. 5.75 kinematics. (:func:`simulate_run` integrates the
     same accelerations through code generated on Python floats, :mod:`simulation.rk4_codegen`.)
 
+    Inputs are always what the motors see. The actuator's state (the motor lag of a variant,
+    an ``input_delay:motor_lag`` effect, the stiction of ``deadband:hysteresis``) lives in
+    :meth:`motor_inputs` (``self.inputs``, a :class:`simulation.actuator.InputChain`), which
+    integrates it exactly from the joystick messages since the run start; :meth:`accel` takes
+    its output. So the six-state interface stays, and the oracle is exact: integrated with
+    ``motor_inputs`` held over each step it reproduces :func:`simulate_run` (tested).
+
     Parameters
     ----------
     params
         Robot parameters; default :class:`RobotParams`.
     effect
         At most one :class:`simulation.effects.Effect`.
+    lateral
+        The robot's lateral law; default linear (:mod:`simulation.lateral`).
+    motor_lag_s
+        Time constant of the robot's first-order motor lag (0: none).
     """
 
     name = "oracle"
 
-    def __init__(self, params: RobotParams | None = None, effect: Effect | None = None):
+    def __init__(self, params: RobotParams | None = None, effect: Effect | None = None, *,
+                 lateral: LateralLaw | None = None, motor_lag_s: float = 0.0):
         self.params = params or RobotParams()
         self.effect = effect
-        self._acc_np = compile_acc(self.params, effect, vectorised=True)
+        self.lateral = lateral or LateralLaw()
+        self.inputs = InputChain(effect, motor_lag_s)
+        self._motor_lag_s = float(motor_lag_s)
+        self._law, self._slip_gain = effective_lateral(self.lateral, effect)
+        self._acc_np = compile_acc(self.params, effect, vectorised=True, lateral=self.lateral)
         terms = self.params.terms()
+        if self._law.form != "linear":  # the law replaces the polynomial vy equation
+            terms = {**terms, "vy": {}}
         self._eqs = [[(c, np.array(exponents_from_name(n))) for n, c in terms[k].items()]
                      for k in ("vx", "vy", "omega")]
         # one entry per (equation, monomial, variable it contains): the derivative's coefficient
@@ -89,6 +115,16 @@ class TrueDynamics(Dynamics):
         self._dscatter[np.arange(len(entries)), [5 * e[0] + e[1] for e in entries]] = 1.0
         if self._dexp.size and self._dexp.max() > 3:
             raise ValueError("TrueDynamics: monomials of degree > 4 in one variable are not supported")
+
+    @classmethod
+    def of_variant(cls, variant: Variant, effect: Effect | None = None) -> TrueDynamics:
+        """Return the true dynamics of a simulator variant with an optional effect."""
+        return cls(variant.robot, effect, lateral=variant.lateral, motor_lag_s=variant.motor_lag_s)
+
+    @property
+    def motor_lag_s(self) -> float:
+        """Time constant of the robot's own motor lag (0: none; an effect's lag is the effect's)."""
+        return self._motor_lag_s
 
     # -- dynamics --------------------------------------------------------------------------
     def accel(self, x6, u, t=0.0) -> np.ndarray:
@@ -141,68 +177,34 @@ class TrueDynamics(Dynamics):
         J_x[..., 2, 3] += (d_r - d_l) * 0.5 / b
         J_x[..., 2, 5] += 0.5 * (d_l + d_r)
         J_x[..., 2, 5] -= 2 * p.guard_gain * np.maximum(np.abs(om) - p.guard_omega_rad_s, 0.0)
-        eff = self.effect
-        if eff is not None and eff.name == "heading_dependence":
-            a_g = p.g_m_s2 * math.sin(math.radians(eff.value))
-            d = x6[..., 2] - EFFECTS["heading_dependence"].fixed["psi_down_rad"]
-            J_x[..., 0, 2] += -a_g * np.sin(d)
-            J_x[..., 1, 2] += -a_g * np.cos(d)
-        elif eff is not None and eff.name == "position_dependence":
-            fx = EFFECTS["position_dependence"].fixed
-            (cx, cy), r = fx["patch_center_local_m"], fx["patch_radius_m"]
-            h = fx["patch_edge_m"] / (2.0 * math.log(9.0))
-            dx, dy = x6[..., 0] - cx, x6[..., 1] - cy
-            d = np.sqrt(dx * dx + dy * dy + 1e-12)
-            th = np.tanh((r - d) / h)
-            s = 0.5 * (1.0 + th)
-            ds_dd = -0.5 * (1.0 - th * th) / h
-            k_vx = eff.value * -dict(p.terms_vx)["vx"]
-            k_om = eff.value * -dict(p.terms_omega)["omega"]
-            for row, k, state in ((0, k_vx, vx), (2, k_om, om)):
-                J_x[..., row, 0] -= k * state * ds_dd * dx / d
-                J_x[..., row, 1] -= k * state * ds_dd * dy / d
-            J_x[..., 0, 3] -= k_vx * s
-            J_x[..., 2, 5] -= k_om * s
-        elif eff is not None and eff.name == "lateral_slip":
-            k = (eff.value - 1.0) * p.lateral_coupling
-            J_x[..., 1, 3] -= k * om
-            J_x[..., 1, 5] -= k * vx
+        if self._law.form != "linear":
+            _, d = lateral_accel_and_jacobian(self._law, p.lateral_damping_1_s, self._slip_gain * p.lateral_coupling,
+                                              vx, x6[..., 4], om)
+            J_x[..., 1, 3:6] += d
+        add_body_jacobians(p, self.effect, self.lateral, x6, J_x)
         return J_x, J_u
 
     # -- inputs ----------------------------------------------------------------------------
-    def motor_inputs(self, t_query, t_joy, u_joy) -> np.ndarray:
+    def motor_inputs(self, t_query, t_joy, u_joy, memo: InputMemo | None = None) -> np.ndarray:
         """Return the ``(n, 2)`` inputs the motors see at ``t_query`` (s since run start).
 
-        Zero-order hold of the joystick messages (zero before the first), then the effect's
-        input-side mechanism (delay, deadband, asymmetry, battery sag; see
-        :mod:`simulation.effects`), then saturation to [-1, 1].
+        Zero-order hold of the joystick messages (zero before the first), the effect's
+        input-side mechanism (delay, deadband, asymmetry, battery sag), the motor lags,
+        saturation to [-1, 1]: :class:`simulation.actuator.InputChain`. ``memo`` lets
+        :func:`simulate_run` extend one history without recomputing it.
         """
-        t_query = np.atleast_1d(np.asarray(t_query, float))
-        t_joy, u_joy = np.asarray(t_joy, float), np.asarray(u_joy, float).reshape(-1, 2)
-        eff = self.effect
-        name = eff.name if eff is not None else None
-        t_eff = t_query - eff.value if name == "input_delay" else t_query
-        idx = np.searchsorted(t_joy, t_eff, side="right") - 1
-        u = np.zeros((t_query.size, 2))
-        if len(u_joy):
-            u = np.where((idx >= 0)[:, None], u_joy[np.maximum(idx, 0)], 0.0)
-        if name == "deadband":
-            v = eff.value
-            u = np.sign(u) * np.maximum(np.abs(u) - v, 0.0) / (1.0 - v)
-        elif name == "asymmetry":
-            h = eff.value / 2.0
-            u = np.column_stack([u[:, 0] + h * u[:, 1], u[:, 1] + h * u[:, 0]])
-        elif name == "time_dependence":
-            u = u * np.maximum(1.0 - eff.value * t_query / 600.0, 0.0)[:, None]
-        return np.clip(u, -1.0, 1.0)
+        return self.inputs.motor_inputs(t_query, t_joy, u_joy, memo)
 
     def true_terms(self) -> dict[str, dict[str, float]]:
         """Return ``{"vx"|"vy"|"omega": {feature: coefficient}}`` of the effect-free dynamics.
 
         Feature names follow pysindy's PolynomialLibrary with variables ``vx, vy, omega, u1,
-        u2``; the speed limiter (zero in normal driving), noise and effects are excluded.
+        u2``; the speed limiter (zero in normal driving), noise, effects and the motor lag are
+        excluded. The ``vy`` equation is exact for the polynomial lateral laws and the law's
+        third-order Taylor expansion otherwise (:func:`simulation.lateral.lateral_terms`).
         """
-        return self.params.terms()
+        p = self.params
+        return {**p.terms(), "vy": lateral_terms(self.lateral, p.lateral_damping_1_s, p.lateral_coupling)}
 
 
 @dataclass(frozen=True)
@@ -222,15 +224,7 @@ class TrueRun:
     u_motor: np.ndarray  # (n, 2) inputs as the motors saw them
     t_joy: np.ndarray  # (m,) joystick message times, s since run start
     u_joy: np.ndarray  # (m, 2) joystick messages [u1, u2] as the robot received them
-
-
-def simulate_ou_noise(n: int, dt: float, std, corr_time_s: float, rng: np.random.Generator) -> np.ndarray:
-    """Return ``(n, len(std))`` stationary Ornstein-Uhlenbeck samples on a grid of step ``dt``."""
-    std = np.asarray(std, float)
-    rho = math.exp(-dt / corr_time_s)
-    eps = rng.standard_normal((n, std.size))
-    eps[0] /= math.sqrt(1.0 - rho * rho)  # start in the stationary distribution
-    return signal.lfilter([math.sqrt(1.0 - rho * rho)], [1.0, -rho], eps, axis=0) * std
+    noise: np.ndarray | None = None  # (n, 3) process-noise accelerations held over each step
 
 
 def pitch_from_accel(ax: np.ndarray, dt: float, params: RobotParams) -> np.ndarray:
@@ -249,12 +243,12 @@ def pitch_from_accel(ax: np.ndarray, dt: float, params: RobotParams) -> np.ndarr
 
 def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParams | None = None,
                  effect: Effect | None = None, dt: float = 0.002,
-                 start_pose: tuple[float, float, float] | None = None) -> TrueRun:
+                 start_pose: tuple[float, float, float] | None = None, variant: Variant | None = None) -> TrueRun:
     """Return the true states of a run of ``duration_s`` driven by the human-like driver.
 
     The driver (:class:`simulation.driver.HumanDriver`) decides a command at each joystick
     message from the state then; the motors see it through :meth:`TrueDynamics.motor_inputs`;
-    the body dynamics (:meth:`TrueDynamics.accel` plus OU process noise) and the eq. 5.75 pose
+    the body dynamics (:meth:`TrueDynamics.accel` plus process noise) and the eq. 5.75 pose
     kinematics are integrated by RK4 at ``dt``.
 
     Parameters
@@ -265,12 +259,15 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
         Seeded generator; same seed, same run (driver, joystick clock, noise and start pose
         draw from independent children of it).
     params, effect
-        Robot parameters (default :class:`RobotParams`) and at most one effect.
+        Robot parameters (default: the variant's) and at most one effect.
     dt
         Integration and output step, s (the motor controller's update period).
     start_pose
         ``(x, y, psi)`` in the local frame; default: near the area centre, heading along the
         line between the trackers (either way) with some scatter.
+    variant
+        Simulator variant (:class:`simulation.variant.Variant`): robot, lateral law, motor lag,
+        process-noise spectrum and driver; default ``Variant()``, the simulator before variants.
 
     Returns
     -------
@@ -284,8 +281,13 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
         raise InputError(f"simulate_run: dt={dt!r} must lie in (0, 0.02] s")
     if effect is not None and not isinstance(effect, Effect):
         raise InputError(f"simulate_run: effect={effect!r} is not a simulation.effects.Effect")
-    params = params or RobotParams()
-    dyn = TrueDynamics(params, effect)
+    if variant is not None and not isinstance(variant, Variant):
+        raise InputError(f"simulate_run: variant={variant!r} is not a simulation.variant.Variant")
+    variant = variant or Variant()
+    if params is not None:
+        variant = replace(variant, robot=params)
+    params, drv = variant.robot, variant.driver
+    dyn = TrueDynamics.of_variant(variant, effect)
     rng_drv, rng_joy, rng_noise, rng_start = rng.spawn(4)
     area = DrivingArea()
     if start_pose is None:
@@ -295,14 +297,16 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
                       psi_start + rng_start.normal(0, 0.3))
     n = int(round(duration_s / dt)) + 1
     t = np.arange(n) * dt
-    t_joy = simulate_joy_stamps(duration_s, rng_joy)
+    t_joy = simulate_joy_stamps(duration_s, rng_joy, rate_hz=drv.joy_rate_hz, jitter_std_s=drv.joy_jitter_std_s,
+                                min_step_s=drv.joy_min_step_s)
     u_joy = np.zeros((t_joy.size, 2))
-    noise = simulate_ou_noise(n, dt, params.accel_noise_std, params.noise_corr_time_s, rng_noise)
+    noise = simulate_process_noise(variant.noise, n, dt, params.accel_noise_std, params.noise_corr_time_s, rng_noise)
     n1, n2, n3 = (noise[:, i].tolist() for i in range(3))
-    latency = effect.value if effect is not None and effect.name == "input_delay" else 0.0
-    driver = HumanDriver(rng_drv, start_pose[2], area, latency_s=latency)
+    latency = dyn.inputs.delay_s + sum(dyn.inputs.lags_s)  # a driver gets used to a slow robot
+    driver = HumanDriver(rng_drv, start_pose[2], area, params=drv, latency_s=latency)
     u_motor = np.empty((n, 2))
-    integrate, _ = compile_stepper(params, effect)
+    integrate, _ = compile_stepper(params, effect, variant.lateral)
+    memo = InputMemo() if dyn.inputs.stateful else None
     state = tuple(float(v) for v in start_pose) + (0.0, 0.0, 0.0)
     rows: list[tuple] = []
     k_msg = np.minimum(np.ceil(t_joy / dt - 1e-9).astype(int), n)  # first step a message acts on
@@ -313,7 +317,7 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
             u_joy[m - 1] = driver.command(t_joy[m - 1], *state)
         if k1 <= k0:
             continue
-        um = dyn.motor_inputs(t[k0:k1], t_joy[:m], u_joy[:m])
+        um = dyn.motor_inputs(t[k0:k1], t_joy[:m], u_joy[:m], memo)
         u_motor[k0:k1] = um
         state = integrate(k0, k1, state, um.tolist(), n1, n2, n3, rows, dt)
     out = np.array(rows)
@@ -322,11 +326,11 @@ def simulate_run(duration_s: float, rng: np.random.Generator, params: RobotParam
     ax = a_body[:, 0] - vys * oms
     pitch = pitch_from_accel(ax, dt, params)
     z = np.zeros(n)
-    if effect is not None and effect.name == "heading_dependence":
-        tilt = math.radians(effect.value)
-        pd = EFFECTS["heading_dependence"].fixed["psi_down_rad"]
+    floor = slope(effect)
+    if floor is not None:
+        tilt, pd = floor
         pitch = pitch + tilt * np.cos(psis - pd)
         z = -math.tan(tilt) * (xs * math.cos(pd) + ys * math.sin(pd))
     return TrueRun(t=t, x=xs.copy(), y=ys.copy(), psi=psis.copy(), vx=vxs.copy(), vy=vys.copy(),
                    omega=oms.copy(), pitch=pitch, z=z, ax=ax, u_motor=u_motor, t_joy=t_joy,
-                   u_joy=u_joy)
+                   u_joy=u_joy, noise=noise)

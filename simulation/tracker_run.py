@@ -21,7 +21,7 @@ that instant its stamps come from a clock that read 1 s at the reset, a backward
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
@@ -41,9 +41,7 @@ from simulation.hubs import (
     hub_commands,
 )
 from simulation.measurement import (
-    AT960,
     DUTY_JITTER_STD_S,
-    LTD800,
     in_intervals,
     simulate_dropouts,
     simulate_duty_cycle,
@@ -52,6 +50,7 @@ from simulation.measurement import (
 )
 from simulation.robot import simulate_run
 from simulation.truth import RunTruth, TrueStates
+from simulation.variant import Variant
 
 TRIGGER_DEAD_TIME_S = 1e-3  # a tracker's trigger input registers no second edge within 1 ms
 
@@ -82,6 +81,7 @@ class RunSetup:
     effect: object = None
     receive_jitter_s: tuple[float, float] | None = None  # (lo, hi) latency of every message
     clock_reset: tuple[str, float] | None = None  # (tracker, fraction of the trigger span)
+    variant: Variant = field(default_factory=Variant)  # robot, driver and tracker noise
 
 
 class Trajectory:
@@ -175,7 +175,8 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
     """
     rng_robot, rng_meas = rng.spawn(2)
     lead = float(rng_meas.uniform(0.5, 1.5))
-    true = simulate_run(lead + setup.duration_s + TAIL_S, rng_robot, effect=setup.effect)
+    true = simulate_run(lead + setup.duration_s + TAIL_S, rng_robot, effect=setup.effect, variant=setup.variant)
+    at960, ltd800 = setup.variant.trackers()["at960"], setup.variant.trackers()["ltd800"]
     traj = Trajectory(true, setup.body_origin_z_m)
     trig = simulate_trigger(lead, setup.duration_s, setup.t0_ns, rng_meas)
     t_first, t_last = trig.t_rise_rel[0], trig.t_rise_rel[-1]
@@ -204,14 +205,14 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
 
     # --- tracker stamps (own clocks) and noise draws (fixed across the hub iterations)
     stamp_ltd = stamp_tracker(setup.clocks["ltd800"], t_ltd, setup.t0_ns, rng_meas,
-                              timing_std_s=LTD800.timing_std_s, resolution_s=LTD800.resolution_s)
+                              timing_std_s=ltd800.timing_std_s, resolution_s=ltd800.resolution_s)
     stamp_at = stamp_tracker(setup.clocks["at960"], t_at, setup.t0_ns, rng_meas,
-                             timing_std_s=AT960.timing_std_s, resolution_s=AT960.resolution_s)
+                             timing_std_s=at960.timing_std_s, resolution_s=at960.resolution_s)
     reset = _reset_clock(setup, t_first, t_last)
     if reset is not None:
         # the same instants on the restarted clock: stamps shifted back by whole clock ticks
         tracker, t_reset, clock = reset
-        stamp, t_ev, spec = (stamp_at, t_at, AT960) if tracker == "at960" else (stamp_ltd, t_ltd, LTD800)
+        stamp, t_ev, spec = (stamp_at, t_at, at960) if tracker == "at960" else (stamp_ltd, t_ltd, ltd800)
         tick_ns = round(spec.resolution_s * NS)
         shift_ns = round((clock.d_ns - setup.clocks[tracker].d_ns) / clock.k / tick_ns) * tick_ns
         stamp[t_ev >= t_reset] -= shift_ns
@@ -226,8 +227,8 @@ def simulate_tracker_run(setup: RunSetup, rng: np.random.Generator):
     def measure(cmd):
         """Tracker points given hub commands (None: no eccentricity yet)."""
         out = {}
-        for prism, tracker, t_ev, z, spec in (("front", "ltd800", t_ltd, z_ltd, LTD800),
-                                              ("rear", "at960", t_at, z_at, AT960)):
+        for prism, tracker, t_ev, z, spec in (("front", "ltd800", t_ltd, z_ltd, ltd800),
+                                              ("rear", "at960", t_at, z_at, at960)):
             off = None
             if cmd is not None:
                 phi = hub_angle(t_ev, cmd["t"] + HUB_DELAY_S, cmd[prism])

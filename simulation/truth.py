@@ -12,7 +12,9 @@ pipeline against the simulator. Layout::
     format: sindy-ekf-truth/1
     seed: 1                       # simulate_campaign(seed=...)
     minutes: 4.0                  # total driving time simulated (null = table 6.4, 45.4 min)
-    effects: [{name: ..., value: ...}]        # the dynamics effect(s), [] for none
+    effects: [{name: ..., value: ...}]        # the dynamics effect(s), [] for none; a form other
+                                  #   than the family's default adds form: F, params: {..}
+                                  #   (every parameter it acts with, drawn ones resolved)
     transform:                    # LTD800 -> AT960 (= local frame), thesis table 7.2
       translation_m: [tx, ty, tz] #   x_at960 = t + R x_ltd800 (eq. 5.1, INTERFACES.md)
       rotation_deg: [rx, ry, rz]  #   R = Rz(rz) Ry(ry) Rx(rx) (eq. 5.5)
@@ -24,7 +26,16 @@ pipeline against the simulator. Layout::
     baseline_length_m: 0.7746     # |front - rear lever arm| = c of eq. 5.25
     hubs: {front: {radius_m, radius_eq525_m}, rear: {...}}   # eccentricity (table 7.5)
     noise: {at960: {a_m, b, timing_std_s, resolution_s}, ltd800: {...}}   # table 3.2
-    robot: {...}                  # summary of the robot parameters used (simulation.robot)
+    robot: {...}                  # the robot parameters used (simulation.robot_params.RobotParams)
+    variant:                      # only for a simulator variant (simulate --variant N, N > 0):
+      index: N                    #   simulation.variant.Variant.to_dict(), everything the
+      robot: {...}                #   variant changes (robot terms, lateral law, motor lag,
+      lateral: {form, ...}        #   process-noise spectrum, driver, tracker noise scale)
+      motor_lag_s: 0.12           #   and the drawn numbers (draws); absent: Variant(), the
+      noise: {form, ...}          #   simulator before variants
+      driver: {...}
+      tracker_noise_scale: [at960, ltd800]
+      draws: {...}
     runs:
       <run>:
         split: train|test
@@ -70,8 +81,9 @@ import numpy as np
 import yaml
 
 from groundfloor.errors import InputError
-from simulation.effects import Effect
+from simulation.effects import Effect, effect_from_dict
 from simulation.robot import TrueDynamics
+from simulation.variant import Variant
 
 FORMAT = "sindy-ekf-truth/1"
 STATE_COLUMNS = ("t_utc", "t_rel", "x", "y", "z", "psi", "pitch", "vx", "vy", "omega", "u1", "u2", "at960_duty_s")
@@ -147,6 +159,18 @@ class CampaignTruth:
     noise: dict
     robot: dict
     runs: tuple[RunTruth, ...] = field(default_factory=tuple)
+    effect_specs: tuple = ()  # truth.yaml's effects entries (dicts), with form and params if any
+    variant: dict | None = None  # Variant.to_dict() of a simulator variant; None: Variant()
+
+    def effect(self) -> Effect | None:
+        """Return the campaign's dynamics effect (form and parameters included), or None."""
+        if self.effect_specs:
+            return effect_from_dict(self.effect_specs[0])
+        return Effect(*self.effects[0]) if self.effects else None
+
+    def simulator_variant(self) -> Variant:
+        """Return the simulator variant the campaign was made with (``Variant()`` without one)."""
+        return Variant.from_dict(self.variant) if self.variant else Variant()
 
     @property
     def R_at960_ltd800(self) -> np.ndarray:
@@ -169,11 +193,12 @@ class CampaignTruth:
         """Return the content of ``truth.yaml``."""
         return {
             "format": FORMAT, "seed": int(self.seed), "minutes": self.minutes,
-            "effects": [{"name": n, "value": v} for n, v in self.effects],
+            "effects": list(self.effect_specs) or [{"name": n, "value": v} for n, v in self.effects],
             "transform": self.transform, "lever_arms_m": self.lever_arms_m,
             "prism_tracker": {"front": "ltd800", "rear": "at960"},
             "body_origin_z_local_m": self.body_origin_z_local_m, "baseline_length_m": self.baseline_length_m,
             "hubs": self.hubs, "noise": self.noise, "robot": self.robot,
+        } | ({"variant": self.variant} if self.variant else {}) | {
             "runs": {r.name: r.to_yaml() for r in self.runs},
         }
 
@@ -251,6 +276,8 @@ def read_truth(campaign_dir: str | Path, states: bool = True) -> CampaignTruth:
         transform=doc["transform"], lever_arms_m=doc["lever_arms_m"],
         body_origin_z_local_m=doc["body_origin_z_local_m"], baseline_length_m=doc["baseline_length_m"],
         hubs=doc["hubs"], noise=doc["noise"], robot=doc["robot"], runs=tuple(runs),
+        effect_specs=tuple(doc["effects"]) if any("form" in e for e in doc["effects"]) else (),
+        variant=doc.get("variant"),
     )
 
 
@@ -264,20 +291,24 @@ def true_dynamics_of(campaign_dir: str | Path) -> TrueDynamics | None:
     None for a measured campaign (no ``truth/``).
 
     The one place where the scorers (evaluation, benchmark, report) get the best any model can
-    do. Only the truth's first dynamics effect is applied; input-side effects (delay, deadband,
-    ...) are left to :meth:`TrueDynamics.motor_inputs`, never applied to the recorded inputs.
+    do. The dynamics are those of the campaign's simulator variant (truth/'s ``variant``:
+    robot, lateral law, motor lag) with the truth's first dynamics effect in its form;
+    input-side mechanisms (delay, deadband, motor lag, ...) are left to
+    :meth:`TrueDynamics.motor_inputs`, never applied to the recorded inputs.
     """
     if not is_simulated(campaign_dir):
         return None
     truth = read_truth(campaign_dir, states=False)
-    return TrueDynamics(effect=Effect(*truth.effects[0]) if truth.effects else None)
+    return TrueDynamics.of_variant(truth.simulator_variant(), truth.effect())
 
 
 def campaign_summary(truth: CampaignTruth) -> dict:
     """Return the JSON summary of a simulated campaign (``simulate --json``): its truth, per run."""
+    variant = {"variant": {"index": truth.variant["index"], "draws": truth.variant["draws"]}} if truth.variant else {}
     return {
         "seed": truth.seed, "minutes": truth.minutes,
-        "effects": [{"name": n, "value": v} for n, v in truth.effects],
+        "effects": list(truth.effect_specs) or [{"name": n, "value": v} for n, v in truth.effects],
+        **variant,
         "transform": {"translation_m": truth.transform["translation_m"],
                       "rotation_deg": truth.transform["rotation_deg"]},
         "lever_arms_m": truth.lever_arms_m,

@@ -18,7 +18,7 @@ import sys
 from types import ModuleType
 from typing import Iterable
 
-from groundfloor import __version__, progress
+from groundfloor import __version__, progress, repairs
 from groundfloor.errors import InputError
 
 COMMANDS = {  # name -> help line; the module sindy_ekf.commands.<name> is imported only to run it
@@ -29,6 +29,7 @@ COMMANDS = {  # name -> help line; the module sindy_ekf.commands.<name> is impor
     "benchmark": "EKFs, factor graph and dead reckoning against the laser-tracker poses with degraded GNSS "
                  "and outages",
     "diagnose": "what the model gets wrong, its cause and the gain of a fix",
+    "inject": "hide an input-side effect (delay, deadband, asymmetry, gain decay) in a campaign's recorded inputs",
     "report": "the whole chain as one HTML report with figures",
     "demo": "the whole chain on a built-in simulated campaign",
 }
@@ -85,11 +86,16 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     progress.enable(not quiet)
+    repairs.clear()
     import matplotlib  # 0.3 s to import: only when a command runs, never for --help
 
     matplotlib.use("Agg")  # figures go to files; never open a window, even where a display exists
     try:
-        return int(modules[args.command].run(args) or 0)
+        code = int(modules[args.command].run(args) or 0)
+        if not quiet:  # expected repairs, summed once for the command (groundfloor.repairs)
+            for line in repairs.summary():
+                print(f"sindy-ekf {args.command}: {line}", file=sys.stderr)
+        return code
     except InputError as exc:
         if verbose:
             raise

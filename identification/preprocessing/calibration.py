@@ -53,6 +53,7 @@ class Calibration:
                 "translation_std_m": tf.params_std[:3].tolist(),
                 "rotation_std_deg": np.degrees(tf.params_std[3:]).tolist(),
                 "variance_factor": tf.variance_factor,
+                "variance_factor_test": tf.variance_factor_test.to_json(),
                 "worst_point": tf.worst_point,
                 "blunder_point": tf.blunder_point,
             },

@@ -3,7 +3,9 @@
 Each ``plot_*`` takes a result of :mod:`identification.preprocessing` (raw and synchronised
 run, calibration, hub model, poses, body states), returns a matplotlib Figure (or a list of
 them) and saves it as PNG when given ``path``. :func:`plot_run` draws the figures of one
-preprocessed run into a folder (``preprocess --plots``).
+preprocessed run into a folder (``preprocess --plots``). Lines over time break where the
+samples have a gap (:func:`~identification.preprocessing.trajectory.gap_threshold_s`: a prism
+lost), rather than joining the two sides with a straight line.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from groundfloor.figures import new_figure, save_figure
+from groundfloor.figures import WIDE_IN, WIDTH_IN, new_figure, plain_axis, plot_series, save_figure
 from groundfloor.types import PoseTrack, RawRun, Survey
 from identification.preprocessing.body_frame import BodyFrameFit
 from identification.preprocessing.clock_sync import (
@@ -24,11 +26,12 @@ from identification.preprocessing.clock_sync import (
 from identification.preprocessing.hub import HubModel
 from identification.preprocessing.network_transform import TransformFit
 from identification.preprocessing.sync import SyncedRun
+from identification.preprocessing.trajectory import gap_threshold_s
 
 
-def _column(nrows: int = 1, height: float = 3.2):
-    """Return an 8-inch wide figure and its ``nrows`` axes stacked in one column."""
-    fig, axes = new_figure(8, height * nrows, nrows)
+def _column(nrows: int = 1, height: float = 2.6):
+    """Return a figure of the report's column width and its ``nrows`` axes stacked in one column."""
+    fig, axes = new_figure(WIDTH_IN, height * nrows, nrows)
     return fig, axes[:, 0]
 
 
@@ -41,7 +44,7 @@ def plot_network(survey: Survey, fit: TransformFit, exaggeration: float = 2e4, p
     and the residual vectors ``x_at960 - (t + R x_ltd800)`` scaled by ``exaggeration``; a point
     flagged by the blunder test is drawn in red.
     """
-    fig, ((ax,),) = new_figure(7, 6)
+    fig, ((ax,),) = new_figure(WIDTH_IN, 6)
     p = np.array([survey.network_at960[i][:3] for i in fit.point_ids])
     bad = np.array([i == fit.blunder_point for i in fit.point_ids])
     ax.scatter(p[~bad, 0], p[~bad, 1], c="k", s=20, label="network point")
@@ -64,7 +67,7 @@ def plot_network(survey: Survey, fit: TransformFit, exaggeration: float = 2e4, p
     ax.set_ylabel("y AT960 [m]")
     ax.set_aspect("equal")
     ax.legend(loc="best", fontsize="small")
-    ax.set_title(f"Network and tracker frames (s0^2 = {fit.variance_factor:.2f})")
+    ax.set_title(f"network and tracker frames (s0^2 = {fit.variance_factor:.2f}, dof {fit.dof})")
     return save_figure(fig, path)
 
 
@@ -74,7 +77,7 @@ def plot_body_frame(survey: Survey, body: BodyFrameFit, path=None):
     Screw heads, fitted hub circles, the plane through the hub centres, the body axes and the
     prisms, all in the body frame.
     """
-    fig, ((ax,),) = new_figure(7, 6, subplot_kw={"projection": "3d"})
+    fig, ((ax,),) = new_figure(WIDTH_IN, 6, subplot_kw={"projection": "3d"})
     phi = np.linspace(0.0, 2.0 * np.pi, 73)
     for hub, c, nrm, r in zip(body.hub_names, body.hub_centres_survey, body.hub_normals_survey,
                               body.hub_radii_m):
@@ -100,7 +103,7 @@ def plot_body_frame(survey: Survey, body: BodyFrameFit, path=None):
     ax.set_xlabel("x body [m]")
     ax.set_ylabel("y body [m]")
     ax.set_zlabel("z body [m]")
-    ax.set_title("Body frame from the wheel hubs")
+    ax.set_title("body frame from the wheel hubs")
     return save_figure(fig, path)
 
 
@@ -177,7 +180,7 @@ def plot_clock_residuals(synced: SyncedRun, path=None):
         ax.plot(s, r * 1e6, ".", ms=1.5)
         ax.set_ylabel(f"{tracker} [us]")
         ax.set_title(f"{tracker}: drift {c.drift_ppm:.4f} +- {c.drift_std_ppm:.4f} ppm, residual "
-                     f"std {c.residual_std * 1e6:.2f} us, {c.n_gaps_matched} gaps, {c.n_fit} samples",
+                     f"std {c.residual_std * 1e6:.2f} us\n{c.n_gaps_matched} gaps matched, {c.n_fit} samples",
                      fontsize=9)
     axes[-1].set_xlabel("time since first trigger [s]")
     return save_figure(fig, path)
@@ -188,14 +191,15 @@ def plot_baseline(synced: SyncedRun, path=None):
     thesis fig. 5.5."""
     fig, (ax,) = _column(1, 3.6)
     mean = np.nanmean(synced.baseline_after_m)
+    gap_s = gap_threshold_s(synced.s_trigger)
     for base, label in ((synced.baseline_before_m, "before"), (synced.baseline_after_m, "after")):
-        ax.plot(synced.s_trigger, (base - mean) * 1e3, lw=0.6,
-                label=f"{label} offset correction (RMS {np.nanstd(base) * 1e3:.3f} mm)")
+        plot_series(ax, synced.s_trigger, (base - mean) * 1e3, gap_s, lw=0.6,
+                    label=f"{label} offset correction (RMS {np.nanstd(base) * 1e3:.3f} mm)")
     ax.set_xlabel("time since first trigger [s]")
     ax.set_ylabel("baseline length - mean [mm]")
     ax.set_title(f"run {synced.name}: {synced.offset_tracker} extra offset "
                  f"{synced.offset.dt * 1e3:.4f} ms")
-    ax.legend(loc="upper right")
+    ax.legend(loc="best", fontsize=9)
     return save_figure(fig, path)
 
 
@@ -215,7 +219,7 @@ def plot_offset_fit(synced: SyncedRun, path=None):
     ax.set_xlabel("extra offset [ms]")
     ax.set_ylabel("baseline spread [mm]")
     ax.set_title(f"run {synced.name}: offset by minimising the baseline spread")
-    ax.legend(loc="upper right")
+    ax.legend(loc="upper center", fontsize=9)
     return save_figure(fig, path)
 
 
@@ -231,7 +235,7 @@ def plot_baseline_vs_speed(synced: SyncedRun, path=None):
     ax.set_xlabel("forward speed [m/s]")
     ax.set_ylabel("baseline length - mean [mm]")
     ax.set_title(f"run {synced.name}: baseline variation vs forward speed")
-    ax.legend(loc="upper left", markerscale=6)
+    ax.legend(loc="best", markerscale=6, fontsize=9)
     return save_figure(fig, path)
 
 
@@ -244,30 +248,36 @@ def plot_hub_model(model: HubModel, path=None):
     explains).
     """
     t = model.t - model.t[0]
-    fig, axes = new_figure(9, 8, 3, gridspec_kw={"height_ratios": [2, 1, 2]})
-    ax1, ax2, ax3 = axes[:, 0]
+    gap_s = gap_threshold_s(t)
+    fig, axes = new_figure(WIDE_IN, 6.4, 2, 2, gridspec_kw={"height_ratios": [2, 1], "width_ratios": [2, 1]})
+    (ax1, ax3), (ax2, ax_legend) = axes
     dl_mm = (model.baseline_length_m - model.c_m) * 1e3
-    ax1.plot(t, dl_mm, ".", ms=1.5, color="0.6", label=f"observed (RMS {model.rms_before_m * 1e3:.3f} mm)")
-    ax1.plot(t, (model.predict(model.azimuth_front, model.azimuth_rear) - model.c_m) * 1e3, "-",
-             lw=1, color="C0", label="eq. 5.25 model")
-    ax1.plot(t, model.residual() * 1e3, "-", lw=0.6, color="C3",
-             label=f"residual (RMS {model.rms_after_m * 1e3:.3f} mm)")
+    ax1.plot(t, dl_mm, ".", ms=2, color="0.6", label=f"observed baseline - c (RMS {model.rms_before_m * 1e3:.3f} mm)")
+    plot_series(ax1, t, (model.predict(model.azimuth_front, model.azimuth_rear) - model.c_m) * 1e3, gap_s, "-",
+                lw=1.2, color="C0", label="eq. 5.25 model")
+    plot_series(ax1, t, model.residual() * 1e3, gap_s, "-", lw=0.6, color="C3",
+                label=f"residual (RMS {model.rms_after_m * 1e3:.3f} mm)")
     r = model.radius_m * 1e3
-    ax1.set_title(f"c = {model.c_m * 100:.5f} cm, r1 = {r[0]:.3f} mm, r2 = {r[1]:.3f} mm")
+    fig.suptitle(f"turning-hub model (eq. 5.25): c = {model.c_m:.6f} m, r1 = {r[0]:.3f} mm, r2 = {r[1]:.3f} mm")
     ax1.set_ylabel("baseline - c [mm]")
-    ax1.set_xlabel("time since start [s]")
-    ax1.legend(loc="upper right", fontsize=8)
-    ax2.plot(t, np.degrees(np.unwrap(model.azimuth_front)), label="front")
-    ax2.plot(t, np.degrees(np.unwrap(model.azimuth_rear)), label="rear")
-    ax2.set_ylabel("azimuth (unwrapped) [deg]")
+    ax1.set_title("baseline length over time")
+    ax1.tick_params(labelbottom=False)
+    for az, label in ((model.azimuth_front, "front hub"), (model.azimuth_rear, "rear hub")):
+        plot_series(ax2, t, np.degrees(np.unwrap(az)), gap_s, label=label)
+    ax2.sharex(ax1)
+    ax2.set_ylabel("azimuth [deg]")
     ax2.set_xlabel("time since start [s]")
-    ax2.legend(loc="upper right", fontsize=8)
     az_deg = np.degrees(np.mod(model.azimuth_front, 2 * np.pi))
-    ax3.plot(az_deg, dl_mm, ".", ms=1.5, color="0.6", label="before")
-    ax3.plot(az_deg, model.residual() * 1e3, ".", ms=1.5, color="C3", label="after the model")
+    ax3.plot(az_deg, dl_mm, ".", ms=2, color="0.6")
+    ax3.plot(az_deg, model.residual() * 1e3, ".", ms=2, color="C3")
+    ax3.sharey(ax1)
     ax3.set_xlabel("front hub azimuth [deg]")
-    ax3.set_ylabel("baseline - c [mm]")
-    ax3.legend(loc="upper right", fontsize=8, markerscale=5)
+    ax3.set_title("against the front hub's azimuth")
+    # one legend for all panels, in a panel of its own: none of them hides data
+    handles = [h for ax in (ax1, ax2) for h in ax.get_legend_handles_labels()[0]]
+    labels = [lab for ax in (ax1, ax2) for lab in ax.get_legend_handles_labels()[1]]
+    ax_legend.axis("off")
+    ax_legend.legend(handles, labels, loc="center", markerscale=5, frameon=False)
     return save_figure(fig, path)
 
 
@@ -280,21 +290,28 @@ def plot_poses(poses: PoseTrack, path_prefix=None):
     ``<path_prefix>_position.png`` and ``<path_prefix>_attitude.png`` when given.
     """
     t = poses.t - poses.t[0]
+    gap_s = gap_threshold_s(t)
     figs = []
     deg, arcsec = np.degrees(1.0), 3600.0 * np.degrees(1.0)
-    groups = (("position", [(k, getattr(poses, k), getattr(poses, f"{k}_std"), 1.0, "m", 1e3, "mm")
-                            for k in ("x", "y", "z")]),
-              ("attitude", [(k, getattr(poses, k), getattr(poses, f"{k}_std"), deg, "deg", arcsec, "arcsec")
-                            for k in ("pitch", "yaw")]))
+    z_mean = float(np.nanmean(poses.z)) if np.isfinite(poses.z).any() else 0.0
+    # z varies by tens of micrometres about a height of metres: drawn about its mean, in mm, so
+    # that the tick labels say the variation (an axis offset label would hide it)
+    groups = (("position", [("x", poses.x, poses.x_std, 1.0, 0.0, "x [m]", 1e3, "mm"),
+                            ("y", poses.y, poses.y_std, 1.0, 0.0, "y [m]", 1e3, "mm"),
+                            ("z", poses.z, poses.z_std, 1e3, z_mean, f"z - ({z_mean:.4f} m) [mm]", 1e3, "mm")]),
+              ("attitude", [(k, getattr(poses, k), getattr(poses, f"{k}_std"), deg, 0.0, f"{k} [deg]", arcsec,
+                             "arcsec") for k in ("pitch", "yaw")]))
     for name, comps in groups:
-        fig, axes = new_figure(4 * len(comps), 5, 2, len(comps), sharex=True)
-        for j, (label, val, std, k, unit, k_std, unit_std) in enumerate(comps):
-            axes[0, j].plot(t, val * k, lw=0.8)
+        fig, axes = new_figure(WIDE_IN if len(comps) > 2 else WIDTH_IN, 4.6, 2, len(comps), sharex=True)
+        for j, (label, val, std, k, ref, ylabel, k_std, unit_std) in enumerate(comps):
+            plot_series(axes[0, j], t, (val - ref) * k, gap_s, lw=0.8)
             axes[0, j].set_title(label)
-            axes[0, j].set_ylabel(f"{label} [{unit}]")
-            axes[1, j].plot(t, std * k_std, lw=0.8, color="C1")
+            axes[0, j].set_ylabel(ylabel)
+            plot_series(axes[1, j], t, std * k_std, gap_s, lw=0.8, color="C1")
             axes[1, j].set_ylabel(f"sigma {label} [{unit_std}]")
             axes[1, j].set_xlabel("time since start [s]")
+            for ax in axes[:, j]:
+                plain_axis(ax)
         figs.append(save_figure(fig, None if path_prefix is None else f"{path_prefix}_{name}.png"))
     return figs
 
@@ -303,20 +320,25 @@ def plot_body_states(states_by_smoothing: dict, path=None, t_range=None):
     """Return a figure of vx, vy and omega over time for several smoothing factors (fig. 7.9).
 
     ``states_by_smoothing`` maps ``s`` to the :class:`~groundfloor.types.BodyStates` computed
-    with it; ``t_range`` (seconds since the first sample) zooms in.
+    with it, or to a list of them (the gap-free segments of one run: drawn with the gaps left
+    open); ``t_range`` (seconds since the first sample) zooms in.
     """
-    fig, axes = new_figure(9, 7, 3, sharex=True)
+    fig, axes = new_figure(WIDTH_IN, 6, 3, sharex=True)
     axes = axes[:, 0]
     labels = (("vx", "v_x [m/s]", 1.0), ("vy", "v_y [m/s]", 1.0), ("omega", "omega [deg/s]", np.degrees(1.0)))
     t0 = None
-    for s, st in states_by_smoothing.items():
-        t0 = st.t[0] if t0 is None else t0
-        t = st.t - t0
-        sel = np.ones(t.shape, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
-        for ax, (key, ylabel, k) in zip(axes, labels):
-            ax.plot(t[sel], getattr(st, key)[sel] * k, lw=0.8, label=f"s = {s:g}")
-            ax.set_ylabel(ylabel)
-    axes[0].legend(loc="upper right", fontsize=8)
+    for i, (s, states) in enumerate(states_by_smoothing.items()):
+        segments = states if isinstance(states, (list, tuple)) else [states]
+        t0 = min(st.t[0] for st in segments) if t0 is None else t0
+        for k_seg, st in enumerate(segments):
+            t = st.t - t0
+            sel = np.ones(t.shape, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
+            for ax, (key, ylabel, k) in zip(axes, labels):
+                plot_series(ax, t[sel], getattr(st, key)[sel] * k, gap_threshold_s(st.t), lw=0.8, color=f"C{i}",
+                            label=f"s = {s:g}" if k_seg == 0 else None)
+                ax.set_ylabel(ylabel)
+    if len(states_by_smoothing) > 1:
+        axes[0].legend(loc="upper right", fontsize=9)
     axes[-1].set_xlabel("time since start [s]")
     return save_figure(fig, path)
 

@@ -93,7 +93,8 @@ def _read_group(group: list[Path], run: str) -> dict[str, _Topic]:
         for conn in conns:
             _check_type(run, conn.topic, conn.msgtype)
         fast = {c.id for c in conns if not reader.is2 and _FAST_ROS1.get(c.msgtype) == c.digest}
-        for conn, t_bag_ns, raw in reader.messages(connections=conns):
+        # rosbags reads every connection when given none: a recording without a known topic
+        for conn, t_bag_ns, raw in reader.messages(connections=conns) if conns else ():
             topic = out[conn.topic]
             topic.msgtype = conn.msgtype
             topic.entries.append(bytes(raw) if conn.id in fast else reader.deserialize(raw, conn.msgtype))

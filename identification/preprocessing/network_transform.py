@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from groundfloor.adjustment import VarianceFactorTest, variance_factor_test
 from groundfloor.errors import InputError
 from groundfloor.types import Survey
 
@@ -92,6 +93,11 @@ class TransformFit:
     worst_point: str  # point with the largest T_i
     blunder_point: str | None  # worst_point if it fails the test at level alpha, else None
     iterations: int
+
+    @property
+    def variance_factor_test(self) -> VarianceFactorTest:
+        """The global test of ``variance_factor`` against chi2(dof) / dof (two-sided, 5 %)."""
+        return variance_factor_test(self.variance_factor, self.dof)
 
     @property
     def params_std(self) -> np.ndarray:

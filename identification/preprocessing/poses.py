@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from groundfloor.adjustment import VarianceFactorTest, variance_factor_test
 from groundfloor.errors import InputError
 from groundfloor.types import PoseTrack
 
@@ -48,6 +49,13 @@ class PoseFit:
     residual_m: np.ndarray  # (n, 6) observation corrections [front xyz, rear xyz], m
     start: np.ndarray  # (n, 3) 2D start values [x, y, yaw] of eqs. 5.26 to 5.31
     iterations: int  # Gauss-Newton iterations until the largest update fell below tolerance
+
+    @property
+    def variance_factor_test(self) -> VarianceFactorTest | None:
+        """The global test over all epochs (None without one): the sum of the epochs' ``v^T P v``
+        against chi2(number of epochs), i.e. their mean ``s0^2`` against 1 (eqs. 2.25, 2.26)."""
+        ok = np.isfinite(self.s0_sq)
+        return variance_factor_test(float(np.mean(self.s0_sq[ok])), int(ok.sum())) if ok.any() else None
 
 
 def _as_rows(value, n: int, name: str) -> np.ndarray:

@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundfloor.adjustment import VarianceFactorTest
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json, check_output_dir
 from groundfloor.progress import progress
@@ -55,6 +56,7 @@ from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, Trajec
 from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
 from identification.preprocessing.hub import HubModel, fit_hub_model
+from identification.preprocessing.io_sensors import read_sensors_config, write_run_gnss
 from identification.preprocessing.io_survey import read_survey
 from identification.preprocessing.io_tracker import (
     BagRun,
@@ -62,7 +64,7 @@ from identification.preprocessing.io_tracker import (
     read_campaign_yaml,
     read_tracker_parts,
 )
-from identification.preprocessing.poses import fit_poses
+from identification.preprocessing.poses import fit_poses_full
 from identification.preprocessing.states import body_states_from_poses
 from identification.preprocessing.sync import SyncedRun, sync_run
 from identification.preprocessing.trajectory import write_trajectory_campaign
@@ -93,6 +95,7 @@ class RunResult:
     n_no_prism: int  # trigger times where neither was seen
     seconds: dict[str, float]  # stage -> wall time
     facts: ReadFacts | None = None  # what reading found, of a bag run
+    pose_test: VarianceFactorTest | None = None  # global test of the pose adjustment over the run's epochs
 
 
 @dataclass(frozen=True)
@@ -107,6 +110,7 @@ class PreprocessResult:
     smoothing: float
     hub_correction: bool = HUB_CORRECTION
     seconds: dict[str, float] = field(default_factory=dict)  # stage -> total wall time
+    sensors: dict = field(default_factory=dict)  # recorded sensors: kind -> run -> counts (issue 16)
 
     def to_json_dict(self) -> dict:
         """Return the ``preprocess --json`` dict: the INTERFACES.md keys and more."""
@@ -117,6 +121,8 @@ class PreprocessResult:
         out["hub_correction"] = self.hub_correction
         out["out_dir"] = str(self.out_dir)
         out["seconds"] = {k: round(v, 3) for k, v in self.seconds.items()}
+        if self.sensors:
+            out["sensors"] = self.sensors
         return out
 
 
@@ -151,6 +157,8 @@ def run_json(r: RunResult) -> dict:
         "seconds": {k: round(v, 4) for k, v in r.seconds.items()},
         **reading_json(r),
     }
+    if r.pose_test is not None:
+        out["pose_variance_factor_test"] = r.pose_test.to_json()
     if r.hub is not None:
         out["hub"] = hub_json(r.hub)
         rms_after = out["hub"].get("rms_after_m")
@@ -249,8 +257,9 @@ def preprocess_run(raw: RawRun, calibration: Calibration, smoothing: float = DEF
         tracker = calibration.prism_tracker[prism]
         std[prism] = np.repeat(point_std_m(tracker, p, origin[tracker])[:, None], 3, axis=1)
     levers = calibration.lever_arms_body
-    poses = fit_poses(synced.t_utc[both], p_front, p_rear, levers["front"], levers["rear"],
-                      std["front"], std["rear"])
+    pose_fit = fit_poses_full(synced.t_utc[both], p_front, p_rear, levers["front"], levers["rear"],
+                              std["front"], std["rear"])
+    poses = pose_fit.track
     sec["poses"] = time.perf_counter() - tic
     check_poses_move(poses.x, poses.y, poses.yaw, f"run {raw.name}")
 
@@ -260,7 +269,8 @@ def preprocess_run(raw: RawRun, calibration: Calibration, smoothing: float = DEF
     sec["states"] = time.perf_counter() - tic
     return RunResult(synced=synced, hub=hub, poses=poses, states=states, inputs=inputs,
                      n_one_prism=int((seen == 1).sum()), n_no_prism=int((seen == 0).sum()),
-                     seconds=sec, facts=raw.facts if isinstance(raw, BagRun) else None)
+                     seconds=sec, facts=raw.facts if isinstance(raw, BagRun) else None,
+                     pose_test=pose_fit.variance_factor_test)
 
 
 def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | None]]:
@@ -328,6 +338,7 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     seconds: dict[str, float] = {}
     tic = time.perf_counter()
     name, run_list = read_campaign_yaml(root)
+    sensors_config = read_sensors_config(root)  # an unknown sensor type fails before the work
     if not (root / "calibration.yaml").is_file():
         raise InputError(f"{root}: calibration.yaml missing")
     calibration = calibrate(read_survey(root / "calibration.yaml"))
@@ -366,11 +377,13 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     write_trajectory_campaign(out_dir, name, traj, force=force,
                               source=f"sindy-ekf preprocess {root.resolve()}",
                               ground_truth="laser trackers AT960 + LTD800 (thesis 5.2)",
-                              skipped_runs=dict(skipped))
+                              skipped_runs=dict(skipped), **sensors_config.to_yaml())
+    gnss = write_run_gnss(root, Path(out_dir), {n: r.poses.t for n, r in runs.items()})
     seconds["write"] = time.perf_counter() - tic
     result = PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
                               runs=runs, skipped=skipped, smoothing=smoothing,
-                              hub_correction=hub_correction, seconds=seconds)
+                              hub_correction=hub_correction, seconds=seconds,
+                              sensors={"gnss": gnss} if gnss else {})
     # the report beside the data (readers ignore unknown files); the data folder is complete
     # before it, so a crash in between loses only the report, never half the data
     atomic_write_json(Path(out_dir) / REPORT_FILE, result.to_json_dict())

@@ -16,14 +16,16 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import warnings
 from dataclasses import dataclass, field
+from itertools import combinations_with_replacement
 from pathlib import Path
 
 import numpy as np
 
 from groundfloor import __version__
-from groundfloor.dynamics import Dynamics, EnvelopeWarning
+from groundfloor.dynamics import Dynamics, EnvelopeWarning, broadcast_inputs
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
 from identification.sindy.library import (
@@ -55,9 +57,9 @@ class ActiveTerms:
     product of a table of monomials with a fixed weight matrix ``(columns, 3 + 18 + 6)``: every
     active term adds its coefficient to the column of its monomial (accelerations) and, for each
     of its variables, exponent times coefficient to the column of the monomial one degree lower
-    (product rule; Jacobians). Polynomial libraries take the table of all monomials of the five
-    variables up to degree 3 as two outer products, so the whole evaluation is a handful of numpy
-    calls whatever the model's size; libraries with ``|x|`` atoms gather each active term's
+    (product rule; Jacobians). Polynomial libraries take the table of the monomials of the five
+    variables up to degree 3 (56 rows), each degree from the one below in one gather and one
+    product, so the whole evaluation is a handful of numpy calls whatever the model's size; libraries with ``|x|`` atoms gather each active term's
     (at most three) atoms from a table of atom values and their derivatives instead. The filters
     evaluate the model four times per step on a few runs at a time, where numpy's per-call
     overhead, not the arithmetic, is the cost.
@@ -77,19 +79,23 @@ class ActiveTerms:
             return 3 + 6 * e + 3 + v if v < 3 else 3 + 18 + 2 * e + (v - 3)
 
         if self.monomials:
-            def col(factors: list[int]) -> int:  # column of the monomial prod z[factors] (sorted)
-                return sum(nv ** d for d in range(len(factors))) + sum(
-                    f * nv ** (len(factors) - 1 - i) for i, f in enumerate(factors))
-
-            self.weight = np.zeros((sum(nv ** d for d in range(4)), 27))
+            # rows of the monomial table: 1, then each product of 1, 2 or 3 variables once (sorted
+            # factors); a row of degree d is a row of degree d - 1 times one variable
+            monomials = [()] + [m for d in (1, 2, 3) for m in combinations_with_replacement(range(nv), d)]
+            row = {m: r for r, m in enumerate(monomials)}
+            self.products = [(slice(row[m[0]], row[m[-1]] + 1),
+                              np.array([[row[f[:-1]] for f in m], [row[f[-1:]] for f in m]]))
+                             for m in ([f for f in monomials if len(f) == d] for d in (2, 3))]
+            self.weight = np.zeros((len(monomials), 27))
             for j, atoms in enumerate(library.atoms):
                 c = coef[:, j]
-                factors = sorted(v for v, code in atoms for _ in range(code + 1))
-                self.weight[col(factors), :3] += c
+                factors = tuple(sorted(v for v, code in atoms for _ in range(code + 1)))
+                self.weight[row[factors], :3] += c
                 for v in set(factors):
                     rest = list(factors)
                     rest.remove(v)
-                    self.weight[col(rest), [out(e, v) for e in range(3)]] += factors.count(v) * c
+                    self.weight[row[tuple(rest)], [out(e, v) for e in range(3)]] += factors.count(v) * c
+            self.weight_a = np.ascontiguousarray(self.weight[:, :3])  # accelerations alone: a smaller product
             return
 
         self.blocks = ("z", "z2", "z3", "abs", "zabs", "sign")
@@ -116,21 +122,33 @@ class ActiveTerms:
                 weight.append(w)
         self.index = np.array(index, dtype=np.intp).reshape(-1, 3).T.copy()  # (3, rows)
         self.weight = np.array(weight, dtype=float).reshape(-1, 27)
+        self.weight_a = np.ascontiguousarray(self.weight[:, :3])
 
-    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Return ``a (..., 3)``, ``J_a_x (..., 3, 6)`` and ``J_a_u (..., 3, 2)`` at ``z = [v_body, u] (..., 5)``."""
-        lead = z.shape[:-1]
-        weight = self.weight
+    def __call__(self, v_body: np.ndarray, u: np.ndarray, jacobians: bool = True):
+        """Return ``a (..., 3)``, ``J_a_x (..., 3, 6)`` and ``J_a_u (..., 3, 2)`` at body velocities
+        ``v_body (..., 3)`` and inputs ``u (..., 2)`` of one leading shape; ``a`` alone if not ``jacobians``."""
+        lead = v_body.shape[:-1]
+        n = math.prod(lead)
+        weight = self.weight if jacobians else self.weight_a
         if self.monomials:
-            z2 = z[..., :, None] * z[..., None, :]
-            z3 = z2[..., None] * z[..., None, None, :]
-            table = np.concatenate([z, z2.reshape(lead + (-1,)), z3.reshape(lead + (-1,))], axis=-1)
-            out = table @ weight[1:] + weight[0]  # row 0: the constant monomial
+            # the monomial table, one row per monomial: each degree is one gather and one product
+            # written in place, a handful of numpy calls whatever the model's size
+            table = np.empty((len(weight), n))
+            table[0] = 1.0
+            table[1:4], table[4:1 + self.n_vars] = v_body.reshape(n, 3).T, u.reshape(n, 2).T
+            for rows, factors in self.products:
+                f = np.take(table, factors, axis=0)
+                np.multiply(f[0], f[1], out=table[rows])
+            out = table.T @ weight
         else:
+            z = np.concatenate([v_body, u], axis=-1).reshape(n, -1)
             z2, az = z * z, np.abs(z)
-            parts = [np.ones(lead + (1,)), z, z2, z2 * z, az, z * az, np.sign(z)]
-            g = np.take(np.concatenate(parts, axis=-1), self.index, axis=-1)  # (..., 3, rows)
-            out = (g[..., 0, :] * g[..., 1, :] * g[..., 2, :]) @ weight
+            parts = [np.ones((n, 1)), z, z2, z2 * z, az, z * az, np.sign(z)]
+            g = np.take(np.concatenate(parts, axis=-1), self.index, axis=-1)  # (n, 3, rows)
+            out = (g[:, 0, :] * g[:, 1, :] * g[:, 2, :]) @ weight
+        out = out.reshape(lead + (weight.shape[1],))
+        if not jacobians:
+            return out
         return out[..., :3], out[..., 3:21].reshape(lead + (3, 6)), out[..., 21:].reshape(lead + (3, 2))
 
 
@@ -190,8 +208,12 @@ class SindyModel(Dynamics):
 
     # the dynamics protocol (six states) -------------------------------------------------------
     def accel(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
-        """Return :meth:`f` at the body velocities of ``x6 (..., 6)``: ``(..., 3)``."""
-        return self.f(np.asarray(x6, dtype=float)[..., 3:], u)
+        """Return :meth:`f` at the body velocities of ``x6 (..., 6)``: ``(..., 3)``.
+
+        Evaluates only the active terms (:class:`ActiveTerms`), as :meth:`accel_and_jacobians`.
+        """
+        x6, u = broadcast_inputs(x6, u)
+        return self._active_terms()(x6[..., 3:], u, jacobians=False)
 
     def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
         """Return :meth:`f` and its Jacobians padded to the six states, ``(..., 3, 6)`` and ``(..., 3, 2)``.
@@ -199,15 +221,15 @@ class SindyModel(Dynamics):
         Evaluates only the active terms (:class:`ActiveTerms`, rebuilt when ``coef`` changes);
         equal to :meth:`f_and_jacobians` up to the order of summation.
         """
-        x6 = np.asarray(x6, dtype=float)
-        u = np.asarray(u, dtype=float)
+        x6, u = broadcast_inputs(x6, u)
+        return self._active_terms()(x6[..., 3:], u)
+
+    def _active_terms(self) -> ActiveTerms:
+        """Return the :class:`ActiveTerms` of the current ``coef`` (built again when it changed)."""
         key = self.coef.tobytes()
         if self._active is None or self._active[0] != key:
             self._active = (key, ActiveTerms(self.library, self.coef))
-        if u.shape[:-1] != x6.shape[:-1]:
-            lead = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1])
-            x6, u = np.broadcast_to(x6, lead + (6,)), np.broadcast_to(u, lead + (2,))
-        return self._active[1](np.concatenate([x6[..., 3:], u], axis=-1))
+        return self._active[1]
 
     def in_envelope(self, x6: np.ndarray, u: np.ndarray, margin: float = 0.1) -> np.ndarray:
         """Return True per sample where ``[vx, vy, omega, u1, u2]`` lies in the training envelope

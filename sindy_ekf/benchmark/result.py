@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from groundfloor.gnss import GnssSeries
+
 
 @dataclass(frozen=True)
 class Estimate:
@@ -59,6 +61,8 @@ class BenchmarkResult:
     nis_bounds_95: tuple[float, float]  # per-sample, 2 dof
     campaign: str = ""  # the campaign's name
     skipped_runs: dict[str, str] = field(default_factory=dict)  # test run -> why not scored (too short)
+    gnss: dict[str, GnssSeries] = field(default_factory=dict)  # run -> the fixes the estimators had
+    recorded_gnss: dict | None = None  # --gnss recorded: origin, ENU -> local (with std), counts per run
 
     def to_json(self) -> dict:
         """Return the ``benchmark --json`` content (INTERFACES.md keys and more)."""
@@ -66,4 +70,5 @@ class BenchmarkResult:
                 "nees_bounds_95": list(self.nees_bounds_95), "nis_bounds_95": list(self.nis_bounds_95),
                 "estimators": {n: {k: (v if not isinstance(v, float) or np.isfinite(v) else None)
                                    for k, v in s.__dict__.items()} for n, s in self.scores.items()},
-                "skipped_runs": dict(self.skipped_runs)}
+                "skipped_runs": dict(self.skipped_runs),
+                **({"recorded_gnss": self.recorded_gnss} if self.recorded_gnss else {})}

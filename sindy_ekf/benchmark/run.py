@@ -33,7 +33,8 @@ from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
 from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
 from identification.sindy.data import body_states
-from simulation.gnss import schedule_outages, simulate_gnss
+from simulation.gnss import OUTAGE_DURATIONS_S, schedule_outages, simulate_gnss
+from sindy_ekf.benchmark.gnss_source import RECORDED, RecordedGnss, load_recorded_gnss
 from sindy_ekf.benchmark.health import (
     RunStatus,
     combined_status,
@@ -144,7 +145,8 @@ class _TestRun:
 
 
 def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float,
-                 outage_warmup_s: float, outage_recovery_s: float) -> _TestRun:
+                 outage_warmup_s: float, outage_recovery_s: float,
+                 outage_durations_s=OUTAGE_DURATIONS_S, recorded: RecordedGnss | None = None) -> _TestRun:
     """Return the GNSS series, grid, inputs and initial state of one test run."""
     p = run.poses
     ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
@@ -154,10 +156,10 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
     yaw = np.unwrap(np.asarray(p.yaw, float)[ok])
     truth = np.column_stack([t_pose, p.x[ok], p.y[ok], yaw])
     z = np.asarray(p.z, float)[ok] if p.z is not None else None
-    outages = schedule_outages(t_pose[0], t_pose[-1], warmup_s=outage_warmup_s,
+    outages = schedule_outages(t_pose[0], t_pose[-1], durations=tuple(outage_durations_s), warmup_s=outage_warmup_s,
                                recovery_s=outage_recovery_s)
     gnss = simulate_gnss(t_pose, truth[:, 1], truth[:, 2], yaw, profile, seed=seed, z=z,
-                         outages=outages)
+                         outages=outages) if recorded is None else recorded.series(run.name, outages)
     grid = estimation_grid(t_pose, gnss.t_valid)
     at_pose = np.searchsorted(grid, t_pose - GRID_TOL_S)
     inp = run.inputs
@@ -177,22 +179,24 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
 def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int = 0,
                        oracle_dynamics=None, estimators=ESTIMATORS, smoothing: float | None = None,
                        train_campaign=None, outage_warmup_s: float = 30.0,
-                       outage_recovery_s: float = 30.0) -> BenchmarkResult:
+                       outage_recovery_s: float = 30.0, outage_durations_s=OUTAGE_DURATIONS_S) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign``.
 
     Parameters
     ----------
     campaign : ``groundfloor.types.TrajectoryCampaign`` (its test runs are scored).
     sindy_body : the identified body model (``identification.sindy.model.SindyModel``).
-    profile : GNSS profile of :mod:`simulation.gnss`; ``seed`` seeds it (run ``i`` uses seed + i).
+    profile : GNSS profile of :mod:`simulation.gnss`; ``seed`` seeds it (run ``i`` uses seed + i);
+        ``"recorded"``: the campaign's own fixes (:mod:`sindy_ekf.benchmark.gnss_source`).
     oracle_dynamics : ``simulation.robot.TrueDynamics`` for ``oracle_ekf`` (simulated campaigns).
     estimators : names to run, a subset of :data:`ESTIMATORS` and :data:`OPTIONAL_ESTIMATORS`
         (``sindy_ekf_lateral`` and ``sindy_graph_lateral``: sindy_ekf and sindy_graph with the
         ``v_y = 0`` pseudo-measurement of :func:`sindy_ekf.estimation.ekf.fit_lateral_constraint` on the train runs, every
         :data:`LATERAL_EVERY` steps).
     train_campaign : where to fit Q and the unicycle gains (default ``campaign``'s train runs).
-    outage_warmup_s, outage_recovery_s : GNSS before the first outage and between outages
-        (:func:`simulation.gnss.schedule_outages`: 5, 10, 30, 60 s outages in turn).
+    outage_warmup_s, outage_recovery_s, outage_durations_s : GNSS before the first outage and
+        between outages, and the outage lengths taken in turn (:func:`simulation.gnss.schedule_outages`;
+        default 5, 10, 30, 60 s).
     """
     known = ESTIMATORS + OPTIONAL_ESTIMATORS
     unknown = set(estimators) - set(known)
@@ -211,8 +215,9 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         raise InputError(f"{campaign.root}: no run marked train to fit process noise on")
     series = train_series(train, s)
     models = fit_models(train, sindy_body, oracle_dynamics, s, series)
-    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s)
-            for i, r in enumerate(test)]
+    recorded = load_recorded_gnss(campaign) if profile == RECORDED else None
+    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s,
+                         outage_durations_s, recorded) for i, r in enumerate(test)]
     P0 = np.diag(P0_STD ** 2)
     estimates: dict[str, dict[str, Estimate]] = {}
     runtimes: dict[str, float] = {}
@@ -284,4 +289,6 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
         scores[name], curves[name] = score_partial(estimates[name], truth, outages, runtimes[name],
                                                    combined_status(statuses[name]))
     return BenchmarkResult(profile, ALIGNMENT, scores, estimates, truth, outages, curves,
-                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name, skipped)
+                           chi2_bounds_95(3), chi2_bounds_95(2), campaign.name, skipped,
+                           {r.name: r.gnss for r in runs},
+                           recorded_gnss=None if recorded is None else recorded.to_json_dict())

@@ -10,6 +10,7 @@ from groundfloor.files import atomic_write_json, check_outputs
 from simulation.gnss import PROFILES
 from sindy_ekf.benchmark.figures import write_benchmark_figures
 from sindy_ekf.benchmark.files import write_benchmark
+from sindy_ekf.benchmark.gnss_source import RECORDED
 from sindy_ekf.benchmark.result import BenchmarkResult
 from sindy_ekf.stages.estimation import benchmark_files
 
@@ -18,7 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Add the ``benchmark`` arguments to its parser."""
     p.add_argument("campaign", type=Path, help="trajectory or tracker campaign (test runs are scored)")
     p.add_argument("--model", type=Path, required=True, metavar="MODEL.json", help="model file of identify")
-    p.add_argument("--gnss", default="dgnss", choices=sorted(PROFILES), help="GNSS profile (default dgnss)")
+    p.add_argument("--gnss", default="dgnss", choices=sorted(PROFILES) + [RECORDED],
+                   help="GNSS profile (default dgnss); recorded: the campaign's own fixes (gnss.csv or NavSatFix)")
     p.add_argument("--seed", type=int, default=0, help="seed of the GNSS errors (default 0)")
     p.add_argument("--estimators", default=None, metavar="A,B,...",
                    help="comma-separated subset (default: all available: dead_reckoning, cv_ekf, unicycle_ekf, "
@@ -75,6 +77,11 @@ def run(args) -> int:
     if args.json is not None:
         atomic_write_json(args.json, result.to_json())
     print(format_scores(result))
+    if result.recorded_gnss:
+        tr = result.recorded_gnss["enu_to_local"]
+        std = f" +- {tr['yaw_std_deg']:.3f}" if tr["estimated"] else " (given)"
+        print(f"recorded GNSS: ENU -> local yaw {tr['enu_to_local_yaw_deg']:.3f}{std} deg, t "
+              f"({tr['enu_to_local_t_m'][0]:.3f}, {tr['enu_to_local_t_m'][1]:.3f}) m")
     for line in status_warnings(result):
         print(line, file=sys.stderr)
     if all(s.status != "ok" for s in result.scores.values()):

@@ -1,10 +1,10 @@
 """``sindy-ekf demo``: the whole chain on a built-in simulated campaign, ending in an HTML report.
 
-Simulates a short campaign (seed 0, 4 minutes of driving in the 9 runs of thesis table 6.4),
+Simulates a short campaign (seed 0, 8 minutes of driving in the 9 runs of thesis table 6.4),
 preprocesses it (synchronisation, hub model, poses, body states), identifies a SINDy model with
-a reduced but real grid search (2 tau x 3 alpha x 3 T, 3-fold CV by run), evaluates it against
-the baselines and the simulator's true dynamics, benchmarks the estimators and diagnoses the
-model, and writes ``OUT/report/report.html`` (:mod:`sindy_ekf.report.demo`). ``OUT`` itself is
+a reduced but real grid search (the search's quick grid, 3-fold CV by run), evaluates it against
+the baselines and the simulator's true dynamics, benchmarks the estimators through several
+GNSS outages of 5 and 10 s and diagnoses the model, and writes ``OUT/report/report.html`` (:mod:`sindy_ekf.report.demo`). ``OUT`` itself is
 the simulated tracker campaign (with ``truth/``; readers ignore the ``report/`` folder beside
 ``runs/``), so every other command can be pointed at it. Prints what the campaign holds, the
 headline figures and where the report is; stages that failed are named on stderr and make the
@@ -32,7 +32,7 @@ from sindy_ekf.report.demo import (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Add the ``demo`` arguments to its parser."""
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output folder (default: ./demo-out)")
-    p.add_argument("--minutes", type=float, default=DEMO_MINUTES, help="driving time to simulate")
+    p.add_argument("--minutes", type=float, default=DEMO_MINUTES, help=f"driving time to simulate (default {DEMO_MINUTES:g})")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="a dynamics effect for the simulator to hide (e.g. input_delay=0.15)")

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
+from identification.sindy.search import QUICK_GRID
 from sindy_ekf.report.html import build_report
 from sindy_ekf.stages.chain import ChainResult
 
@@ -18,7 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", type=Path, default=None, metavar="MODEL.json",
                    help="model file of identify (default: identify one on the train runs)")
     p.add_argument("--quick", action="store_true",
-                   help="identify with the quick grid (18 points, 3 folds) instead of the full one")
+                   help=f"identify with the quick grid ({QUICK_GRID.size} points, {QUICK_GRID.n_folds} folds) "
+                        "instead of the full one")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the headline figures as JSON")
 
 

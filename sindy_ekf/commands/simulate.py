@@ -8,7 +8,12 @@ from pathlib import Path
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json, check_outputs
 from simulation.campaign import simulate_campaign
+from simulation.effects import EFFECTS
+from simulation.gnss import PROFILES
+from simulation.gnss_topic import GnssTopicSpec
 from simulation.truth import CampaignTruth, campaign_summary
+
+_FORMS = "; ".join(f"{name}: {', '.join(spec.forms)}" for name, spec in EFFECTS.items())
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -17,8 +22,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
     p.add_argument("--minutes", type=float, default=None,
                    help="total driving time (default: thesis table 6.4, 45.4 min)")
-    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
-                   help="a dynamics effect of simulation.effects, e.g. input_delay=0.1")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME[:FORM]=VALUE[,KEY=VALUE]",
+                   help="a dynamics effect of simulation.effects, e.g. input_delay=0.1, "
+                        "input_delay:motor_lag=0.15, heading_dependence=1.5,azimuth_deg=120 or "
+                        "position_dependence:bumps=0.4,seed=3 (seed draws the form's geometry); "
+                        f"forms, the family's default first: {_FORMS}. truth/ records the form "
+                        "and every parameter")
+    p.add_argument("--variant", type=int, default=0, metavar="N",
+                   help="simulator variant N (simulation.variants): perturbed model B "
+                        "coefficients, lateral law, motor lag, process-noise spectrum, driver "
+                        "style and joystick rate, tracker noise, drawn from N; recorded whole in "
+                        "truth/ (default 0: the simulator before variants, byte for byte)")
     p.add_argument("--receive-jitter", nargs="?", const="2,12", default=None, metavar="MS_LO,MS_HI",
                    help="give every message its own receive latency, uniform in [MS_LO, MS_HI] ms "
                         "(2,12 without a value), and store each topic in receive order, as "
@@ -29,6 +43,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="restart a tracker's clock in that run (a backward jump of hours in its "
                         "stamps), e.g. run_05 or run_05:ltd800:0.3 (default tracker at960, at 0.5 of "
                         "the run); repeatable")
+    p.add_argument("--gnss", default=None, choices=sorted(PROFILES), metavar="PROFILE",
+                   help="also record GNSS: a sensor_msgs/NavSatFix bag per run from that profile "
+                        f"({', '.join(PROFILES)}) around a geodetic origin, declared under sensors: in "
+                        "campaign.yaml, the true ENU -> local transform in truth/gnss.yaml "
+                        "(default: none; the other files keep their bytes)")
+    p.add_argument("--gnss-ros2", action="store_true", help="write the GNSS bags as ROS2 folders")
     p.add_argument("--force", action="store_true", help="replace a non-empty OUT")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
 
@@ -50,13 +70,19 @@ def run(args) -> int:
     check_outputs(args)
     if args.json is not None and args.json.resolve().is_relative_to(args.out.resolve()):
         raise InputError(f"--json {args.json}: must not be inside the output folder {args.out}")
+    if args.gnss_ros2 and args.gnss is None:
+        raise InputError("--gnss-ros2: needs --gnss PROFILE")
     truth = simulate_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
                               force=args.force, receive_jitter_s=args.receive_jitter,
-                              clock_resets=args.clock_reset)
+                              clock_resets=args.clock_reset, variant=args.variant,
+                              gnss=None if args.gnss is None else GnssTopicSpec(args.gnss, ros2=args.gnss_ros2))
     total = sum(r.duration_s for r in truth.runs) / 60.0
-    effect = ", ".join(f"{n}={v:g}" for n, v in truth.effects) or "none"
+    effect = truth.effect().label() if truth.effects else "none"
     print(f"simulated campaign {args.out}: {len(truth.runs)} runs, {total:.1f} min, seed {truth.seed}, "
           f"effect {effect}")
+    if truth.variant:
+        print(f"simulator variant {truth.variant['index']}: " + ", ".join(
+            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in truth.variant["draws"].items()))
     for r in truth.runs:
         jitter = r.bags.get("receive_jitter_s")
         if jitter:

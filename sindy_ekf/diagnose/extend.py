@@ -37,7 +37,7 @@ from identification.sindy.library import parse_term
 from identification.sindy.model import SindyModel
 from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.families import FAMILY_SPECS, Family
+from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, mechanism_spec
 from sindy_ekf.diagnose.fitting import null_prediction
 from sindy_ekf.estimation.ekf import run_ekf_batch
 from sindy_ekf.estimation.process_models import (
@@ -93,8 +93,8 @@ class ExtendedModel(Dynamics):
 
     @property
     def spec(self) -> Family:
-        """The family's mechanism."""
-        return FAMILY_SPECS[self.family]
+        """The family's mechanism (the one named in ``estimate["mechanism"]``, else the family's first)."""
+        return mechanism_spec(self.family, self.estimate.get("mechanism"))
 
     @property
     def name(self) -> str:
@@ -212,7 +212,11 @@ class ExtendedModel(Dynamics):
         if d.get("format") != FORMAT or d.get("family") not in FAMILY_SPECS:
             raise InputError(f"{path}: not a sindy-ekf extended model (format {d.get('format')!r}, "
                              f"family {d.get('family')!r})")
-        spec = FAMILY_SPECS[d["family"]]
+        try:
+            spec = mechanism_spec(d["family"], (d.get("estimate") or {}).get("mechanism"))
+        except KeyError:
+            raise InputError(f"{path}: family {d['family']!r} has no mechanism "
+                             f"{(d.get('estimate') or {}).get('mechanism')!r}") from None
         try:
             theta = [d["theta"][k] for k in spec.theta_names]
             beta = [d["beta"][k] for k in spec.column_names]
@@ -232,7 +236,7 @@ def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,
     Implements eqs. 5.55 to 5.57 on the model's support (its non-zero terms per equation) plus
     the mechanism's columns, solved jointly by weighted least squares.
     """
-    spec = FAMILY_SPECS[family]
+    spec = mechanism_spec(family, (estimate or {}).get("mechanism"))
     theta = np.asarray(theta, float).reshape(-1)
     u_m = spec.motor_inputs(train.t_run, train.u, train.runs_slices(), theta[None])[0]
     theta_feat = model.library.transform(np.concatenate([train.v_body, u_m], axis=-1))

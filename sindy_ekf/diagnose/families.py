@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import lfilter
 
 from identification.sindy.library import LIBRARY_STATE_NAMES, parse_term
 from sindy_ekf.diagnose.data import Split
@@ -70,6 +71,62 @@ def inputs_battery(u: np.ndarray, t_run: np.ndarray, decay_per_10min: np.ndarray
     return _clip(u[None] * np.maximum(1.0 - r * t_run[None, :] / 600.0, 0.0)[..., None])
 
 
+def inputs_coupling(u: np.ndarray, coupling: np.ndarray) -> np.ndarray:
+    """Return throttle-to-turn coupled inputs ``[u1, u2 + c u1]`` per coupling ``c`` (C,), ``(C, N, 2)``."""
+    c = np.atleast_1d(np.asarray(coupling, float))[:, None]
+    out = np.repeat(u[None], len(c), axis=0)
+    out[..., 1] = u[None, :, 1] + c * u[None, :, 0]
+    return _clip(out)
+
+
+def inputs_steering_offset(u: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Return inputs with the steering offset by ``o`` (C,): ``[u1, u2 + o]``, ``(C, N, 2)``."""
+    o = np.atleast_1d(np.asarray(offset, float))[:, None]
+    out = np.repeat(u[None], len(o), axis=0)
+    out[..., 1] = u[None, :, 1] + o
+    return _clip(out)
+
+
+def inputs_lagged(t_run: np.ndarray, u: np.ndarray, slices, lag_s: np.ndarray) -> np.ndarray:
+    """Return inputs through a first-order actuator lag ``T u_m' = u - u_m`` per ``T`` (C,), ``(C, N, 2)``.
+
+    Exact for inputs linear between samples (the first-order hold's discretisation); each run
+    starts at rest on its first input; ``T = 0`` passes the inputs through.
+    """
+    T = np.atleast_1d(np.asarray(lag_s, float))
+    out = np.repeat(u[None], len(T), axis=0).astype(float)
+    live = T > 0
+    if not live.any():
+        return out
+    Tl = T[live][:, None, None]
+    for sl in slices:
+        t, uu = t_run[sl], u[sl]
+        h = np.diff(t)[None, :, None]  # (1, N-1, 1)
+        a = np.exp(-h / Tl)  # (C, N-1, 1)
+        slope = np.divide(np.diff(uu, axis=0)[None], h, out=np.zeros((1,) + uu[1:].shape), where=h > 0)
+        # over a step of length h with u(s) = u0 + slope s: y1 = u1 - slope T - (u0 - slope T - y0) exp(-h/T)
+        c = uu[1:][None] - slope * Tl - (uu[:-1][None] - slope * Tl) * a  # (C, N-1, 2)
+        ys = np.empty((len(Tl), len(t), 2))
+        ys[:, 0] = uu[0]
+        hv = h[0, :, 0]
+        edges = np.concatenate([[0], np.flatnonzero(np.abs(np.diff(hv)) > 1e-9 * hv[1:]) + 1, [len(hv)]])
+        if len(t) > 1 and len(edges) < len(t) / 20:  # stretches of even sampling: a linear filter each
+            y = ys[:, 0].copy()
+            for s0, e0 in zip(edges[:-1], edges[1:]):
+                for i in range(len(Tl)):
+                    ai = a[i, s0, 0]
+                    ys[i, s0 + 1:e0 + 1] = lfilter([1.0], [1.0, -ai], c[i, s0:e0], axis=0, zi=ai * y[i][None])[0]
+                y = ys[:, e0].copy()
+            out[live, sl] = ys
+            continue
+        y = ys[:, 0].copy()
+        for k in range(len(t) - 1):  # the recursion itself, vectorised over candidates
+            y = c[:, k] + a[:, k] * y
+            ys[:, k + 1] = y
+        out[live, sl] = ys
+    return out
+
+
 def inputs_imbalance(u: np.ndarray, imbalance: np.ndarray) -> np.ndarray:
     """Return track-imbalance inputs ``[u1 + a/2 u2, u2 + a/2 u1]`` per imbalance ``a`` (C,), ``(C, N, 2)``."""
     h = np.atleast_1d(np.asarray(imbalance, float))[:, None, None] / 2.0
@@ -104,6 +161,7 @@ class Family:
     bounds: tuple[tuple[float, float], ...] = ()
     doc: str = ""
     extra: dict = field(default_factory=dict)
+    mechanism: str = ""  # one of several mechanisms of the family (MECHANISMS); "" the family's first
 
     @property
     def n_columns(self) -> int:
@@ -130,6 +188,12 @@ class Family:
         if self.kind != "input":
             return np.broadcast_to(u, (len(theta),) + u.shape)
         v = theta[:, 0]
+        if self.mechanism == "first_order_lag":
+            return inputs_lagged(t_run, u, slices, v)
+        if self.mechanism == "throttle_to_turn_coupling":
+            return inputs_coupling(u, v)
+        if self.mechanism == "steering_offset":
+            return inputs_steering_offset(u, v)
         if self.name == "input_delay":
             return inputs_delayed(t_run, u, slices, v)
         if self.name == "deadband":
@@ -174,6 +238,8 @@ class Family:
     def estimate(self, theta: np.ndarray, beta: np.ndarray, model) -> dict[str, float | list]:
         """Return the physical parameters of the mechanism from ``theta (d,)`` and ``beta (m,)``."""
         theta, beta = np.asarray(theta, float), np.asarray(beta, float)
+        if self.mechanism:
+            return {self.theta_names[0]: float(theta[0]), "mechanism": self.mechanism}
         if self.name == "input_delay":
             return {"delay_s": float(theta[0])}
         if self.name == "deadband":
@@ -240,3 +306,24 @@ FAMILY_SPECS: dict[str, Family] = {
     "lateral_slip": Family("lateral_slip", "additive", column_names=("vx_omega", "vy"),
                            doc="the lateral drift in turns is larger than the model's"),
 }
+
+# Every family a set of mechanisms (issue 15, item 1): the first is FAMILY_SPECS' (its estimate keys
+# unchanged), the others differ in form; the diagnosis keeps the one that fits the train runs best.
+MECHANISMS: dict[str, tuple[Family, ...]] = {name: (spec,) for name, spec in FAMILY_SPECS.items()}
+MECHANISMS["input_delay"] += (
+    Family("input_delay", "input", ("lag_s",), bounds=((0.0, 0.6),), mechanism="first_order_lag",
+           doc="the motors follow the inputs through a first-order lag", extra={"step": 0.04}),)
+MECHANISMS["asymmetry"] += (
+    Family("asymmetry", "input", ("coupling",), bounds=((-0.3, 0.3),), mechanism="throttle_to_turn_coupling",
+           doc="throttle turns the robot: the motors see steering u2 + c u1", extra={"step": 0.02}),
+    Family("asymmetry", "input", ("steering_offset",), bounds=((-0.2, 0.2),), mechanism="steering_offset",
+           doc="zero steering turns the robot: the motors see u2 + o", extra={"step": 0.02}),
+)
+
+
+def mechanism_spec(family: str, mechanism: str | None = None) -> Family:
+    """Return the mechanism ``mechanism`` of ``family`` (its first when None or empty)."""
+    for spec in MECHANISMS[family]:
+        if spec.mechanism == (mechanism or ""):
+            return spec
+    raise KeyError(f"{family}: no mechanism {mechanism!r}")

@@ -14,43 +14,53 @@ from pathlib import Path
 import numpy as np
 from matplotlib.patches import Circle
 
-from groundfloor.figures import new_figure, save_figure
+from groundfloor.figures import WIDE_IN, WIDTH_IN, new_figure, save_figure
 from identification.sindy.figures import plot_error_curves
 from sindy_ekf.diagnose.pipeline import Diagnosis
 from sindy_ekf.diagnose.residuals import BinnedEffect
 
 
-def plot_residual_structure(structure: dict[str, dict[str, BinnedEffect]], path=None, title: str = ""):
-    """Return a grid of binned residual means +- 2 standard errors: rows equations, columns regressors."""
+def plot_residual_structure(structure: dict[str, dict[str, BinnedEffect]], path=None, title: str = "",
+                            groups: int = 2):
+    """Return a grid of binned residual means +- 2 standard errors against each regressor.
+
+    One column per equation, one row per regressor; the regressors are split into ``groups``
+    blocks side by side, so that the panels stay large enough to read on a page.
+    """
     eqs = list(structure)
     regs = list(structure[eqs[0]])
-    fig, axes = new_figure(2.2 * len(regs), 2.0 * len(eqs), len(eqs), len(regs), sharey="row")
-    for i, eq in enumerate(eqs):
-        for j, name in enumerate(regs):
+    nrows = -(-len(regs) // groups)
+    fig, axes = new_figure(WIDE_IN, 1.55 * nrows + 0.6, nrows, groups * len(eqs))
+    for j, name in enumerate(regs):
+        row, block = j % nrows, j // nrows
+        for e, eq in enumerate(eqs):
             be = structure[eq][name]
-            ax = axes[i, j]
+            ax = axes[row, block * len(eqs) + e]
             ax.axhline(0.0, color="0.6", lw=0.8)
             ax.errorbar(be.centers, be.mean, yerr=2 * be.se, fmt="o-", ms=3, lw=1,
                         color="C3" if be.p_value < 1e-3 and be.eta2 > 0.05 else "C0")
-            ax.set_title(f"eta2={be.eta2:.2f}", fontsize=7)
-            if i == len(eqs) - 1:
-                ax.set_xlabel(name, fontsize=8)
-            if j == 0:
-                ax.set_ylabel(f"{eq} residual", fontsize=8)
-            ax.tick_params(labelsize=6)
-    fig.suptitle(title or "residual structure (bin means +- 2 SE; red: eta2 > 0.05 and p < 1e-3)", fontsize=9)
+            ax.text(0.02, 0.95, f"eta2 {be.eta2:.2f}", transform=ax.transAxes, va="top", fontsize=8)
+            ax.set_xlabel(name, fontsize=9, labelpad=1)
+            if row == 0:
+                ax.set_title(f"{eq} residual", fontsize=10)
+            ax.tick_params(labelsize=7)
+    for k in range(len(regs), nrows * groups):  # empty cells of the last block
+        for e in range(len(eqs)):
+            axes[k % nrows, (k // nrows) * len(eqs) + e].axis("off")
+    fig.suptitle(title or "residual structure: bin means +- 2 standard errors; red: eta2 > 0.05 and p < 1e-3",
+                 fontsize=10)
     return save_figure(fig, path)
 
 
 def plot_lag_profile(profile: dict[str, np.ndarray], path=None, delay_s: float | None = None):
     """Return the residual-input lag correlation curves, with an estimated delay marked."""
-    fig, ((ax,),) = new_figure(5, 3.2)
+    fig, ((ax,),) = new_figure(WIDTH_IN, 3.6)
     for eq in ("vx", "omega"):
         ax.plot(profile["lags_s"], profile[eq], label=f"{eq} residual vs shifted {'u1' if eq == 'vx' else 'u2'}")
     if delay_s is not None:
         ax.axvline(delay_s, color="k", ls="--", lw=1, label=f"estimated delay {delay_s:.3f} s")
-    ax.set(xlabel="lag L [s]", ylabel="correlation")
-    ax.legend(fontsize=7)
+    ax.set(xlabel="lag L [s]", ylabel="correlation", title="residual against the input shifted by L")
+    ax.legend(fontsize=9)
     return save_figure(fig, path)
 
 

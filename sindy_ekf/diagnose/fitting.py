@@ -103,16 +103,23 @@ def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
 
 def normal_equations(y: np.ndarray, X: np.ndarray, weights: np.ndarray, window_run: np.ndarray,
                      n_runs: int) -> Design:
-    """Return the weighted normal equations per candidate and per run (sums over windows of a run)."""
-    onehot = (window_run[:, None] == np.arange(n_runs)[None, :]).astype(float)  # (p, R)
+    """Return the weighted normal equations per candidate and per run (sums over windows of a run).
+
+    One batched matrix product per run: a three-operand einsum with a one-hot run matrix cost
+    minutes on an 8-minute campaign with a dense model (100 columns; measured in the demo).
+    """
+    C, m = y.shape[0], X.shape[-1]
     wy = y * weights
-    yy = np.einsum("cpe,cpe,pr->cr", wy, y, onehot, optimize=True)
-    if X.shape[-1] == 0:
-        C = y.shape[0]
-        return Design(np.zeros((C, n_runs, 0, 0)), np.zeros((C, n_runs, 0)), yy)
-    wX = X * weights[:, None]
-    G = np.einsum("cpem,cpen,pr->crmn", wX, X, onehot, optimize=True)
-    b = np.einsum("cpem,cpe,pr->crm", wX, y, onehot, optimize=True)
+    G, b, yy = np.zeros((C, n_runs, m, m)), np.zeros((C, n_runs, m)), np.zeros((C, n_runs))
+    wX = X * weights[:, None] if m else X
+    for r in range(n_runs):
+        sel = window_run == r
+        y_r, wy_r = y[:, sel].reshape(C, -1), wy[:, sel].reshape(C, -1)
+        yy[:, r] = np.einsum("ck,ck->c", wy_r, y_r)
+        if m:
+            wX_r, X_r = wX[:, sel].reshape(C, -1, m), X[:, sel].reshape(C, -1, m)
+            G[:, r] = np.swapaxes(wX_r, 1, 2) @ X_r
+            b[:, r] = np.einsum("ckm,ck->cm", wX_r, y_r)
     return Design(G, b, yy)
 
 

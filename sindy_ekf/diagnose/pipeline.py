@@ -34,8 +34,15 @@ from sindy_ekf.diagnose.extend import (
     outage_errors,
     reidentify,
 )
-from sindy_ekf.diagnose.families import FAMILIES
-from sindy_ekf.diagnose.fitting import equation_weights, null_prediction, score_family
+from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
+from sindy_ekf.diagnose.fitting import (
+    FamilyScore,
+    design_for,
+    equation_weights,
+    null_prediction,
+    score_family,
+    solve_design,
+)
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
@@ -200,7 +207,7 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
         keep = tr.window_run != r
         if not keep.any() or st.t[-1] - st.t[0] < WINDOW_S:
             continue
-        refit = reidentify(model, name, best.theta, tr.select_windows(keep), weights)
+        refit = reidentify(model, name, best.theta, tr.select_windows(keep), weights, best.estimate)
         for i, cand in enumerate((refit, added)):
             e = multistep(cand, [st], [train_names[r]]).eps_p[:, -1]
             sq[i] += float(np.sum(np.where(np.isfinite(e), np.minimum(e, 1e3), 1e3) ** 2))
@@ -246,6 +253,35 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
             f"(median 5 s position error {100 * base:.1f} -> {100 * after:.1f} cm, more than "
             f"{100 * CONFIRM_TOLERANCE:.0f} % worse)"))
     return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
+
+
+def parabolic_min(grid: np.ndarray, sse: np.ndarray) -> float:
+    """Return the minimum of the parabola through the best of ``sse`` on ``grid`` and its neighbours
+    (the best value itself at an edge or without curvature): mechanisms on grids of different
+    spacing compared near their optima, not at wherever their grid points happen to fall."""
+    i = int(np.nanargmin(np.where(np.isfinite(sse), sse, np.inf)))
+    if i == 0 or i == len(sse) - 1 or not np.all(np.isfinite(sse[i - 1:i + 2])):
+        return float(sse[i])
+    (x0, x1, x2), (y0, y1, y2) = grid[i - 1:i + 2], sse[i - 1:i + 2]
+    c2 = ((y2 - y1) / (x2 - x1) - (y1 - y0) / (x1 - x0)) / (x2 - x0)  # second divided difference
+    if c2 <= 0:
+        return float(y1)
+    c1 = (y1 - y0) / (x1 - x0) - c2 * (x0 + x1)  # y = c2 x^2 + c1 x + c0 through the three points
+    x_min = -c1 / (2 * c2)
+    return float(min(y1, y1 + c1 * (x_min - x1) + c2 * (x_min ** 2 - x1 ** 2)))
+
+
+def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:
+    """Return family ``name`` scored with the one of its mechanisms (families.MECHANISMS) that fits
+    the *train* runs best on its search grid (the given model kept fixed), so that the choice of
+    form never looks at the test runs that score it."""
+    specs = MECHANISMS[name]
+    if len(specs) > 1:  # compared on their grids: the refinement and the refit only for the one kept
+        best_sse = [parabolic_min(s.grid(tr)[:, 0], solve_design(design_for(s, model, tr, s.grid(tr), weights,
+                                                                           base_pred["train"]))[1])
+                    for s in specs]
+        specs = (specs[int(np.nanargmin(np.where(np.isfinite(best_sse), best_sse, np.inf)))],)
+    return score_family(specs[0], model, tr, te, weights, base_pred, uncertainty=uncertainty)
 
 
 def in_envelope(model, split, margin: float = 0.1):
@@ -297,7 +333,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     te = in_envelope(model, split_from_states(test, test_names, tau, what="test runs"))
     weights = equation_weights(model, tr)
     base_pred = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
-    scores = [score_family(f, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+    scores = [score_mechanisms(f, model, tr, te, weights, base_pred, uncertainty=uncertainty)
               for f in progress(list(families), "diagnose: families")]
     ranked = rank_families(scores, thresholds)
     name = verdict(ranked)
@@ -314,7 +350,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     others = {}
     for c in ranked[1:]:
         if c.significant:  # what each other significant mechanism alone would buy
-            ext = (reidentify(model, c.name, c.score.theta, tr, weights)
+            ext = (reidentify(model, c.name, c.score.theta, tr, weights, dict(c.score.estimate))
                    if c.score.estimate.get("scored_with") == "refit"
                    else ExtendedModel.added(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate)))
             others[c.name] = errors_5s(res_before, multistep(ext, test, test_names))[1]

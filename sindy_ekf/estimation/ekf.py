@@ -33,9 +33,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
+from scipy.linalg.lapack import dpotrf as potrf
 from scipy.stats import chi2
 
 from groundfloor.errors import DivergenceError, InputError
+from groundfloor.gnss import check_gnss
 from groundfloor.progress import progress
 from sindy_ekf.estimation.process_models import N_X, ProcessModel
 
@@ -46,6 +48,7 @@ GATE_PROB = 0.999
 GRID_TOL_S = 1e-6  # stamps closer than this are the same instant
 DT_MAX_S = 0.025  # longest step of the estimation grid (50 Hz poses with a skipped pulse: split)
 _EYE = np.eye(N_X)
+_J_H_POSITION = np.eye(2, N_X)  # d(antenna position)/d(x, y); the heading column is set per fix
 PD_MARGIN = 1e-9  # Q's smallest eigenvalue above this times P's largest entry: F P F^T + Q is PD
 
 
@@ -133,14 +136,14 @@ def h_gnss(x6: np.ndarray, lever_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
     ``p_antenna_local = p_local + R(psi) l_body`` (the lever arm rotated by the heading, eq. 5.65).
     """
-    c, s = math.cos(x6[2]), math.sin(x6[2])
+    x, y, psi = x6[:3].tolist()
+    c, s = math.cos(psi), math.sin(psi)
     lx, ly = lever_xy
     dx, dy = c * lx - s * ly, s * lx + c * ly
-    J_h_x = np.zeros((2, N_X))
-    J_h_x[0, 0] = J_h_x[1, 1] = 1.0
+    J_h_x = _J_H_POSITION.copy()
     J_h_x[0, 2] = -dy
     J_h_x[1, 2] = dx
-    return np.array([x6[0] + dx, x6[1] + dy]), J_h_x
+    return np.array([x + dx, y + dy]), J_h_x
 
 
 def inverse_2x2(S: np.ndarray) -> np.ndarray:
@@ -155,12 +158,12 @@ def repair_covariance(P: np.ndarray, min_eig: float = 1e-12) -> tuple[np.ndarray
     """Return ``P`` symmetrised and, if not positive definite, with eigenvalues clipped; and
     whether a repair was needed."""
     P = 0.5 * (P + P.T)
-    try:
-        np.linalg.cholesky(P)
+    # LAPACK's Cholesky factorisation called directly: np.linalg.cholesky's wrapper costs five
+    # times the factorisation of a 6 x 6 matrix, and this runs after every GNSS update
+    if potrf(P, lower=True, clean=False)[1] == 0:
         return P, False
-    except np.linalg.LinAlgError:
-        w, V = np.linalg.eigh(P)
-        return (V * np.maximum(w, min_eig)) @ V.T, True
+    w, V = np.linalg.eigh(P)
+    return (V * np.maximum(w, min_eig)) @ V.T, True
 
 
 class ModelEKF(ExtendedKalmanFilter):
@@ -201,17 +204,18 @@ class ModelEKF(ExtendedKalmanFilter):
         return F
 
     def update_delayed(self, z: np.ndarray, R: np.ndarray, x_v: np.ndarray, P_v: np.ndarray,
-                       Phi: np.ndarray) -> tuple[float, bool, np.ndarray]:
+                       transitions=()) -> tuple[float, bool, np.ndarray | None]:
         """Apply a GNSS fix valid at an earlier step; return ``(NIS, accepted, K_a H_v)``.
 
-        ``x_v, P_v``: estimate at the time of validity; ``Phi``: error transition from there to
-        now (identity for a fix without latency, which makes this the ordinary Joseph update).
-        Gated by the chi-square test with :data:`GATE_DOF` degrees of freedom at ``gate_prob``.
+        ``x_v, P_v``: estimate at the time of validity; ``transitions``: the error transitions
+        ``M_v, ..., M_{a-1}`` from there to now, oldest first (none for a fix without latency, which
+        makes this the ordinary Joseph update). Gated by the chi-square test with
+        :data:`GATE_DOF` degrees of freedom at ``gate_prob``; ``K_a H_v`` is None for a gated fix.
         """
         h, H = h_gnss(x_v, self.lever_xy)
         y = z - h
-        PHt = P_v @ H.T
-        S = H @ PHt + R
+        C = P_v @ H.T
+        S = H @ C + R
         S_inv = inverse_2x2(S)
         nis = float(y @ S_inv @ y)
         self.y, self.S = y, S
@@ -219,13 +223,13 @@ class ModelEKF(ExtendedKalmanFilter):
             raise InputError(f"GNSS fix {z}: non-finite innovation (state {self.x})")
         if nis > self.gate_nis:
             self.n_gated += 1
-            return nis, False, np.zeros((N_X, N_X))
-        C = Phi @ PHt  # cov(x_a error, H x_v error)
+            return nis, False, None
+        for M in transitions:  # cov(x_a error, H x_v error) = M_{a-1} ... M_v P_v H^T
+            C = M @ C
         K = C @ S_inv
-        KH = K @ H
         # Joseph form of the stacked update, x_a block: stays symmetric PD under round-off
-        KHC = KH @ (Phi @ P_v).T
-        P = self.P - KHC - KHC.T + K @ S @ K.T
+        KC = K @ C.T
+        P = self.P - KC - KC.T + K @ S @ K.T
         self.x = self.x + K @ y
         self.P, repaired = repair_covariance(P)
         if repaired:
@@ -234,7 +238,7 @@ class ModelEKF(ExtendedKalmanFilter):
                         "eigenvalues clipped (repair %d)", self.model.name, self.pd_repairs)
         self.K = K
         self.x_post, self.P_post = self.x.copy(), self.P.copy()
-        return nis, True, KH
+        return nis, True, K @ H
 
 
 @dataclass(frozen=True)
@@ -288,8 +292,6 @@ class _RunState:
         self.repairs = {}
         gnss = run.gnss
         if gnss is not None:
-            from groundfloor.gnss import check_gnss
-
             gnss, self.repairs = check_gnss(gnss, f"{name} GNSS")
             inside = (gnss.t_valid >= t[0] - GRID_TOL_S) & (gnss.t_valid <= t[-1] + GRID_TOL_S)
             kv = np.minimum(np.searchsorted(t, gnss.t_valid[inside] - GRID_TOL_S), n - 1)
@@ -318,20 +320,19 @@ class _RunState:
         self.X[0], self.P[0] = self.ekf.x, self.ekf.P
 
     def apply_fixes(self, k1: int) -> None:
-        """Apply every fix that has arrived by step ``k1`` at its time of validity."""
-        ekf, eye = self.ekf, _EYE
+        """Apply every fix that has arrived by step ``k1`` at its time of validity, starting from the
+        predicted estimate stored at ``k1``; store the updated one."""
+        ekf = self.ekf
+        ekf.x, ekf.P = self.X[k1].copy(), self.P[k1].copy()
         while self.j < len(self.ka) and self.ka[self.j] <= k1:
-            kv = self.kv[self.j]
+            kv = int(self.kv[self.j])
             if kv == k1:
-                x_v, P_v, Phi = ekf.x, ekf.P, eye
+                value, ok, KH = ekf.update_delayed(self.z[self.j], self.R[self.j], ekf.x, ekf.P)
+                if ok and k1 > 0:  # fold the update into the step's error transition
+                    self.M[k1 - 1] = (_EYE - KH) @ self.M[k1 - 1]
             else:
-                Phi = self.M[kv]
-                for i in range(kv + 1, k1):
-                    Phi = self.M[i] @ Phi
-                x_v, P_v = self.X[kv], self.P[kv]
-            value, ok, KH = ekf.update_delayed(self.z[self.j], self.R[self.j], x_v, P_v, Phi)
-            if ok and kv == k1 and k1 > 0:
-                self.M[k1 - 1] = (eye - KH) @ self.M[k1 - 1]
+                value, ok, _ = ekf.update_delayed(self.z[self.j], self.R[self.j], self.X[kv], self.P[kv],
+                                                  self.M[kv:k1])
             self.nis.append(value)
             self.nis_t.append(self.t[kv])
             self.accepted.append(ok)
@@ -379,18 +380,20 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
     for k in progress(range(n_max - 1), desc="EKF", total=n_max - 1):
         a = n_going[k]
         x_next, F, _ = model.step_and_jac(X[k, :a], u[k, :a], t_rel[k, :a], dt[k, :a], input_jacobian=False)
-        P_next = F @ P[k, :a] @ np.swapaxes(F, -1, -2) + model.Q(dt[k, :a])
+        P_next = F @ P[k, :a] @ F.mT
+        P_next += model.Q(dt[k, :a])
         if lateral is not None and (k + 1) % lateral.every == 0:
             x_next, P_next, IKH = lateral_update(x_next, P_next, lateral.vy_std_m_s)
             F = IKH @ F  # error transition of the step with the pseudo-measurement folded in
         P_max = np.abs(P_next).max()  # NaN or inf for a non-finite covariance
-        if not (np.isfinite(x_next.sum()) and P_max < np.inf):  # one test for all runs; then the culprit
+        if not math.isfinite(x_next.sum() + P_max):  # one test for all runs; then the culprit
             for i in range(a):
                 if not (np.all(np.isfinite(x_next[i])) and np.all(np.isfinite(P_next[i]))):
                     raise DivergenceError(f"{ss[i].name}: state or covariance became non-finite at "
                                           f"t={t_rel[k + 1, i]:.2f} s (model {model.name!r} diverged)",
                                           t_rel[k + 1, i])
-        P_next = 0.5 * (P_next + np.swapaxes(P_next, -1, -2))
+        P_next += P_next.mT  # symmetrised in place (numpy buffers the overlapping transpose)
+        P_next *= 0.5
         # F P F^T + Q is positive definite when Q's smallest eigenvalue is far above the round-off
         # of F P F^T (relative 1e-16 of P's largest entry): then no factorisation is needed
         if lateral is not None or q_min * dt_min[k] <= PD_MARGIN * P_max:
@@ -406,9 +409,7 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
                                     "eigenvalues clipped (repair %d)", s.name, t_rel[k + 1, i], s.ekf.pd_repairs)
         X[k + 1, :a], P[k + 1, :a], M[k, :a] = x_next, P_next, F
         for i in fixes_at.get(k + 1, ()):
-            s = ss[i]
-            s.ekf.x, s.ekf.P = X[k + 1, i].copy(), P[k + 1, i].copy()
-            s.apply_fixes(k + 1)
+            ss[i].apply_fixes(k + 1)
     runtime = time.perf_counter() - start
     results = []
     for s in states:

@@ -1,19 +1,24 @@
 """The building blocks of the report's page: sections with their notes, tables and figures.
 
 A :class:`Section` collects HTML fragments; its figures are drawn on the spot and embedded as
-base64 PNG at exactly their displayed width. Every section starts with a coloured band in the
-left margin (:data:`SECTION_MARKERS`), which lets a screenshot test find each section's extent
-without a browser API.
+SVG (``<img src="data:image/svg+xml;base64,...">``: vector, so they stay sharp at any zoom, and
+each in its own document, so the ids matplotlib writes never clash) at their natural size,
+:data:`PX_PER_IN` pixels per inch of the figure, so that text of one point size reads the same
+in every figure; a figure wider than the page shrinks to fit (the report's test checks that none
+is). Why SVG and not PNG: see :data:`FIGURE_FORMAT`. Every section starts
+with a coloured band in the left margin (:data:`SECTION_MARKERS`), which lets a screenshot be
+cut into sections.
 """
 
 from __future__ import annotations
 
+import base64
 import html
 import logging
 from dataclasses import dataclass, field
 from typing import Callable
 
-from sindy_ekf.report.figures import png_base64_from_figure
+from groundfloor.figures import png_from_figure, svg_from_figure
 
 log = logging.getLogger(__name__)
 
@@ -27,11 +32,13 @@ SECTION_MARKERS = {"overview": (230, 25, 75), "calibration": (60, 180, 75), "syn
                    "poses": (245, 130, 48), "identification": (145, 30, 180), "evaluation": (70, 240, 240),
                    "estimation": (240, 50, 230), "diagnosis": (128, 128, 0)}
 MARKER_WIDTH_PX = 14
-FIGURE_WIDTH_PX = 660  # displayed width of every figure; two side by side in a 1400 px window
 FIGURE_GAP_PX = 12
-WIDE_ASPECT = 2.2  # figures wider than this (width / height) span both columns
-WIDE_FIGURE_WIDTH_PX = 2 * FIGURE_WIDTH_PX + FIGURE_GAP_PX
 CONTENT_LEFT_PX = MARKER_WIDTH_PX + 24  # left edge of a section's content
+PX_PER_IN = 96  # CSS pixels per inch: a figure is shown at its size in inches
+# "svg" or "png". SVG stays sharp at any zoom, where a PNG blurs beyond its resolution; the
+# demo's report with SVG figures is 5.0 MB (bench/results/demo.md). PNG_SCALE applies to "png".
+FIGURE_FORMAT = "svg"
+PNG_SCALE = 2  # PNG pixels per CSS pixel when FIGURE_FORMAT is "png" (sharp at 200 % zoom)
 
 
 @dataclass
@@ -64,13 +71,8 @@ class Section:
                 out.append(f'<p class="fail">figure "{html.escape(caption)}" could not be drawn: {html.escape(why)}</p>')
                 continue
             for k, fig in enumerate(figs if isinstance(figs, (list, tuple)) else [figs]):
-                w, h = fig.get_size_inches()
-                wide = ' class="wide"' if w / h > WIDE_ASPECT else ""
-                # drawn at exactly its displayed width: the browser shows it pixel for pixel, unscaled
-                b64 = png_base64_from_figure(fig, dpi=(WIDE_FIGURE_WIDTH_PX if wide else FIGURE_WIDTH_PX) / w)
                 cap = caption if k == 0 else f"{caption} ({k + 1})"
-                out.append(f'<figure{wide}><img alt="{html.escape(cap)}" src="data:image/png;base64,{b64}">'
-                           f"<figcaption>{html.escape(cap)}</figcaption></figure>")
+                out.append(figure_html(fig, cap))
                 self.n_figures += 1
         self.parts.append('<div class="figs">' + "".join(out) + "</div>")
 
@@ -80,6 +82,19 @@ class Section:
         return (f'<section id="{self.id}" data-status="{self.status}" data-figures="{self.n_figures}" '
                 f'style="border-left-color: rgb({r},{g},{b})">'
                 f"<h2>{html.escape(self.title)}</h2>" + "".join(self.parts) + "</section>")
+
+
+def figure_html(fig, caption: str) -> str:
+    """Return a ``<figure>`` with ``fig`` embedded (:data:`FIGURE_FORMAT`) at its natural size and its caption."""
+    w_in, h_in = fig.get_size_inches()
+    if FIGURE_FORMAT == "svg":
+        mime, data = "image/svg+xml", svg_from_figure(fig)
+    else:
+        mime, data = "image/png", png_from_figure(fig, dpi=PNG_SCALE * PX_PER_IN)
+    b64 = base64.b64encode(data).decode("ascii")
+    w_px, h_px = round(w_in * PX_PER_IN), round(h_in * PX_PER_IN)
+    return (f'<figure style="width: {w_px}px"><img alt="{html.escape(caption)}" width="{w_px}" height="{h_px}" '
+            f'src="data:{mime};base64,{b64}"><figcaption>{html.escape(caption)}</figcaption></figure>')
 
 
 def table_html(header: list[str], rows: list[list], left: int = 1) -> str:

@@ -2,28 +2,20 @@
 
 Campaign overview (thesis section 6.3): the driven paths of every run, and the density of the
 control inputs and of the driving states (fig. 6.3); the diagnosis's family gains. Each
-``plot_*`` returns a matplotlib Figure (:mod:`groundfloor.figures`), saved as PNG when given
-``path``; nothing is drawn unless asked for.
+``plot_*`` returns a matplotlib Figure (:mod:`groundfloor.figures`), saved when given ``path``;
+nothing is drawn unless asked for.
 """
 
 from __future__ import annotations
 
-import base64
-import io
 from typing import Sequence
 
 import numpy as np
 from matplotlib.colors import LogNorm
 
-from groundfloor.figures import new_figure, save_figure
+from groundfloor.figures import WIDE_IN, WIDTH_IN, break_at_gaps, new_figure, save_figure
 from groundfloor.types import BodyStates, TrajectoryCampaign, TrajectoryRun
-
-
-def png_base64_from_figure(fig, dpi: float = 80) -> str:
-    """Return the figure as a base64-encoded PNG (for an ``<img src="data:...">``)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+from identification.sindy.data import gap_threshold_s
 
 
 def path_length_m(x: np.ndarray, y: np.ndarray) -> float:
@@ -55,16 +47,17 @@ def run_overview(campaign: TrajectoryCampaign) -> list[dict]:
 
 def plot_driven_paths(runs: Sequence[TrajectoryRun], path=None):
     """Return a figure of every run's path in the local frame (train solid, test dashed)."""
-    fig, ((ax,),) = new_figure(6.4, 5.2)
+    fig, ((ax,),) = new_figure(WIDTH_IN, 5.6)
     for i, run in enumerate(runs):
         p = run.poses
-        ax.plot(p.x, p.y, lw=0.9, color=f"C{i % 10}", ls="-" if run.split == "train" else "--",
+        _, x, y = break_at_gaps(p.t, p.x, p.y, gap_s=gap_threshold_s(p.t))
+        ax.plot(x, y, lw=0.9, color=f"C{i % 10}", ls="-" if run.split == "train" else "--",
                 label=f"{run.name} ({run.split})")
         ax.plot(p.x[:1], p.y[:1], "o", ms=4, color=f"C{i % 10}")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set(xlabel="x local [m]", ylabel="y local [m]",
            title="driven paths (train solid, test dashed; o = start)")
-    ax.legend(fontsize=7, ncols=2, loc="best")
+    fig.legend(fontsize=8, ncols=3, loc="outside lower center")
     return save_figure(fig, path)
 
 
@@ -76,7 +69,7 @@ def plot_input_coverage(states: Sequence[BodyStates], bins: int = 41, path=None)
     """
     u = np.vstack([np.column_stack([s.u1, s.u2]) for s in states])
     v = np.vstack([np.column_stack([s.vx, s.omega]) for s in states])
-    fig, ((ax_u, ax_v),) = new_figure(10.5, 4.4, ncols=2)
+    fig, ((ax_u, ax_v),) = new_figure(WIDE_IN, 5.2, ncols=2)
     h_u = ax_u.hist2d(u[:, 1], u[:, 0], bins=bins, range=[[-1.05, 1.05], [-1.05, 1.05]], norm=LogNorm(),
                       cmap="viridis")
     ax_u.set(xlabel="u2 steering (left +)", ylabel="u1 throttle (forward +)", title="control inputs")
@@ -96,7 +89,7 @@ def plot_family_gains(ranked, path=None):
     ``ranked`` are :class:`sindy_ekf.diagnose.rank.RankedCause` (most likely first); a family
     counts as a cause only where its bar passes its threshold mark.
     """
-    fig, ((ax,),) = new_figure(6.4, 3.6)
+    fig, ((ax,),) = new_figure(WIDTH_IN, 3.6)
     names = [c.name for c in ranked]
     gain = 100 * np.array([c.gain for c in ranked])
     thr = 100 * np.array([c.threshold for c in ranked])

@@ -20,10 +20,8 @@ from groundfloor.progress import progress
 from sindy_ekf.report.blocks import (
     CONTENT_LEFT_PX,
     FIGURE_GAP_PX,
-    FIGURE_WIDTH_PX,
     MARKER_WIDTH_PX,
     SECTIONS,
-    WIDE_FIGURE_WIDTH_PX,
     Section,
 )
 from sindy_ekf.report.sections import SECTION_BUILDERS
@@ -44,8 +42,7 @@ h2 {{ margin: 8px 0; font-size: 20px; }}
 .note {{ color: #555; font-style: italic; }}
 .fail {{ color: #a00; }}
 .figs {{ display: flex; flex-wrap: wrap; gap: {FIGURE_GAP_PX}px; align-items: flex-start; }}
-figure {{ margin: 0; width: {FIGURE_WIDTH_PX}px; }}
-figure.wide {{ width: {WIDE_FIGURE_WIDTH_PX}px; }}
+figure {{ margin: 0; max-width: 100%; }}
 figure img {{ width: 100%; height: auto; display: block; }}
 figcaption {{ font-size: 12px; color: #444; margin-top: 2px; }}
 table {{ border-collapse: collapse; font-size: 13px; margin: 6px 0 10px 0; }}
@@ -53,6 +50,10 @@ th, td {{ border: 1px solid #ccc; padding: 2px 7px; text-align: right; }}
 th {{ background: #f1f1f1; }}
 td.l, th.l {{ text-align: left; }}
 pre {{ background: #f6f6f6; padding: 8px; font-size: 12px; overflow-x: auto; }}
+dl.terms {{ font-size: 13px; color: #333; margin: 4px 0 12px 0; display: grid;
+            grid-template-columns: max-content auto; column-gap: 12px; row-gap: 2px; max-width: 1300px; }}
+dl.terms dt {{ font-weight: bold; }}
+dl.terms dd {{ margin: 0; }}
 """
 
 

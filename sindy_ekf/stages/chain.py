@@ -45,7 +45,7 @@ from sindy_ekf.stages.calibration import (
     calibration_stage,
     synchronisation_stage,
 )
-from sindy_ekf.stages.estimation import ORACLE_EKF, estimation_stage
+from sindy_ekf.stages.estimation import ORACLE_EKF, OutageSchedule, estimation_stage
 from sindy_ekf.stages.evaluation import (
     evaluation_stage,
     model_smoothing,
@@ -159,7 +159,8 @@ def identification_plan(chain: ChainResult, grid: SearchGrid | str | None) -> Id
 
 
 def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid, out_dir: Path | None,
-                 n_jobs: int, estimators: Sequence[str] | None) -> dict[str, Callable[[], dict]]:
+                 n_jobs: int, estimators: Sequence[str] | None,
+                 outages: OutageSchedule) -> dict[str, Callable[[], dict]]:
     """Return each stage as a function of what the stages before it ``found``, returning its fields."""
     traj, path = chain.trajectory, chain.campaign_path
 
@@ -193,7 +194,7 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
         oracle = true_dynamics_of(path)
         wished = estimators or (QUICK_ESTIMATORS if grid == QUICK else None)
         names = None if wished is None else tuple(n for n in wished if n != ORACLE_EKF or oracle is not None)
-        return {"benchmark": estimation_stage(traj, found["model"], oracle, estimators=names)}
+        return {"benchmark": estimation_stage(traj, found["model"], oracle, estimators=names, outages=outages)}
 
     def diagnosis() -> dict:
         if found.get("model_path") is None:
@@ -205,7 +206,8 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
 
 
 def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: str | Path | None = None,
-              grid=QUICK, stages=STAGES, n_jobs: int = 1, estimators=None) -> ChainResult:
+              grid=QUICK, stages=STAGES, n_jobs: int = 1, estimators=None,
+              outages: OutageSchedule = OutageSchedule()) -> ChainResult:
     """Return the chain run on ``campaign``: each stage of ``stages`` in order, failures recorded.
 
     Parameters
@@ -217,6 +219,7 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     stages : the stages to run, a subset of :data:`STAGES`.
     estimators : the benchmark's estimators (default: :data:`QUICK_ESTIMATORS` with the quick
         grid, else all; ``oracle_ekf`` only on a simulated campaign).
+    outages : when the benchmark drops GNSS (default: 5, 10, 30, 60 s in turn, 30 s apart).
 
     Raises
     ------
@@ -229,7 +232,7 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     chain = open_chain(campaign, need_train=model is None)
     found: dict = {}
     errors, skipped, seconds = {}, {}, dict(chain.seconds)
-    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators)
+    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators, outages)
     for name in STAGES:
         if name not in stages:
             skipped[name] = "stage not requested"

@@ -9,6 +9,7 @@ keeps it for its section.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -17,11 +18,22 @@ from groundfloor.errors import InputError
 from groundfloor.types import TrajectoryCampaign
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.model import SindyModel
+from simulation.gnss import OUTAGE_DURATIONS_S
 from simulation.truth import true_dynamics_of
 from sindy_ekf.benchmark.result import BenchmarkResult
 from sindy_ekf.benchmark.run import ESTIMATORS, benchmark_campaign
 
 ORACLE_EKF = "oracle_ekf"
+
+
+@dataclass(frozen=True)
+class OutageSchedule:
+    """When the benchmark drops GNSS on a test run: the outage lengths in turn, with GNSS for
+    ``warmup_s`` before the first and ``recovery_s`` between two (:func:`simulation.gnss.schedule_outages`)."""
+
+    durations_s: tuple[float, ...] = OUTAGE_DURATIONS_S
+    warmup_s: float = 30.0
+    recovery_s: float = 30.0
 
 
 def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, campaign: str | Path) -> tuple[str, ...]:
@@ -42,16 +54,19 @@ def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, ca
 
 def estimation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dynamics | None = None,
                      profile: str = "dgnss", seed: int = 0, estimators: Sequence[str] | None = None,
-                     campaign_path: str | Path | None = None) -> BenchmarkResult:
+                     campaign_path: str | Path | None = None,
+                     outages: OutageSchedule = OutageSchedule()) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign`` with the model.
 
     ``oracle`` (the simulator's true dynamics) runs as ``oracle_ekf``; ``estimators`` as in
-    :func:`estimators_for`; ``campaign_path`` names the campaign in errors (default its root).
+    :func:`estimators_for`; ``campaign_path`` names the campaign in errors (default its root);
+    ``outages`` when GNSS drops out.
     """
     names = estimators_for(estimators, oracle, campaign.root if campaign_path is None else campaign_path)
     s = model.hyperparameters.get("s")  # Q and the lag model from states at the model's own smoothing
     return benchmark_campaign(campaign, model, profile=profile, seed=seed, oracle_dynamics=oracle, estimators=names,
-                              smoothing=None if s is None else float(s))
+                              smoothing=None if s is None else float(s), outage_warmup_s=outages.warmup_s,
+                              outage_recovery_s=outages.recovery_s, outage_durations_s=outages.durations_s)
 
 
 def benchmark_files(campaign: str | Path, model_path: str | Path, profile: str = "dgnss", seed: int = 0,

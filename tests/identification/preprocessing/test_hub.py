@@ -110,7 +110,12 @@ def test_nonfinite_samples_are_left_out():
 def test_plot_hub_model(tmp_path):
     m = measurements(duration_s=10.0, seed=1)
     fig = plot_hub_model(_fit(m), tmp_path / "hub.png")
-    assert len(fig.axes) == 3 and (tmp_path / "hub.png").stat().st_size > 10_000
+    assert (tmp_path / "hub.png").stat().st_size > 10_000
+    # baseline over time, against the azimuth, the azimuths, and the one legend in a panel of its own
+    assert len(fig.axes) == 4
+    legend_panel = fig.axes[3]
+    assert not legend_panel.axison and len(legend_panel.get_legend().get_texts()) == 5
+    assert all(ax.get_legend() is None for ax in fig.axes[:3])  # no legend over the data
 
 
 # ------------------------------------------------------------------------------- bad inputs

@@ -35,6 +35,9 @@ def test_transform_reproduces_table_7_2(survey):
     # The survey sigmas are pessimistic (USMN); no point is flagged on the real network.
     assert fit.blunder_point is None
     assert 0.05 < fit.variance_factor < 1.0
+    # ... so pessimistic that the global test rejects them (s0^2 below chi2(2.5 %, dof) / dof)
+    test = fit.variance_factor_test
+    assert test.verdict == "too small" and test.dof == fit.dof and test.s0_sq == fit.variance_factor
     # Uncertainties of the order of table 7.2's (20-36 um, 0.7-1.2 arcsec); USMN's own model
     # is not transparent (section 7.2), so only the magnitude is compared.
     assert np.all((fit.t_table_std > 10e-6) & (fit.t_table_std < 50e-6))
@@ -92,7 +95,7 @@ def test_covariance_matches_monte_carlo(survey):
     std_at = np.array([survey.network_at960[i][3:] for i in ids])
     x_at_true = fit.t_at960_ltd800 + x_ltd @ fit.R_at960_ltd800.T
     rng = np.random.default_rng(7)
-    params, s0, T = [], [], []
+    params, s0, T, accepted = [], [], [], []
     for _ in range(200):  # one fit per draw: each fit is one batched solve
         noisy_ltd = x_ltd + rng.normal(size=x_ltd.shape) * std_ltd
         noisy_at = x_at_true + rng.normal(size=x_ltd.shape) * std_at
@@ -103,10 +106,12 @@ def test_covariance_matches_monte_carlo(survey):
         params.append(np.r_[f.t_at960_ltd800, f.rotation_rad])
         s0.append(f.variance_factor)
         T.append(f.point_test)
+        accepted.append(f.variance_factor_test.accepted)
     mc_std = np.std(params, axis=0, ddof=1)
     ratio = mc_std / fit.params_std
     assert np.all(np.abs(ratio - 1.0) < 0.2), ratio
     assert abs(np.mean(s0) - 1.0) < 0.15  # sigma0^2 = 1 when the sigmas are right
+    assert np.mean(accepted) > 0.9  # ... and the global test accepts 95 % of the draws (200: >= 90 %)
     # Without blunders the leave-one-out statistic is chi2(3): mean 3, variance 6.
     assert abs(np.mean(T) - 3.0) < 0.3
     assert abs(np.var(T) - 6.0) < 1.5

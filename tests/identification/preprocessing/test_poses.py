@@ -122,6 +122,20 @@ def test_a_posteriori_variance_is_scaled_by_s0():
     np.testing.assert_allclose(post.track.yaw_std, prior.track.yaw_std * np.sqrt(prior.s0_sq), rtol=1e-9)
 
 
+def test_global_test_of_the_pose_adjustment_checks_the_tracker_sigmas():
+    # one degree of freedom per epoch: the epochs' s0^2 together are tested against chi2(n) / n
+    m = measurements(duration_s=20.0, seed=3, radius_m=(0.0, 0.0))
+    right = fit_poses_full(m.t, m.p_front, m.p_rear, LEVER_FRONT, LEVER_REAR, std_front=m.noise_m, std_rear=m.noise_m)
+    t = right.variance_factor_test
+    assert t.accepted and t.dof == len(m.t) and t.s0_sq == pytest.approx(np.mean(right.s0_sq))
+    # sigmas twice the noise: s0^2 about 1/4, rejected as pessimistic; half the noise: optimistic
+    for factor, verdict in ((2.0, "too small"), (0.5, "too large")):
+        fit = fit_poses_full(m.t, m.p_front, m.p_rear, LEVER_FRONT, LEVER_REAR, std_front=factor * m.noise_m,
+                             std_rear=factor * m.noise_m)
+        assert fit.variance_factor_test.verdict == verdict
+        assert fit.variance_factor_test.s0_sq == pytest.approx(t.s0_sq / factor**2, rel=1e-3)
+
+
 def test_plot_poses(tmp_path):
     m = measurements(duration_s=5.0, seed=1)
     figs = plot_poses(fit_poses(m.t, m.p_front, m.p_rear, LEVER_FRONT, LEVER_REAR), tmp_path / "run")

@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 import yaml
 
+from groundfloor import repairs
 from groundfloor.errors import InputError
 from groundfloor.types import BodyStates, InputSeries, PoseTrack, TrajectoryRun
 from identification.preprocessing.trajectory import (
+    GAPS_NOTE,
     gap_segments,
     quaternion_from_yaw_pitch,
     read_trajectory_campaign,
@@ -167,10 +169,15 @@ def test_poses_and_inputs_without_overlap_name_the_run(tmp_path):
 def test_ten_second_hole_is_counted_and_splits_segments(tmp_path, caplog):
     t = np.concatenate([np.arange(100) * 0.1, 19.9 + np.arange(100) * 0.1])  # 10 s hole
     root = _campaign(tmp_path / "c", t)
-    with caplog.at_level(logging.WARNING, logger="identification.preprocessing.trajectory"):
+    repairs.clear()
+    with caplog.at_level(logging.INFO):
         run = read_trajectory_campaign(root).runs[0]
     assert run.repairs == {"gaps": 1}
-    assert "run a" in caplog.text and "gaps=1" in caplog.text
+    # an expected repair: logged at INFO and noted for the command's one-line summary, no warning
+    assert "run a: 1 pose gaps" in caplog.text
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert repairs.summary() == [f"{GAPS_NOTE}: 1 in 1 runs (a 1)"]
+    repairs.clear()
     np.testing.assert_array_equal(gap_segments(run.poses.t), [[0, 100], [100, 200]])
     # the trigger's skipped pulse (2 intervals at 50 Hz) is no gap
     t50 = np.delete(np.arange(500) * 0.02, [150, 300])

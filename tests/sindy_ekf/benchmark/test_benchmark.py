@@ -100,6 +100,7 @@ def test_outputs_hold_tum_files_json_and_plots(mini):
     assert (out / "trajectories.png").stat().st_size > 1000
     assert (out / "outage_errors.png").stat().st_size > 1000
     assert (out / "nees.png").stat().st_size > 1000
+    assert (out / "error_bands.png").stat().st_size > 1000
 
 
 def test_command_rejects_a_model_whose_features_do_not_match(mini, tmp_path, capsys):

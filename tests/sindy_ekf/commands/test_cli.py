@@ -166,3 +166,20 @@ def test_quiet_switches_progress_bars_off(tmp_path, capsys):
         assert progress._enabled is True
     finally:
         progress.enable(False)
+
+
+def test_pose_gaps_are_summarised_once_not_warned_per_run(tmp_path, model_file, capsys):
+    # a prism lost for 2 s in each test run: expected, so one summary line for the command, no warning per run
+    root = write_trajectory_campaign(tmp_path / "gappy", {"run_a": "test", "run_b": "test", "run_c": "train"})
+    for name in ("run_a", "run_b"):
+        poses = root / "runs" / name / "poses.csv"
+        rows = poses.read_text().splitlines()
+        kept = [r for r in rows[1:] if not 10.0 <= float(r.split(",")[0]) < 12.0]
+        poses.write_text("\n".join([rows[0], *kept]) + "\n")
+    code, _, err = run_cli(["evaluate", root, "--model", model_file], capsys)
+    assert code == 0, err
+    summary = [line for line in err.splitlines() if "pose gaps" in line]
+    assert summary == ["sindy-ekf evaluate: pose gaps (a prism lost; never bridged): 2 in 2 runs (run_a 1, run_b 1)"]
+    assert "gaps=" not in err and "WARNING" not in err
+    code, _, err = run_cli(["evaluate", root, "--model", model_file, "--quiet"], capsys)
+    assert code == 0 and "pose gaps" not in err

@@ -142,3 +142,22 @@ def test_simulate_command_takes_and_reports_jitter_and_reset(tmp_path, capsys):
     assert "receive latency 2-12 ms" in printed
     assert "run_06: at960 clock restarted (topic /at960/measurement, message" in printed
     assert "receive jitter 2-12 ms" in (tmp_path / "c" / "campaign.yaml").read_text()
+
+
+def test_simulate_a_variant_with_an_effect_form(tmp_path, capsys):
+    """``--variant N`` and ``--effect NAME:FORM=VALUE``: truth/ and the JSON say what was drawn."""
+    out, js = tmp_path / "camp", tmp_path / "sim.json"
+    assert main(["simulate", str(out), "--seed", "2", "--minutes", "2.25", "--variant", "2",
+                 "--effect", "deadband:hysteresis=0.2", "--json", str(js), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "deadband:hysteresis=0.2" in printed and "simulator variant 2" in printed
+    truth = yaml.safe_load((out / "truth" / "truth.yaml").read_text())
+    assert truth["variant"]["index"] == 2 and truth["effects"][0]["form"] == "hysteresis"
+    summary = json.loads(js.read_text())
+    assert summary["variant"]["index"] == 2 and "motor_lag_s" in summary["variant"]["draws"]
+
+
+def test_unknown_effect_form_and_bad_variant(tmp_path, capsys):
+    _fails(["simulate", str(tmp_path / "o"), "--effect", "deadband:sticky=0.1", "--minutes", "2.25"], capsys, "sticky")
+    _fails(["simulate", str(tmp_path / "o"), "--variant", "-3", "--minutes", "2.25"], capsys, "variant=-3")
+    assert not (tmp_path / "o").exists()

@@ -21,6 +21,7 @@ from groundfloor.errors import InputError  # noqa: E402
 from simulation.effects import EFFECTS, Effect  # noqa: E402
 from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose import diagnose_states  # noqa: E402
+from sindy_ekf.diagnose.fitting import normal_equations
 from tests.support import REPO
 from tests.support.diagnose_synth import fit_reference_with_lateral_law
 
@@ -312,3 +313,22 @@ def test_test_runs_too_short_for_an_outage_give_no_outage_errors(reference_model
     res = outage_errors({"before": reference_model}, train, test)
     assert res.outage_s == 10.0 and res.errors_m["before"].size == 0
     assert np.isnan(res.rms()["before"]) and res.n_diverged() == {"before": 0}
+
+
+def test_normal_equations_are_the_weighted_sums_over_each_runs_windows():
+    # against the definition, written out: G = sum_windows,eq w_e X^T X, b = sum w_e X^T y, yy = sum w_e y^2 per run
+    rng = np.random.default_rng(3)
+    C, p, m, R = 2, 40, 5, 3
+    y, X = rng.normal(size=(C, p, 3)), rng.normal(size=(C, p, 3, m))
+    w, run = rng.uniform(0.5, 2.0, size=3), rng.integers(0, R, size=p)
+    d = normal_equations(y, X, w, run, R)
+    for c in range(C):
+        for r in range(R):
+            G = sum(w[e] * np.outer(X[c, k, e], X[c, k, e]) for k in np.flatnonzero(run == r) for e in range(3))
+            b = sum(w[e] * X[c, k, e] * y[c, k, e] for k in np.flatnonzero(run == r) for e in range(3))
+            yy = sum(w[e] * y[c, k, e] ** 2 for k in np.flatnonzero(run == r) for e in range(3))
+            np.testing.assert_allclose(d.G[c, r], G, rtol=1e-12)
+            np.testing.assert_allclose(d.b[c, r], b, rtol=1e-12)
+            np.testing.assert_allclose(d.yy[c, r], yy, rtol=1e-12)
+    empty = normal_equations(y, X[..., :0], w, run, R)  # a family without columns: yy only
+    assert empty.G.shape == (C, R, 0, 0) and np.allclose(empty.yy, d.yy)

@@ -1,0 +1,168 @@
+"""Geodetic fixes into the local frame: WGS84 -> east-north-up (pymap3d), then ENU -> local.
+
+The local frame ``l`` of the poses is leveled (its z is up), so it differs from the east-north-up
+frame at a geodetic origin by a rotation about the vertical and a translation:
+
+    p_local = Rz(yaw) p_enu + t_local,    yaw = ``enu_to_local_yaw_deg``
+
+(``Rz(yaw)`` takes a vector's ENU coordinates to its local coordinates). The transform is either
+given in ``campaign.yaml`` (``geodetic_origin: {lat_deg, lon_deg, alt_m}``,
+``enu_to_local_yaw_deg``, optionally ``enu_to_local_t_m``) or estimated by
+:func:`estimate_enu_to_local` from fixes and the ground-truth antenna positions, with its
+uncertainty. Geodetic -> ENU is pymap3d's (a maintained library; WGS84 ellipsoid).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pymap3d
+
+from groundfloor.errors import InputError
+
+OUTLIER_SIGMA = 4.0  # residuals above this many stated stds are left out of the refits
+MAX_REFITS = 10
+
+
+@dataclass(frozen=True)
+class GeodeticOrigin:
+    """Origin of the east-north-up frame (WGS84 degrees, ellipsoidal height in metres)."""
+
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+
+    @classmethod
+    def from_yaml(cls, value, source: str) -> GeodeticOrigin:
+        """Return the origin from a ``{lat_deg, lon_deg, alt_m}`` mapping; InputError naming ``source``."""
+        keys = ("lat_deg", "lon_deg", "alt_m")
+        if not isinstance(value, dict) or any(k not in value for k in keys):
+            raise InputError(f"{source}: geodetic_origin needs keys {', '.join(keys)}")
+        try:
+            lat, lon, alt = (float(value[k]) for k in keys)
+        except (TypeError, ValueError):
+            raise InputError(f"{source}: geodetic_origin values must be numbers") from None
+        if not (np.isfinite(alt) and -90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+            raise InputError(f"{source}: geodetic_origin ({lat}, {lon}, {alt}) out of range")
+        return cls(lat, lon, alt)
+
+    def to_yaml(self) -> dict:
+        """Return the origin as ``campaign.yaml`` writes it."""
+        return {"lat_deg": float(self.lat_deg), "lon_deg": float(self.lon_deg), "alt_m": float(self.alt_m)}
+
+
+@dataclass(frozen=True)
+class EnuToLocal:
+    """``p_local = Rz(yaw) p_enu + t_local``; ``cov`` of (yaw rad, tx, ty) when estimated."""
+
+    yaw_rad: float
+    t_local_m: np.ndarray  # (3,)
+    cov: np.ndarray | None = None  # (3, 3) of yaw [rad], t_x, t_y [m]; None when given
+    n_fixes: int = 0  # fixes the estimate rests on
+    n_rejected: int = 0  # fixes left out as outliers
+    sigma0: float = float("nan")  # a posteriori standard deviation of unit weight
+
+    @property
+    def R(self) -> np.ndarray:
+        """Return ``Rz(yaw)`` (3, 3)."""
+        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def apply(self, p_enu: np.ndarray) -> np.ndarray:
+        """Return local positions (n, 3) of ENU positions (n, 3)."""
+        return np.asarray(p_enu, float) @ self.R.T + self.t_local_m
+
+    def inverse(self, p_local: np.ndarray) -> np.ndarray:
+        """Return ENU positions (n, 3) of local positions (n, 3)."""
+        return (np.asarray(p_local, float) - self.t_local_m) @ self.R
+
+    def rotate_cov(self, cov_enu: np.ndarray) -> np.ndarray:
+        """Return covariances (n, 3, 3) of ENU positions expressed in the local frame."""
+        return self.R @ np.asarray(cov_enu, float) @ self.R.T
+
+    def to_json_dict(self) -> dict:
+        """Return the transform and its standard deviations as plain values."""
+        out = {"enu_to_local_yaw_deg": float(np.degrees(self.yaw_rad)),
+               "enu_to_local_t_m": [float(v) for v in self.t_local_m], "estimated": self.cov is not None}
+        if self.cov is not None:
+            sd = np.sqrt(np.diag(self.cov))
+            out.update(yaw_std_deg=float(np.degrees(sd[0])), t_std_m=[float(sd[1]), float(sd[2])],
+                       n_fixes=int(self.n_fixes), n_rejected=int(self.n_rejected), sigma0=float(self.sigma0))
+        return out
+
+
+def geodetic_to_enu(lat_deg, lon_deg, alt_m, origin: GeodeticOrigin) -> np.ndarray:
+    """Return ENU positions (n, 3) in metres of WGS84 fixes at ``origin`` (pymap3d)."""
+    e, n, u = pymap3d.geodetic2enu(np.asarray(lat_deg, float), np.asarray(lon_deg, float),
+                                   np.asarray(alt_m, float), origin.lat_deg, origin.lon_deg, origin.alt_m)
+    return np.column_stack([np.ravel(e), np.ravel(n), np.ravel(u)])
+
+
+def enu_to_geodetic(p_enu: np.ndarray, origin: GeodeticOrigin) -> np.ndarray:
+    """Return WGS84 ``lat_deg, lon_deg, alt_m`` (n, 3) of ENU positions (n, 3) (pymap3d)."""
+    p = np.asarray(p_enu, float).reshape(-1, 3)
+    lat, lon, alt = pymap3d.enu2geodetic(p[:, 0], p[:, 1], p[:, 2], origin.lat_deg, origin.lon_deg,
+                                         origin.alt_m)
+    return np.column_stack([lat, lon, alt])
+
+
+def _fit(e: np.ndarray, loc: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
+    """Return the weighted 2-D Procrustes rotation and translation taking ``e`` onto ``loc``."""
+    ce = (w[:, None] * e).sum(0) / w.sum()
+    cl = (w[:, None] * loc).sum(0) / w.sum()
+    a, b = e - ce, loc - cl
+    yaw = np.arctan2(np.sum(w * (a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])), np.sum(w * (a * b).sum(1)))
+    c, s = np.cos(yaw), np.sin(yaw)
+    return float(yaw), cl - np.array([[c, -s], [s, c]]) @ ce
+
+
+def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndarray,
+                          source: str = "GNSS") -> EnuToLocal:
+    """Return the ENU -> local transform fitted to fixes and true antenna positions, with its covariance.
+
+    Weighted least squares over the horizontal plane (weights from the fixes' stated horizontal
+    std), in closed form (2-D Procrustes), refitted without residuals above
+    :data:`OUTLIER_SIGMA` stated stds (multipath) until the set kept no longer changes. The vertical offset is the weighted mean of
+    ``local z - up``. The covariance of (yaw, t_x, t_y) is the Gauss-Newton one,
+    ``sigma0^2 (J^T W J)^-1`` with the a posteriori variance factor ``sigma0^2``.
+
+    Parameters
+    ----------
+    p_enu, p_local : (n, 3) the same antenna positions as fixes (ENU) and from the ground truth.
+    std_m : (n,) stated horizontal std of each fix.
+    """
+    p_enu, p_local = np.asarray(p_enu, float), np.asarray(p_local, float)
+    w = 1.0 / np.asarray(std_m, float) ** 2
+    ok = np.all(np.isfinite(p_enu), 1) & np.all(np.isfinite(p_local[:, :2]), 1) & np.isfinite(w) & (w > 0)
+    if ok.sum() < 3:
+        raise InputError(f"{source}: fewer than 3 fixes beside ground truth to estimate the ENU -> local transform")
+    e, loc, w = p_enu[ok], p_local[ok], w[ok]
+    if np.linalg.norm(e[:, :2] - e[:, :2].mean(0), axis=1).max() < 1.0:
+        raise InputError(f"{source}: the antenna moved less than 1 m; ENU -> local yaw not observable")
+    keep = np.ones(len(e), bool)
+    for _ in range(MAX_REFITS):
+        yaw, t2 = _fit(e[keep, :2], loc[keep, :2], w[keep])
+        c, s = np.cos(yaw), np.sin(yaw)
+        res = e[:, :2] @ np.array([[c, -s], [s, c]]).T + t2 - loc[:, :2]
+        norm = np.hypot(res[:, 0], res[:, 1]) * np.sqrt(w)  # in stated stds
+        # a fit pulled by outliers has large residuals everywhere: the threshold shrinks from
+        # three median residuals to OUTLIER_SIGMA stated stds as the refits clean it up
+        new = norm < max(OUTLIER_SIGMA * np.sqrt(2.0), 3.0 * float(np.median(norm[keep])))
+        if new.sum() < 3 or np.array_equal(new, keep):
+            break
+        keep = new
+    r = res[keep].ravel()
+    wk = np.repeat(w[keep], 2)
+    dof = max(r.size - 3, 1)
+    sigma0 = float(np.sqrt(np.sum(wk * r ** 2) / dof))
+    ek = e[keep, :2]
+    J = np.zeros((ek.shape[0], 2, 3))
+    J[:, 0, 0] = -s * ek[:, 0] - c * ek[:, 1]
+    J[:, 1, 0] = c * ek[:, 0] - s * ek[:, 1]
+    J[:, 0, 1] = J[:, 1, 2] = 1.0
+    J = J.reshape(-1, 3)
+    cov = sigma0 ** 2 * np.linalg.inv(J.T @ (wk[:, None] * J))
+    finite_z = keep & np.isfinite(loc[:, 2]) & np.isfinite(e[:, 2])
+    tz = float(np.average(loc[finite_z, 2] - e[finite_z, 2], weights=w[finite_z])) if finite_z.any() else 0.0
+    return EnuToLocal(yaw, np.array([t2[0], t2[1], tz]), cov, int(keep.sum()), int((~keep).sum()), sigma0)

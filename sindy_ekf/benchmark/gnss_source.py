@@ -1,0 +1,131 @@
+"""Recorded GNSS for the benchmark (``benchmark --gnss recorded``, issue 16).
+
+The campaign's own fixes (``runs/<run>/gnss.csv`` of a trajectory campaign, written by
+``preprocess`` from a ``sensor_msgs/NavSatFix`` topic or by a user) replace the simulated ones:
+NO_FIX and non-finite fixes dropped and counted, WGS84 -> ENU at the campaign's
+``geodetic_origin`` (pymap3d; the first fix when none is given), ENU -> local either as
+``campaign.yaml`` gives it or estimated from the ground-truth poses over the first
+:data:`ESTIMATE_WINDOW_S` of every run (:func:`groundfloor.geodetic.estimate_enu_to_local`,
+reported with its uncertainty). Each fix keeps its stated covariance (rotated into the local
+frame); the filters gate them as they gate simulated fixes. Outage experiments drop the recorded
+fixes whose time of validity falls in a scheduled outage.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from groundfloor.errors import InputError
+from groundfloor.geodetic import EnuToLocal, GeodeticOrigin, estimate_enu_to_local, geodetic_to_enu
+from groundfloor.gnss import GnssSeries
+from identification.preprocessing.io_sensors import (
+    GNSS,
+    GNSS_CSV,
+    GnssFixes,
+    clean_fixes,
+    overlapping,
+    read_gnss_csv,
+    read_sensors_config,
+)
+
+log = logging.getLogger(__name__)
+
+RECORDED = "recorded"
+ESTIMATE_WINDOW_S = 60.0  # seconds of each run's start the ENU -> local estimate rests on
+
+
+@dataclass(frozen=True)
+class RecordedGnss:
+    """A campaign's recorded fixes per run, with the frame they are taken into the local frame by."""
+
+    origin: GeodeticOrigin
+    transform: EnuToLocal
+    lever_arm_body_m: np.ndarray  # (3,)
+    fixes: dict[str, GnssFixes]  # run -> cleaned fixes inside its poses' span
+    counts: dict[str, dict[str, int]]  # run -> fixes read, NO_FIX / NaN / duplicates dropped
+
+    def series(self, run: str, outages: np.ndarray) -> GnssSeries:
+        """Return the run's fixes in the local frame as the filters take them, none inside ``outages``.
+
+        Raises
+        ------
+        InputError
+            The run has no recorded fix (names the run and the file).
+        """
+        if run not in self.fixes:
+            raise InputError(f"run {run}: no {GNSS_CSV} for --gnss recorded")
+        f = self.fixes[run]
+        p_local = self.transform.apply(geodetic_to_enu(f.lla[:, 0], f.lla[:, 1], f.lla[:, 2], self.origin))
+        std = np.sqrt(np.diagonal(self.transform.rotate_cov(f.cov_enu), axis1=1, axis2=2))
+        outages = np.asarray(outages, float).reshape(-1, 2)
+        keep = ~np.any((f.t[:, None] >= outages[:, 0]) & (f.t[:, None] < outages[:, 1]), axis=1)
+        return GnssSeries(RECORDED, f.t[keep], np.maximum(f.t_arrival[keep], f.t[keep]), p_local[keep], std[keep],
+                          np.zeros(int(keep.sum()), np.uint8), self.lever_arm_body_m, outages)
+
+    def to_json_dict(self) -> dict:
+        """Return the origin, the transform (with its std when estimated) and the counts per run."""
+        return {"origin": self.origin.to_yaml(), "enu_to_local": self.transform.to_json_dict(),
+                "lever_arm_body_m": [float(v) for v in self.lever_arm_body_m], "runs": self.counts}
+
+
+def antenna_local(poses, t: np.ndarray, lever_arm_body_m: np.ndarray) -> np.ndarray:
+    """Return the true antenna positions (n, 3) at ``t`` from the poses (z NaN where unknown)."""
+    tp = np.asarray(poses.t, float)
+    ok = np.isfinite(tp) & np.isfinite(poses.x) & np.isfinite(poses.y) & np.isfinite(poses.yaw)
+    tp = tp[ok]
+    yaw = np.interp(t, tp, np.unwrap(np.asarray(poses.yaw, float)[ok]))
+    z = np.asarray(poses.z, float)[ok] if poses.z is not None else np.full(tp.size, np.nan)
+    c, s = np.cos(yaw), np.sin(yaw)
+    lx, ly, lz = lever_arm_body_m
+    return np.column_stack([np.interp(t, tp, np.asarray(poses.x, float)[ok]) + c * lx - s * ly,
+                            np.interp(t, tp, np.asarray(poses.y, float)[ok]) + s * lx + c * ly,
+                            np.interp(t, tp, z) + lz])
+
+
+def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> RecordedGnss:
+    """Return the recorded GNSS of a trajectory campaign, the ENU -> local transform given or estimated.
+
+    Raises
+    ------
+    InputError
+        No test run with a ``gnss.csv``; a ``gnss.csv`` without a fix inside its run's poses
+        (names the file); a bad sensor declaration in ``campaign.yaml``; too little motion to
+        estimate the transform.
+    """
+    root = campaign.root
+    config = read_sensors_config(root)
+    spec = config.first(GNSS)
+    lever = np.asarray(spec.lever_arm_body_m if spec is not None else (0.0, 0.0, 0.0), float)
+    fixes, counts = {}, {}
+    for run in campaign.runs:
+        path = root / "runs" / run.name / GNSS_CSV
+        if not path.is_file():
+            continue
+        f, counts[run.name] = clean_fixes(read_gnss_csv(path), str(path))
+        fixes[run.name] = overlapping(f, run.poses.t, str(path))
+    if not any(r.name in fixes for r in campaign.split("test")):
+        raise InputError(f"{root}: --gnss recorded needs runs/<run>/{GNSS_CSV} in the test runs (none found)")
+    first = fixes[next(iter(fixes))]
+    origin = config.origin or GeodeticOrigin(*(float(v) for v in first.lla[0]))
+    if config.enu_to_local_yaw_deg is not None:
+        transform = EnuToLocal(float(np.radians(config.enu_to_local_yaw_deg)), np.asarray(config.enu_to_local_t_m))
+    else:
+        enu, local, std = [], [], []
+        for run in campaign.runs:
+            if run.name not in fixes:
+                continue
+            f = fixes[run.name]
+            f = f.select(f.t <= f.t[0] + window_s)
+            enu.append(geodetic_to_enu(f.lla[:, 0], f.lla[:, 1], f.lla[:, 2], origin))
+            local.append(antenna_local(run.poses, f.t, lever))
+            std.append(np.sqrt(0.5 * (f.cov_enu[:, 0, 0] + f.cov_enu[:, 1, 1])))
+        transform = estimate_enu_to_local(np.concatenate(enu), np.concatenate(local), np.concatenate(std),
+                                          f"{root}: GNSS")
+        sd = np.sqrt(np.diag(transform.cov))
+        log.info("ENU -> local estimated from %d fixes: yaw %.3f +- %.3f deg, t (%.3f, %.3f) +- (%.3f, %.3f) m",
+                 transform.n_fixes, np.degrees(transform.yaw_rad), np.degrees(sd[0]), *transform.t_local_m[:2],
+                 sd[1], sd[2])
+    return RecordedGnss(origin, transform, lever, fixes, counts)
