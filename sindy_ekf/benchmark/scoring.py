@@ -26,7 +26,12 @@ def chi2_bounds_95(dof: int) -> tuple[float, float]:
 
 
 def pose_error(e: Estimate, truth: np.ndarray) -> np.ndarray:
-    """Return ``(n, 3)`` errors ``[dx, dy, dyaw]`` of an estimate against ``truth`` ``[t, x, y, yaw]`` (yaw wrapped)."""
+    """Return ``(n, 3)`` errors ``[dx, dy, dyaw]`` of an estimate against ``truth`` ``[t, x, y, yaw]`` (yaw wrapped).
+
+    A diverged estimator's estimate stops early (:mod:`sindy_ekf.benchmark.health`): its ``n``
+    poses are the first ``n`` of the truth.
+    """
+    truth = truth[:len(e.x)]
     return np.column_stack([e.x[:, 0] - truth[:, 1], e.x[:, 1] - truth[:, 2], wrap_angle(e.x[:, 2] - truth[:, 3])])
 
 
@@ -127,7 +132,7 @@ def pose_nees(result: BenchmarkResult, run: str) -> dict[str, tuple[np.ndarray, 
     out = {}
     for name, per_run in result.estimates.items():
         e = per_run[run]  # a diverged estimator's stops early (sindy_ekf.benchmark.health)
-        has, nees = nees_of(pose_error(e, tr[:len(e.t)]), e.P)
+        has, nees = nees_of(pose_error(e, tr), e.P)
         if has.sum() < 2:
             continue
         out[name] = (e.t[has] - tr[0, 0], nees)
