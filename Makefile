@@ -47,9 +47,10 @@ browser:
 demo: $(STAMP)
 	$(BIN)/sindy-ekf demo
 
-# SINDY_EKF_NO_SKIPS=1: a skipped test fails the run (tests/conftest.py)
+# SINDY_EKF_NO_SKIPS=1: a skipped test fails the run (tests/conftest.py); -n auto: one pytest
+# worker per core (pytest-xdist), skips still counted by the controller
 test: $(STAMP) browser
-	SINDY_EKF_NO_SKIPS=1 $(BIN)/python -m pytest -q
+	SINDY_EKF_NO_SKIPS=1 $(BIN)/python -m pytest -q -n auto
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run_all
