@@ -34,6 +34,7 @@ from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
 from identification.sindy.data import body_states
 from simulation.gnss import OUTAGE_DURATIONS_S, schedule_outages, simulate_gnss
+from simulation.robot import TrueDynamics
 from sindy_ekf.benchmark.gnss_source import RECORDED, RecordedGnss, load_recorded_gnss
 from sindy_ekf.benchmark.health import (
     RunStatus,
@@ -165,7 +166,7 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
     inp = run.inputs
     u = _zoh(np.asarray(inp.t, float), np.column_stack([inp.u1, inp.u2]), grid)
     u_motor = None
-    if oracle_dynamics is not None and hasattr(oracle_dynamics, "motor_inputs"):
+    if isinstance(oracle_dynamics, TrueDynamics):  # the simulator drove it with the motor inputs
         u_motor = oracle_dynamics.motor_inputs(grid - t_pose[0], np.asarray(inp.t) - t_pose[0],
                                                np.column_stack([inp.u1, inp.u2]))
     st = body_states_from_poses(p, inp, smoothing, t_eval=t_pose[:1])
