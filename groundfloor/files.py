@@ -78,13 +78,7 @@ def check_output_file(path: str | os.PathLike, option: str) -> Path:
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{option} {path}: is a folder, expected a file name")
-    probe = path.parent if str(path.parent) else Path(".")
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise InputError(f"{option} {path}: cannot be written, {probe} is a file, not a folder")
-    if not os.access(probe, os.W_OK):
-        raise InputError(f"{option} {path}: folder {probe} is not writable")
+    _check_writable_ancestor(path, path.parent if str(path.parent) else Path("."), option, "written")
     return path
 
 
@@ -98,14 +92,19 @@ def check_output_folder(path: str | os.PathLike, option: str) -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise InputError(f"{option} {path}: is a file, expected a folder")
-    probe = path
+    _check_writable_ancestor(path, path, option, "created")
+    return path
+
+
+def _check_writable_ancestor(path: Path, start: Path, option: str, verb: str) -> None:
+    """Raise InputError unless the nearest existing ancestor of ``start`` (itself included) is a writable folder."""
+    probe = start
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
     if not probe.is_dir():
-        raise InputError(f"{option} {path}: cannot be created, {probe} is a file, not a folder")
+        raise InputError(f"{option} {path}: cannot be {verb}, {probe} is a file, not a folder")
     if not os.access(probe, os.W_OK):
         raise InputError(f"{option} {path}: folder {probe} is not writable")
-    return path
 
 
 def check_outputs(args, files: tuple[str, ...] = ("json",), folders: tuple[str, ...] = ("plots",)) -> None:
