@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_variants import DEFAULT_OUT, variant_campaigns
+from bench.bench_variants import DEFAULT_OUT, _indices, variant_campaigns
 from groundfloor.files import atomic_write_json, atomic_write_text
 from identification.preprocessing.campaigns import open_campaign
 from simulation.truth import true_dynamics_of
@@ -38,14 +38,6 @@ from sindy_ekf.stages.identification import identify, plan_identification
 
 ROOT = Path(__file__).resolve().parents[1]
 MEDIAN_TARGET, WORST_TARGET = 1.2, 1.5
-
-
-def _indices(text: str) -> list[int]:
-    out = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def score_variant(vc, jobs: int, quick: bool) -> dict:
