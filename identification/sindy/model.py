@@ -16,10 +16,8 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import warnings
 from dataclasses import dataclass, field
-from itertools import combinations_with_replacement
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +26,7 @@ from groundfloor import __version__
 from groundfloor.dynamics import Dynamics, EnvelopeWarning, broadcast_inputs
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
+from identification.sindy.active_terms import ActiveTerms
 from identification.sindy.library import (
     LIBRARY_INPUT_NAMES,
     LIBRARY_STATE_NAMES,
@@ -48,108 +47,6 @@ def envelope_from_data(x_body: np.ndarray, u: np.ndarray) -> dict[str, list[floa
     z = np.column_stack([x_body, u])
     return {name: [float(np.nanmin(z[:, i])), float(np.nanmax(z[:, i]))]
             for i, name in enumerate(LIBRARY_VARIABLE_NAMES)}
-
-
-class ActiveTerms:
-    """The active terms of coefficients ``coef (3, k)`` of a library, evaluated with their Jacobians.
-
-    Returns the accelerations and their Jacobians in the six-state layout from one matrix
-    product of a table of monomials with a fixed weight matrix ``(columns, 3 + 18 + 6)``: every
-    active term adds its coefficient to the column of its monomial (accelerations) and, for each
-    of its variables, exponent times coefficient to the column of the monomial one degree lower
-    (product rule; Jacobians). Polynomial libraries take the table of the monomials of the five
-    variables up to degree 3 (56 rows), each degree from the one below in one gather and one
-    product, so the whole evaluation is a handful of numpy calls whatever the model's size; libraries with ``|x|`` atoms gather each active term's
-    (at most three) atoms from a table of atom values and their derivatives instead. The filters
-    evaluate the model four times per step on a few runs at a time, where numpy's per-call
-    overhead, not the arithmetic, is the cost.
-    """
-
-    # atom code (^1, ^2, ^3, abs, signsq) -> table block of its value; of its derivative and factor
-    _VALUE = ("z", "z2", "z3", "abs", "zabs")
-    _DERIV = ((None, 1.0), ("z", 2.0), ("z2", 3.0), ("sign", 1.0), ("abs", 2.0))
-
-    def __init__(self, library: FeatureLibrary, coef: np.ndarray):
-        nv = len(library.variables)  # [vx, vy, omega, u1, u2]
-        self.n_vars = nv
-        self.monomials = all(code <= 2 for atoms in library.atoms for _, code in atoms) and \
-            all(sum(code + 1 for _, code in atoms) <= 3 for atoms in library.atoms)
-
-        def out(e: int, v: int) -> int:  # output column of d a_e / d z_v: J_a_x (3, 6), J_a_u (3, 2)
-            return 3 + 6 * e + 3 + v if v < 3 else 3 + 18 + 2 * e + (v - 3)
-
-        if self.monomials:
-            # rows of the monomial table: 1, then each product of 1, 2 or 3 variables once (sorted
-            # factors); a row of degree d is a row of degree d - 1 times one variable
-            monomials = [()] + [m for d in (1, 2, 3) for m in combinations_with_replacement(range(nv), d)]
-            row = {m: r for r, m in enumerate(monomials)}
-            self.products = [(slice(row[m[0]], row[m[-1]] + 1),
-                              np.array([[row[f[:-1]] for f in m], [row[f[-1:]] for f in m]]))
-                             for m in ([f for f in monomials if len(f) == d] for d in (2, 3))]
-            self.weight = np.zeros((len(monomials), 27))
-            for j, atoms in enumerate(library.atoms):
-                c = coef[:, j]
-                factors = tuple(sorted(v for v, code in atoms for _ in range(code + 1)))
-                self.weight[row[factors], :3] += c
-                for v in set(factors):
-                    rest = list(factors)
-                    rest.remove(v)
-                    self.weight[row[tuple(rest)], [out(e, v) for e in range(3)]] += factors.count(v) * c
-            self.weight_a = np.ascontiguousarray(self.weight[:, :3])  # accelerations alone: a smaller product
-            return
-
-        self.blocks = ("z", "z2", "z3", "abs", "zabs", "sign")
-
-        def col_atom(block: str | None, var: int) -> int:  # column 0 is the constant 1
-            return 0 if block is None else 1 + self.blocks.index(block) * nv + var
-
-        index, weight = [], []
-        for j, atoms in enumerate(library.atoms):
-            c = coef[:, j]
-            if not np.any(c):
-                continue
-            cols = [col_atom(self._VALUE[code], v) for v, code in atoms]
-            index.append(cols + [0] * (3 - len(cols)))
-            w = np.zeros(27)
-            w[:3] = c
-            weight.append(w)
-            for m, (v, code) in enumerate(atoms):  # product rule: one row per factor
-                block, factor = self._DERIV[code]
-                rest = cols[:m] + cols[m + 1:]
-                index.append([col_atom(block, v)] + rest + [0] * (2 - len(rest)))
-                w = np.zeros(27)
-                w[[out(e, v) for e in range(3)]] = factor * c
-                weight.append(w)
-        self.index = np.array(index, dtype=np.intp).reshape(-1, 3).T.copy()  # (3, rows)
-        self.weight = np.array(weight, dtype=float).reshape(-1, 27)
-        self.weight_a = np.ascontiguousarray(self.weight[:, :3])
-
-    def __call__(self, v_body: np.ndarray, u: np.ndarray, jacobians: bool = True):
-        """Return ``a (..., 3)``, ``J_a_x (..., 3, 6)`` and ``J_a_u (..., 3, 2)`` at body velocities
-        ``v_body (..., 3)`` and inputs ``u (..., 2)`` of one leading shape; ``a`` alone if not ``jacobians``."""
-        lead = v_body.shape[:-1]
-        n = math.prod(lead)
-        weight = self.weight if jacobians else self.weight_a
-        if self.monomials:
-            # the monomial table, one row per monomial: each degree is one gather and one product
-            # written in place, a handful of numpy calls whatever the model's size
-            table = np.empty((len(weight), n))
-            table[0] = 1.0
-            table[1:4], table[4:1 + self.n_vars] = v_body.reshape(n, 3).T, u.reshape(n, 2).T
-            for rows, factors in self.products:
-                f = np.take(table, factors, axis=0)
-                np.multiply(f[0], f[1], out=table[rows])
-            out = table.T @ weight
-        else:
-            z = np.concatenate([v_body, u], axis=-1).reshape(n, -1)
-            z2, az = z * z, np.abs(z)
-            parts = [np.ones((n, 1)), z, z2, z2 * z, az, z * az, np.sign(z)]
-            g = np.take(np.concatenate(parts, axis=-1), self.index, axis=-1)  # (n, 3, rows)
-            out = (g[:, 0, :] * g[:, 1, :] * g[:, 2, :]) @ weight
-        out = out.reshape(lead + (weight.shape[1],))
-        if not jacobians:
-            return out
-        return out[..., :3], out[..., 3:21].reshape(lead + (3, 6)), out[..., 21:].reshape(lead + (3, 2))
 
 
 @dataclass
@@ -223,6 +120,15 @@ class SindyModel(Dynamics):
         """
         x6, u = broadcast_inputs(x6, u)
         return self._active_terms()(x6[..., 3:], u)
+
+    def rk4_step_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t, dt, input_jacobian: bool = True):
+        """Return the held-input RK4 step and its exact Jacobians ``(x_next, F, G)``, compiled.
+
+        The same map as :meth:`groundfloor.dynamics.Dynamics.rk4_step_and_jacobians` (which this
+        overrides) in one compiled call (:meth:`ActiveTerms.rk4_step`): the filters take it once per
+        grid step. ``t`` is not used: the identified dynamics do not depend on time.
+        """
+        return self._active_terms().rk4_step(x6, u, dt, input_jacobian)
 
     def _active_terms(self) -> ActiveTerms:
         """Return the :class:`ActiveTerms` of the current ``coef`` (built again when it changed)."""

@@ -25,8 +25,6 @@ from groundfloor.types import BodyStates
 
 log = logging.getLogger(__name__)
 
-_EYE = np.eye(N_X)
-
 __all__ = ["N_X", "N_U", "ProcessModel", "StateSeries", "fit_process_noise", "one_step_residuals",
            "state_series_from_body_states", "body_states_from_state_series"]
 
@@ -76,49 +74,11 @@ class ProcessModel:
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Return the RK4 step ``x_next`` and its exact Jacobians ``F = dx_next/dx``, ``G = dx_next/du``.
 
-        Implements eqs. 5.70 and 5.71 with ``u`` held over the step; the Jacobians follow the
-        chain rule through the four stages (``dk_i/dx = J_f_x(x_i) (I + c_i h dk_{i-1}/dx)``), so
-        they are exact for the discrete map, not a finite-difference or first-order approximation.
-        Vectorised over leading dimensions of ``x6``, ``u``, ``t`` and ``dt``.
-        ``input_jacobian=False`` skips ``G`` (returned as ``None``; the filters need only ``F``).
+        Eqs. 5.70 and 5.71 with ``u`` held over the step, differentiated by the chain rule through
+        the four stages: :meth:`groundfloor.dynamics.Dynamics.rk4_step_and_jacobians` (the
+        identified model's is compiled). ``input_jacobian=False`` skips ``G`` (returned as ``None``).
         """
-        x6 = np.asarray(x6, dtype=float)
-        h = np.asarray(dt, dtype=float)
-        t = np.asarray(t, dtype=float)
-        hb = h[..., None]
-        hh = 0.5 * hb
-        t_mid = t + 0.5 * h
-        dj = self.dynamics.derivative_and_jacobians
-        k1, A1, B1 = dj(x6, u, t, input_jacobian)
-        k2, A2, B2 = dj(x6 + hh * k1, u, t_mid, input_jacobian)
-        k3, A3, B3 = dj(x6 + hh * k2, u, t_mid, input_jacobian)
-        k4, A4, B4 = dj(x6 + hb * k3, u, t + h, input_jacobian)
-        x_next = x6 + (hh / 3.0) * (k1 + 2.0 * (k2 + k3) + k4)
-        # dk_i/dx = A_i (I + c_i h dk_{i-1}/dx), in place: fewer temporaries
-        h2 = hh[..., None]
-        D2x = A2 @ A1
-        D2x *= h2
-        D2x += A2
-        D3x = A3 @ D2x
-        D3x *= h2
-        D3x += A3
-        D4x = A4 @ D3x
-        D4x *= h2 + h2
-        D4x += A4
-        h6 = h2 / 3.0
-        F = D2x + D3x
-        F *= 2.0
-        F += A1
-        F += D4x
-        F *= h6
-        F += _EYE
-        G = None
-        if input_jacobian:
-            D2u = h2 * (A2 @ B1) + B2
-            D3u = h2 * (A3 @ D2u) + B3
-            D4u = (h2 + h2) * (A4 @ D3u) + B4
-            G = h6 * (B1 + 2.0 * (D2u + D3u) + D4u)
-        return x_next, F, G
+        return self.dynamics.rk4_step_and_jacobians(x6, u, t, dt, input_jacobian)
 
     def Q(self, dt) -> np.ndarray:
         """Return the discrete process-noise covariance ``(..., 6, 6)`` for steps of ``dt`` seconds."""

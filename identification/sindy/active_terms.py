@@ -1,0 +1,277 @@
+"""The active terms of an identified SINDy model, evaluated for the filters: numpy and compiled.
+
+:class:`ActiveTerms` turns a library and its coefficients ``Xi`` (eq. 5.53) into a fixed table of
+monomials (or atoms) and a weight matrix, so that the accelerations and their Jacobians are one
+product whatever the model's size. Two evaluations share that table:
+
+- :meth:`ActiveTerms.__call__`, numpy, vectorised over any leading axes (the evaluation's
+  rollouts, the search, the diagnosis);
+- :meth:`ActiveTerms.rk4_step`, the held-input RK4 step of eqs. 5.70 and 5.71 with its exact
+  chain-rule Jacobians, compiled with numba (:func:`_rk4_steps`): the filters call it once per
+  grid step on a few runs at a time, where numpy's per-call overhead (about a hundred calls per
+  step), not the arithmetic, was the cost (``bench/results/ekf_speed.md``). It computes what
+  ``groundfloor.dynamics.Dynamics.rk4_step_and_jacobians`` computes from :meth:`__call__`; the
+  tests hold the two against each other and against finite differences.
+"""
+
+from __future__ import annotations
+
+import math
+from itertools import combinations_with_replacement
+
+import numpy as np
+from numba import njit
+
+from identification.sindy.library import FeatureLibrary
+
+N_X = 6  # [x, y, psi, vx, vy, omega] (eq. 5.60)
+N_OUT_X = 3 + 18  # accelerations and J_a_x (3, 6): the columns the EKF's F needs
+N_OUT = N_OUT_X + 6  # and J_a_u (3, 2)
+
+
+class ActiveTerms:
+    """The active terms of coefficients ``coef (3, k)`` of a library, evaluated with their Jacobians.
+
+    Returns the accelerations and their Jacobians in the six-state layout from one matrix
+    product of a table of monomials with a fixed weight matrix ``(columns, 3 + 18 + 6)``: every
+    active term adds its coefficient to the column of its monomial (accelerations) and, for each
+    of its variables, exponent times coefficient to the column of the monomial one degree lower
+    (product rule; Jacobians). Polynomial libraries take the table of the monomials of the five
+    variables up to degree 3 (56 rows), each degree from the one below in one gather and one
+    product, so the whole evaluation is a handful of numpy calls whatever the model's size; libraries with ``|x|`` atoms gather each active term's
+    (at most three) atoms from a table of atom values and their derivatives instead. The filters
+    evaluate the model four times per step on a few runs at a time, where numpy's per-call
+    overhead, not the arithmetic, is the cost.
+    """
+
+    # atom code (^1, ^2, ^3, abs, signsq) -> table block of its value; of its derivative and factor
+    _VALUE = ("z", "z2", "z3", "abs", "zabs")
+    _DERIV = ((None, 1.0), ("z", 2.0), ("z2", 3.0), ("sign", 1.0), ("abs", 2.0))
+
+    def __init__(self, library: FeatureLibrary, coef: np.ndarray):
+        nv = len(library.variables)  # [vx, vy, omega, u1, u2]
+        self.n_vars = nv
+        self.monomials = all(code <= 2 for atoms in library.atoms for _, code in atoms) and \
+            all(sum(code + 1 for _, code in atoms) <= 3 for atoms in library.atoms)
+
+        def out(e: int, v: int) -> int:  # output column of d a_e / d z_v: J_a_x (3, 6), J_a_u (3, 2)
+            return 3 + 6 * e + 3 + v if v < 3 else 3 + 18 + 2 * e + (v - 3)
+
+        if self.monomials:
+            # rows of the monomial table: 1, then each product of 1, 2 or 3 variables once (sorted
+            # factors); a row of degree d is a row of degree d - 1 times one variable
+            monomials = [()] + [m for d in (1, 2, 3) for m in combinations_with_replacement(range(nv), d)]
+            row = {m: r for r, m in enumerate(monomials)}
+            self.products = [(slice(row[m[0]], row[m[-1]] + 1),
+                              np.array([[row[f[:-1]] for f in m], [row[f[-1:]] for f in m]]))
+                             for m in ([f for f in monomials if len(f) == d] for d in (2, 3))]
+            self.weight = np.zeros((len(monomials), 27))
+            for j, atoms in enumerate(library.atoms):
+                c = coef[:, j]
+                factors = tuple(sorted(v for v, code in atoms for _ in range(code + 1)))
+                self.weight[row[factors], :3] += c
+                for v in set(factors):
+                    rest = list(factors)
+                    rest.remove(v)
+                    self.weight[row[tuple(rest)], [out(e, v) for e in range(3)]] += factors.count(v) * c
+            self.index = np.zeros((3, 0), dtype=np.intp)
+        else:
+            self.blocks = ("z", "z2", "z3", "abs", "zabs", "sign")
+
+            def col_atom(block: str | None, var: int) -> int:  # column 0 is the constant 1
+                return 0 if block is None else 1 + self.blocks.index(block) * nv + var
+
+            index, weight = [], []
+            for j, atoms in enumerate(library.atoms):
+                c = coef[:, j]
+                if not np.any(c):
+                    continue
+                cols = [col_atom(self._VALUE[code], v) for v, code in atoms]
+                index.append(cols + [0] * (3 - len(cols)))
+                w = np.zeros(27)
+                w[:3] = c
+                weight.append(w)
+                for m, (v, code) in enumerate(atoms):  # product rule: one row per factor
+                    block, factor = self._DERIV[code]
+                    rest = cols[:m] + cols[m + 1:]
+                    index.append([col_atom(block, v)] + rest + [0] * (2 - len(rest)))
+                    w = np.zeros(27)
+                    w[[out(e, v) for e in range(3)]] = factor * c
+                    weight.append(w)
+            self.index = np.array(index, dtype=np.intp).reshape(-1, 3).T.copy()  # (3, rows)
+            self.weight = np.array(weight, dtype=float).reshape(-1, 27)
+        self.weight_a = np.ascontiguousarray(self.weight[:, :3])  # accelerations alone: a smaller product
+        # the compiled step's view of the same tables: the degree-by-degree products flattened,
+        # and only the rows that carry a weight
+        if self.monomials:
+            self._prod_rows = np.concatenate([np.arange(r.start, r.stop) for r, _ in self.products])
+            self._prod_f0, self._prod_f1 = np.concatenate([f for _, f in self.products], axis=1)
+            self._n_table = len(self.weight)
+        else:
+            self._prod_rows = self._prod_f0 = self._prod_f1 = np.zeros(0, dtype=np.intp)
+            self._n_table = 1 + 6 * nv
+        self._rows = np.flatnonzero(np.any(self.weight != 0, axis=1))
+
+    def __call__(self, v_body: np.ndarray, u: np.ndarray, jacobians: bool = True):
+        """Return ``a (..., 3)``, ``J_a_x (..., 3, 6)`` and ``J_a_u (..., 3, 2)`` at body velocities
+        ``v_body (..., 3)`` and inputs ``u (..., 2)`` of one leading shape; ``a`` alone if not ``jacobians``."""
+        lead = v_body.shape[:-1]
+        n = math.prod(lead)
+        weight = self.weight if jacobians else self.weight_a
+        if self.monomials:
+            # the monomial table, one row per monomial: each degree is one gather and one product
+            # written in place, a handful of numpy calls whatever the model's size
+            table = np.empty((len(weight), n))
+            table[0] = 1.0
+            table[1:4], table[4:1 + self.n_vars] = v_body.reshape(n, 3).T, u.reshape(n, 2).T
+            for rows, factors in self.products:
+                f = np.take(table, factors, axis=0)
+                np.multiply(f[0], f[1], out=table[rows])
+            out = table.T @ weight
+        else:
+            z = np.concatenate([v_body, u], axis=-1).reshape(n, -1)
+            z2, az = z * z, np.abs(z)
+            parts = [np.ones((n, 1)), z, z2, z2 * z, az, z * az, np.sign(z)]
+            g = np.take(np.concatenate(parts, axis=-1), self.index, axis=-1)  # (n, 3, rows)
+            out = (g[:, 0, :] * g[:, 1, :] * g[:, 2, :]) @ weight
+        out = out.reshape(lead + (weight.shape[1],))
+        if not jacobians:
+            return out
+        return out[..., :3], out[..., 3:21].reshape(lead + (3, 6)), out[..., 21:].reshape(lead + (3, 2))
+
+    def rk4_step(self, x6: np.ndarray, u: np.ndarray, dt, input_jacobian: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Return the held-input RK4 step ``x_next (..., 6)`` and its exact Jacobians ``F (..., 6, 6)``
+        and ``G (..., 6, 2)`` (``None`` unless ``input_jacobian``), compiled (:func:`_rk4_steps`).
+
+        ``x6 (..., 6)``, ``u (..., 2)`` and ``dt`` (s, scalar or ``(...)``) broadcast to one leading
+        shape. The dynamics do not depend on time, so no time is passed.
+        """
+        x6, u, dt = np.asarray(x6, dtype=float), np.asarray(u, dtype=float), np.asarray(dt, dtype=float)
+        lead = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1], dt.shape)
+        m = math.prod(lead)
+        x = np.ascontiguousarray(np.broadcast_to(x6, lead + (N_X,))).reshape(m, N_X)
+        uu = np.ascontiguousarray(np.broadcast_to(u, lead + (2,))).reshape(m, 2)
+        h = np.ascontiguousarray(np.broadcast_to(dt, lead)).reshape(m)
+        x_next, F = np.empty((m, N_X)), np.empty((m, N_X, N_X))
+        G = np.empty((m, N_X, 2) if input_jacobian else (0, N_X, 2))
+        _rk4_steps(x, uu, h, input_jacobian, self._n_table, self.monomials, self._prod_rows, self._prod_f0,
+                   self._prod_f1, self.index, self._rows, self.weight, x_next, F, G)
+        return (x_next.reshape(lead + (N_X,)), F.reshape(lead + (N_X, N_X)),
+                G.reshape(lead + (N_X, 2)) if input_jacobian else None)
+
+
+@njit(cache=True)
+def _terms_into(out: np.ndarray, table: np.ndarray, z: np.ndarray, n_out: int, monomials: bool,
+                prod_rows: np.ndarray, prod_f0: np.ndarray, prod_f1: np.ndarray,
+                index: np.ndarray, rows: np.ndarray, weight: np.ndarray) -> None:
+    """Write ``sum_r feature_r(z) weight[r, :n_out]`` into ``out`` (one sample ``z (5,)``).
+
+    The compiled twin of :meth:`ActiveTerms.__call__`: the same table (monomials built degree by
+    degree from ``prod_*``, or the atom blocks ``1, z, z^2, z^3, |z|, z|z|, sign z`` gathered by
+    ``index``) and the same weights; ``rows`` lists the rows with a non-zero weight.
+    """
+    nv = z.shape[0]
+    table[0] = 1.0
+    if monomials:
+        for v in range(nv):
+            table[1 + v] = z[v]
+        for p in range(prod_rows.shape[0]):  # degree 2 rows first, then degree 3 from them
+            table[prod_rows[p]] = table[prod_f0[p]] * table[prod_f1[p]]
+    else:
+        for v in range(nv):
+            zv = z[v]
+            az = abs(zv)
+            table[1 + v] = zv
+            table[1 + nv + v] = zv * zv
+            table[1 + 2 * nv + v] = zv * zv * zv
+            table[1 + 3 * nv + v] = az
+            table[1 + 4 * nv + v] = zv * az
+            table[1 + 5 * nv + v] = np.sign(zv)
+    for c in range(n_out):
+        out[c] = 0.0
+    for r in rows:
+        g = table[r] if monomials else table[index[0, r]] * table[index[1, r]] * table[index[2, r]]
+        for c in range(n_out):
+            out[c] += g * weight[r, c]
+
+
+@njit(cache=True)
+def _rk4_steps(x: np.ndarray, u: np.ndarray, dt: np.ndarray, want_g: bool, n_table: int, monomials: bool,
+               prod_rows: np.ndarray, prod_f0: np.ndarray, prod_f1: np.ndarray, index: np.ndarray,
+               rows: np.ndarray, weight: np.ndarray, x_next: np.ndarray, F: np.ndarray, G: np.ndarray) -> None:
+    """Write the held-input RK4 step (eqs. 5.70, 5.71) of every sample and its exact Jacobians.
+
+    ``x (m, 6)``, ``u (m, 2)``, ``dt (m,)``; out: ``x_next (m, 6)``, ``F (m, 6, 6)`` and, if
+    ``want_g``, ``G (m, 6, 2)``. Each stage evaluates the eq. 5.75 derivative (body velocities
+    rotated by ``psi``, accelerations from :func:`_terms_into`) with its Jacobians ``A_s``,
+    ``B_s``; the step's Jacobians follow the chain rule ``D_s = A_s (I + c_s h D_{s-1})``.
+    """
+    n_out = N_OUT if want_g else N_OUT_X
+    table = np.empty(n_table)
+    acc = np.empty(N_OUT)
+    z = np.empty(5)
+    xs = np.empty(N_X)
+    k = np.empty((4, N_X))
+    A = np.zeros((4, N_X, N_X))
+    B = np.zeros((4, N_X, 2))
+    D = np.empty((N_X, N_X))
+    Dn = np.empty((N_X, N_X))
+    Du = np.empty((N_X, 2))
+    Dun = np.empty((N_X, 2))
+    Fs = np.empty((N_X, N_X))
+    Gs = np.empty((N_X, 2))
+    for i in range(x.shape[0]):
+        h = dt[i]
+        hh = 0.5 * h
+        for s in range(4):
+            c = 0.0 if s == 0 else (hh if s < 3 else h)
+            for j in range(N_X):
+                xs[j] = x[i, j] + (c * k[s - 1, j] if s > 0 else 0.0)
+            z[0], z[1], z[2], z[3], z[4] = xs[3], xs[4], xs[5], u[i, 0], u[i, 1]
+            _terms_into(acc, table, z, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
+            cp, sp = math.cos(xs[2]), math.sin(xs[2])
+            k[s, 0] = cp * xs[3] - sp * xs[4]
+            k[s, 1] = sp * xs[3] + cp * xs[4]
+            k[s, 2] = xs[5]
+            A[s, 0, 2], A[s, 1, 2] = -k[s, 1], k[s, 0]
+            A[s, 0, 3], A[s, 0, 4], A[s, 1, 3], A[s, 1, 4], A[s, 2, 5] = cp, -sp, sp, cp, 1.0
+            for e in range(3):
+                k[s, 3 + e] = acc[e]
+                for j in range(N_X):
+                    A[s, 3 + e, j] = acc[3 + 6 * e + j]
+                if want_g:
+                    B[s, 3 + e, 0], B[s, 3 + e, 1] = acc[21 + 2 * e], acc[22 + 2 * e]
+        for j in range(N_X):
+            x_next[i, j] = x[i, j] + (hh / 3.0) * (k[0, j] + 2.0 * (k[1, j] + k[2, j]) + k[3, j])
+        # F = I + h/6 (A_1 + 2 D_2 + 2 D_3 + D_4); G likewise from B_1 and the D_s^u
+        Fs[:, :] = A[0]
+        D[:, :] = A[0]
+        Gs[:, :] = B[0]
+        Du[:, :] = B[0]
+        for s in range(1, 4):
+            c = hh if s < 3 else h
+            for r in range(N_X):
+                for q in range(N_X):
+                    acc_rq = 0.0
+                    for p in range(N_X):
+                        acc_rq += A[s, r, p] * D[p, q]
+                    Dn[r, q] = A[s, r, q] + c * acc_rq
+                if want_g:
+                    for q in range(2):
+                        acc_rq = 0.0
+                        for p in range(N_X):
+                            acc_rq += A[s, r, p] * Du[p, q]
+                        Dun[r, q] = B[s, r, q] + c * acc_rq
+            w = 2.0 if s < 3 else 1.0
+            D[:, :] = Dn
+            Fs += w * Dn
+            if want_g:
+                Du[:, :] = Dun
+                Gs += w * Dun
+        for r in range(N_X):
+            for q in range(N_X):
+                F[i, r, q] = (hh / 3.0) * Fs[r, q] + (1.0 if r == q else 0.0)
+            if want_g:
+                for q in range(2):
+                    G[i, r, q] = (hh / 3.0) * Gs[r, q]
