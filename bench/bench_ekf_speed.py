@@ -154,10 +154,10 @@ def main() -> int:
         lines += ["", f"- sindy_ekf speed-up over the baseline: {speed_up:.1f} x (wall), {speed_up_cpu:.1f} x (CPU).",
                   f"- largest difference of the sindy_ekf estimates, this tree against the baseline: {max_diff:.2e} "
                   "(state units)."]
-    text = "\n".join(lines) + "\n"
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
-    print(text)
+    # imported here, not at the top: the --measure child runs this file on the baseline tree's packages
+    from bench.publish import publish
+
+    publish(args.out, lines)
     return 0
 
 

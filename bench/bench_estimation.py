@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.publish import publish
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -149,10 +151,7 @@ def main() -> int:
         lines.append(f"- reference, sindy_ekf with the simulator's true polynomial terms: 10 s outage "
                      f"error {r10:.3f} m, {r10 / sc['oracle_ekf'].outage_pos_err_m['10']:.2f} x oracle_ekf, "
                      f"ATE {ref.scores['sindy_ekf'].ate_pos_m:.3f} m")
-    text = "\n".join(lines) + "\n"
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
-    print(text)
+    publish(args.out, lines)
     return 0
 
 

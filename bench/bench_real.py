@@ -18,6 +18,7 @@ bench/RESULTS.md by ``bench/run_all.py``) with, per campaign of ``../shared/data
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import platform
 import sys
 import time
@@ -67,6 +68,11 @@ NOTES = """### Notes on these data
   so vy wanders and the yaw rate with it: `sindy_ekf` and `sindy_graph` drift away, their
   `_lateral` variants (the non-holonomic `v_y = 0` pseudo-measurement) do not (benchmark table).
 """
+
+
+def table_head(*columns: str) -> list[str]:
+    """Return the header row and the rule of a markdown table with ``columns``."""
+    return ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
 
 
 def delayed(states, delay_s: float):
@@ -136,7 +142,7 @@ def main() -> int:
            "Unicycle gains fitted on the train runs, constant velocity from the data's initial velocity; "
            "body velocities by centred differences over +-2 poses (`states_by_differences`); "
            "`identification.sindy.evaluate`, 5 s windows, 50 % overlap, RMS at 5 s.", "",
-           "| campaign | model | pos 5 s [m] | yaw 5 s [deg] | windows | README |", "|---|---|---|---|---|---|"]
+           *table_head("campaign", "model", "pos 5 s [m]", "yaw 5 s [deg]", "windows", "README")]
     campaigns = {n: read_trajectory_campaign(ex.DATA / n) for n in ex.CAMPAIGNS}
     for name, camp in campaigns.items():
         tr = [ex.states_by_differences(r) for r in camp.split("train")]
@@ -153,8 +159,8 @@ def main() -> int:
            f"Search: {grid.size} grid points (s {list(grid.s)}, tau {list(grid.tau)} s, alpha {list(grid.alpha)}, "
            f"T {list(grid.T)}, libraries {list(grid.library)}), {grid.n_folds}-fold cross-validation by run on the "
            "train runs, ranked by the 5 s position error; baselines on the same spline states and windows.", "",
-           "| campaign | model | pos 5 s [m] | yaw 5 s [deg] | windows | x README unicycle | target |",
-           "|---|---|---|---|---|---|---|"]
+           *table_head("campaign", "model", "pos 5 s [m]", "yaw 5 s [deg]", "windows", "x README unicycle",
+                       "target")]
     scores, seconds = {}, {}
     for name in ex.CAMPAIGNS:
         t0 = time.perf_counter()
@@ -198,7 +204,7 @@ def main() -> int:
 
     md += ["Linearised at rest (`J_f_x`, `J_f_u` at x = 0, u = 0): time constants and steady-state gains "
            "(u scaled by 2 m/s and 2 rad/s, so a gain of 2.0 is the command's own scale).", "",
-           "| campaign | time constants [s] | vx / u1 [m/s] | omega / u2 [rad/s] |", "|---|---|---|---|"]
+           *table_head("campaign", "time constants [s]", "vx / u1 [m/s]", "omega / u2 [rad/s]")]
     for name, sc in scores.items():
         tc, gain = linearised_at_rest(sc.model)
         md.append(f"| {name} | {', '.join(f'{t:.2f}' for t in tc)} | {gain[0]:.2f} | {gain[1]:.2f} |")
@@ -210,7 +216,7 @@ def main() -> int:
         md += ["The tracker grid's quick variant (`identify --quick --grid tracker`: s = 0.0005, tau 0.5 and "
                "1 s, normalised alpha and T, poly3: made for 50 Hz laser-tracker poses) on the same train runs, "
                "scored the same way (why `identify` picks the low-rate grid by itself for these poses):", "",
-               "| campaign | sindy pos 5 s [m] | yaw 5 s [deg] |", "|---|---|---|"]
+               *table_head("campaign", "sindy pos 5 s [m]", "yaw 5 s [deg]")]
         for name in ex.CAMPAIGNS:
             camp = read_trajectory_campaign(ex.DATA / name)
             try:
@@ -223,8 +229,8 @@ def main() -> int:
 
     # 3. cross-campaign ----------------------------------------------------------------------
     md += ["### Trained on one campaign, scored on the other", "",
-           "| trained on | scored on | sindy pos/yaw | unicycle pos/yaw | constant velocity pos/yaw | envelope |",
-           "|---|---|---|---|---|---|"]
+           *table_head("trained on", "scored on", "sindy pos/yaw", "unicycle pos/yaw", "constant velocity pos/yaw",
+                       "envelope")]
     for a, b in (ex.CAMPAIGNS, ex.CAMPAIGNS[::-1]):
         sc = ex.score(scores[a].model, campaigns[a], campaigns[b])
         cells = [f"{r.pos_err_5s_m:.3f} m / {r.yaw_err_5s_deg:.1f} deg" for r in sc.results.values()]
@@ -236,7 +242,7 @@ def main() -> int:
     md += ["### Trained on one day only (terrain or condition difference between days?)", "",
            "The quick grid (`QUICK_REAL_GRID`) on the train runs of one recording day, scored on the test run "
            "(29 July 2024 in both campaigns); the unicycle fitted on the same runs.", "",
-           "| campaign | train runs | n | sindy pos 5 s [m] | unicycle pos 5 s [m] | envelope |", "|---|---|---|---|---|---|"]
+           *table_head("campaign", "train runs", "n", "sindy pos 5 s [m]", "unicycle pos 5 s [m]", "envelope")]
     for name, camp in campaigns.items():
         for label, day in (("all days", ""), ("8 Aug 2024 only", "2024_8_8"), ("29 Jul 2024 only", "2024_7_29")):
             sub = replace(camp, runs=tuple(r for r in camp.runs if r.split == "test" or day in r.name))
@@ -256,8 +262,8 @@ def main() -> int:
                "`sindy_ekf.diagnose.diagnose_states` (families fitted on the train runs, scored on the test runs); "
                "beside it, the unicycle with an input delay chosen on the train runs (velocity residual), scored "
                "on the test runs, as an independent look at the command-to-motion delay.", "",
-               "| campaign | verdict | estimate | pos 5 s before -> after [m] | next causes (gain m) | "
-               "unicycle delay (train) | unicycle pos 5 s, no delay -> delayed |", "|---|---|---|---|---|---|---|"]
+               *table_head("campaign", "verdict", "estimate", "pos 5 s before -> after [m]", "next causes (gain m)",
+                           "unicycle delay (train)", "unicycle pos 5 s, no delay -> delayed")]
         for name, sc in scores.items():
             s = float(sc.model.hyperparameters["s"])
             tr, trn, _ = states_of_runs(campaigns[name].split("train"), s)
@@ -290,7 +296,7 @@ def main() -> int:
     md += ["### What the data hold", "",
            "Pose intervals on the 20 Hz logger grid (the ICP runs at 10 Hz; a pose stamped late makes "
            "one interval 50 ms and its neighbour 150 ms):", "",
-           "| campaign | 50 ms | 100 ms | 150 ms | > 150 ms |", "|---|---|---|---|---|"]
+           *table_head("campaign", "50 ms", "100 ms", "150 ms", "> 150 ms")]
     for name, camp in campaigns.items():
         c = pose_interval_counts(camp)
         md.append(f"| {name} | {c['50 ms']} | {c['100 ms']} | {c['150 ms']} | {c['> 150 ms']} |")
@@ -298,7 +304,7 @@ def main() -> int:
            "from the package's smoothing spline through every pose (s = 10): the spline follows the "
            "stamp jitter, its velocities are too large where intervals are 50 ms, and the fitted gains "
            "grow with them.", "",
-           "| campaign | velocities | k1 [m/s] | k2 [rad/s] | pos 5 s [m] | yaw 5 s [deg] |", "|---|---|---|---|---|---|"]
+           *table_head("campaign", "velocities", "k1 [m/s]", "k2 [rad/s]", "pos 5 s [m]", "yaw 5 s [deg]")]
     for name, camp in campaigns.items():
         for label, fn in (("differences +-2 poses", lambda runs: [ex.states_by_differences(r) for r in runs]),
                           ("spline s = 10", lambda runs: states_of_runs(runs, 10.0)[0])):
@@ -319,8 +325,8 @@ def main() -> int:
                "smoothing=model's s)`: Q and unicycle gains fitted on the train runs, GNSS simulated from the "
                "ICP poses with scheduled outages; ATE over all test-run poses (no alignment), RMS position "
                "error at the end of the 10 s outages.", "",
-               "| campaign | estimator | ATE pos [m] | ATE yaw [deg] | 10 s outage end [m] | runtime [s] |",
-               "|---|---|---|---|---|---|"]
+               *table_head("campaign", "estimator", "ATE pos [m]", "ATE yaw [deg]", "10 s outage end [m]",
+                           "runtime [s]")]
         for name, sc in scores.items():
             t0 = time.perf_counter()
             with warnings.catch_warnings():
@@ -339,8 +345,8 @@ def main() -> int:
         md.append("")
         md += ["Check of a vy-driven yaw rate: the same models with the `vy` coefficient of the yaw equation set "
                "to 0 (vy is seen by the EKF only through GNSS positions), same benchmark call.", "",
-               "| campaign | omega coefficient on vy | estimator | ATE pos [m] | ATE yaw [deg] | 10 s outage end [m] |",
-               "|---|---|---|---|---|---|"]
+               *table_head("campaign", "omega coefficient on vy", "estimator", "ATE pos [m]", "ATE yaw [deg]",
+                           "10 s outage end [m]")]
         for name, sc in scores.items():
             names = list(sc.model.library.feature_names)
             if "vy" not in names or sc.model.coef[2, names.index("vy")] == 0.0:

@@ -18,6 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench.publish import publish
 from examples.real_warthog import (  # one source of the figures
     CAMPAIGNS,
     DATA,
@@ -110,12 +111,7 @@ def main() -> int:
                   f"{first['pos_err_5s_m']['before']:.4f} -> {first['pos_err_5s_m']['after']:.4f} m "
                   f"on the test runs.", "", "```", *[ln for ln in out.splitlines() if ln.strip()], "```", ""]
     lines += ["### Wall time per command", "", *[f"- {t}" for t in timings], ""]
-    text = "\n".join(lines) + "\n"
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp_out = args.out.with_suffix(".md.tmp")
-    tmp_out.write_text(text)
-    tmp_out.replace(args.out)
-    print(text)
+    publish(args.out, lines)
     return 0
 
 

@@ -90,6 +90,14 @@ class Row:
     optional: bool = False  # left out when its pattern is absent (a result only some runs write)
 
 
+def _filled(pattern: str, template: str) -> Callable[[Source], str]:
+    """Return a row's reader: ``template`` filled with the named groups of ``pattern``'s first match."""
+    def fill(r: Source) -> str:
+        return template.format(**r.find(pattern).groupdict())
+
+    return fill
+
+
 def _transform(r: Source) -> str:
     cells = r.row("method", "Gauss-Helmert WLS, both trackers' sigmas (3 iterations)")
     s0 = r.find(r"variance factor s0\^2 = ([\d.]+) \(dof (\d+).*?the survey sigmas are about ([\d.]+) times (\w+)")
@@ -129,19 +137,13 @@ def _baseline(r: Source) -> str:
     return f"{min(b):.2f}-{max(b):.2f} / {min(a):.2f}-{max(a):.2f} mm (simulated)"
 
 
-def _hub(r: Source) -> str:
-    m = r.find(r"hub radii \(eq\. 5\.25\), median over runs: r1 ([\d.]+) mm, r2 ([\d.]+) mm; truth ([\d.]+) / ([\d.]+) mm")
-    return f"{m.group(1)} / {m.group(2)} mm (median over runs; simulated truth {m.group(3)} / {m.group(4)} mm)"
-
-
-def _poses(r: Source) -> str:
-    m = r.find(r"pose position RMS \*\*([\d.]+) mm\*\*.*yaw RMS \*\*([\d.]+) deg\*\*")
-    return f"{m.group(1)} mm position, {m.group(2)} deg yaw (the noise floor)"
-
-
-def _preprocess_q(r: Source) -> str:
-    m = r.find(r"(\d+) runs, ([\d.]+) min of triggers")
-    return f"preprocessing of the full default campaign ({m.group(2)} min, {m.group(1)} runs)"
+_hub = _filled(r"hub radii \(eq\. 5\.25\), median over runs: r1 (?P<r1>[\d.]+) mm, r2 (?P<r2>[\d.]+) mm; "
+               r"truth (?P<truth1>[\d.]+) / (?P<truth2>[\d.]+) mm",
+               "{r1} / {r2} mm (median over runs; simulated truth {truth1} / {truth2} mm)")
+_poses = _filled(r"pose position RMS \*\*(?P<pos>[\d.]+) mm\*\*.*yaw RMS \*\*(?P<yaw>[\d.]+) deg\*\*",
+                 "{pos} mm position, {yaw} deg yaw (the noise floor)")
+_preprocess_q = _filled(r"(?P<runs>\d+) runs, (?P<minutes>[\d.]+) min of triggers",
+                        "preprocessing of the full default campaign ({minutes} min, {runs} runs)")
 
 
 def _preprocess(r: Source) -> str:
@@ -169,9 +171,8 @@ def _identify_thesis(r: Source) -> str:
     return f"table 7.6, model 1: {row[1]} cm / {row[2]} deg"
 
 
-def _demo_q(r: Source) -> str:
-    m = r.find(r"campaign of ([\d.]+) min, quick grid of (\d+) points")
-    return f"same, demo campaign ({m.group(1)} min, quick grid of {m.group(2)} points)"
+_demo_q = _filled(r"campaign of (?P<minutes>[\d.]+) min, quick grid of (?P<points>\d+) points",
+                  "same, demo campaign ({minutes} min, quick grid of {points} points)")
 
 
 def _demo(r: Source) -> str:
@@ -204,9 +205,8 @@ def _estimation(r: Source) -> str:
             f"`v_y = 0`: {cell('sindy_ekf_lateral', 4):.3f} / {cell('sindy_graph_lateral', 4):.3f} m (EKF / graph)")
 
 
-def _diagnose_q(r: Source) -> str:
-    m = r.find(r"suite of (\d+) campaigns \((\d+) with an effect.*?(\d+) effect-free\)")
-    return f"diagnosis, randomised suite of {m.group(2)} simulated campaigns + {m.group(3)} effect-free"
+_diagnose_q = _filled(r"suite of \d+ campaigns \((?P<effect>\d+) with an effect.*?(?P<free>\d+) effect-free\)",
+                      "diagnosis, randomised suite of {effect} simulated campaigns + {free} effect-free")
 
 
 def _diagnose(r: Source) -> str:
@@ -248,14 +248,11 @@ def _real_diagnosis(r: Source) -> str:
     return "; ".join(parts)
 
 
-def _demo_wall(r: Source) -> str:
-    m = r.find(r"\*\*`sindy-ekf demo`: (\d+) s wall, (\d+) s CPU\*\*.*?load average ([\d.]+) before, ([\d.]+) after")
-    return f"{m.group(1)} s wall, {m.group(2)} s CPU (load average {m.group(3)} before, {m.group(4)} after, 2 cores)"
-
-
-def _fresh_clone(r: Source) -> str:
-    m = r.find(r"\*\*`make demo` on a fresh clone: (\d+) s wall, (\d+) s CPU\*\*")
-    return f"{m.group(1)} s wall, {m.group(2)} s CPU"
+_demo_wall = _filled(r"\*\*`sindy-ekf demo`: (?P<wall>\d+) s wall, (?P<cpu>\d+) s CPU\*\*.*?"
+                     r"load average (?P<before>[\d.]+) before, (?P<after>[\d.]+) after",
+                     "{wall} s wall, {cpu} s CPU (load average {before} before, {after} after, 2 cores)")
+_fresh_clone = _filled(r"\*\*`make demo` on a fresh clone: (?P<wall>\d+) s wall, (?P<cpu>\d+) s CPU\*\*",
+                       "{wall} s wall, {cpu} s CPU")
 
 
 ROWS = (

@@ -35,6 +35,13 @@ def _column(nrows: int = 1, height: float = 2.6):
     return fig, axes[:, 0]
 
 
+def _run_axes(synced: SyncedRun, height: float, what: str, xlabel: str, ylabel: str):
+    """Return a one-axes figure of the column width and its axes, titled ``run <name>: <what>`` and labelled."""
+    fig, (ax,) = _column(1, height)
+    ax.set(xlabel=xlabel, ylabel=ylabel, title=f"run {synced.name}: {what}")
+    return fig, ax
+
+
 # -- calibration (thesis 5.1, 5.2.1) -----------------------------------------------------------
 
 def plot_network(survey: Survey, fit: TransformFit, exaggeration: float = 2e4, path=None):
@@ -151,7 +158,8 @@ def plot_xcorr(raw: RawRun, synced: SyncedRun, path=None):
 def plot_clock_model(synced: SyncedRun, path=None):
     """Return trigger time minus tracker time at the matched samples with the fitted linear
     clock model (eqs. 5.10 to 5.12) for both trackers, like thesis fig. 5.3."""
-    fig, (ax,) = _column(1, 4.0)
+    fig, ax = _run_axes(synced, 4.0, "linear clock models (eqs. 5.10-5.12)",
+                        xlabel="tracker clock since its first sample [s]", ylabel="trigger minus tracker time [ms]")
     for tracker, color in (("ltd800", "C0"), ("at960", "C1")):
         s, _, s_tr = synced.residuals[tracker]
         c = synced.clock[tracker]
@@ -163,9 +171,6 @@ def plot_clock_model(synced: SyncedRun, path=None):
         x = np.array([s_tr[0], s_tr[-1]])
         ax.plot(x, (c.k * (x - c.tau) + d - x - y0) * 1e3, "-", color=color, lw=1,
                 label=f"{tracker}: drift {c.drift_ppm:.3f} ppm")
-    ax.set_xlabel("tracker clock since its first sample [s]")
-    ax.set_ylabel("trigger minus tracker time [ms]")
-    ax.set_title(f"run {synced.name}: linear clock models (eqs. 5.10-5.12)")
     ax.legend(loc="best", markerscale=4)
     return save_figure(fig, path)
 
@@ -189,16 +194,13 @@ def plot_clock_residuals(synced: SyncedRun, path=None):
 def plot_baseline(synced: SyncedRun, path=None):
     """Return the baseline length over time before and after the extra offset (eq. 5.13), like
     thesis fig. 5.5."""
-    fig, (ax,) = _column(1, 3.6)
+    fig, ax = _run_axes(synced, 3.6, f"{synced.offset_tracker} extra offset {synced.offset.dt * 1e3:.4f} ms",
+                        xlabel="time since first trigger [s]", ylabel="baseline length - mean [mm]")
     mean = np.nanmean(synced.baseline_after_m)
     gap_s = gap_threshold_s(synced.s_trigger)
     for base, label in ((synced.baseline_before_m, "before"), (synced.baseline_after_m, "after")):
         plot_series(ax, synced.s_trigger, (base - mean) * 1e3, gap_s, lw=0.6,
                     label=f"{label} offset correction (RMS {np.nanstd(base) * 1e3:.3f} mm)")
-    ax.set_xlabel("time since first trigger [s]")
-    ax.set_ylabel("baseline length - mean [mm]")
-    ax.set_title(f"run {synced.name}: {synced.offset_tracker} extra offset "
-                 f"{synced.offset.dt * 1e3:.4f} ms")
     ax.legend(loc="best", fontsize=9)
     return save_figure(fig, path)
 
@@ -207,7 +209,8 @@ def plot_offset_fit(synced: SyncedRun, path=None):
     """Return the baseline spread against the trial offset with the quadratic of eq. 5.19 and
     its minimum (eq. 5.20), like thesis fig. 5.6."""
     o = synced.offset
-    fig, (ax,) = _column(1, 3.6)
+    fig, ax = _run_axes(synced, 3.6, "offset by minimising the baseline spread",
+                        xlabel="extra offset [ms]", ylabel="baseline spread [mm]")
     near = np.abs(o.dt_grid - o.dt) < 5e-4
     ax.plot(o.dt_grid[near] * 1e3, o.spread_grid[near] * 1e3, ".", label="s_r (eq. 5.16)")
     x = np.linspace(o.dt_fit[0], o.dt_fit[-1], 100)
@@ -216,9 +219,6 @@ def plot_offset_fit(synced: SyncedRun, path=None):
     ax.plot(x * 1e3, (a * (x - x0) ** 2 + b * (x - x0) + c) * 1e3, "r", label="quadratic (eq. 5.19)")
     ax.axvline(o.dt * 1e3, color="k", lw=0.6,
                label=f"minimum {o.dt * 1e3:.4f} ms +- {o.dt_std * 1e9:.1f} ns")
-    ax.set_xlabel("extra offset [ms]")
-    ax.set_ylabel("baseline spread [mm]")
-    ax.set_title(f"run {synced.name}: offset by minimising the baseline spread")
     ax.legend(loc="upper center", fontsize=9)
     return save_figure(fig, path)
 
@@ -226,15 +226,13 @@ def plot_offset_fit(synced: SyncedRun, path=None):
 def plot_baseline_vs_speed(synced: SyncedRun, path=None):
     """Return the baseline variation against the forward speed before and after the correction:
     the correlation that reveals the timing error (thesis 5.2.2, Pearson r about 0.9)."""
-    fig, (ax,) = _column(1, 4.0)
+    fig, ax = _run_axes(synced, 4.0, "baseline variation vs forward speed",
+                        xlabel="forward speed [m/s]", ylabel="baseline length - mean [mm]")
     after = "after correction" + (" (r with the hub terms removed)" if synced.offset.hub_terms else "")
     for base, label, r in ((synced.baseline_before_m, "before correction", synced.r_speed_before),
                            (synced.baseline_after_m, after, synced.r_speed_after)):
         ax.plot(synced.v_forward, (base - np.nanmean(base)) * 1e3, ".", ms=1.5, alpha=0.5,
                 label=f"{label}: r = {r:.2f}")
-    ax.set_xlabel("forward speed [m/s]")
-    ax.set_ylabel("baseline length - mean [mm]")
-    ax.set_title(f"run {synced.name}: baseline variation vs forward speed")
     ax.legend(loc="best", markerscale=6, fontsize=9)
     return save_figure(fig, path)
 

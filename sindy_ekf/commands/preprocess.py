@@ -15,6 +15,7 @@ from identification.preprocessing.preprocess import (
     preprocess_campaign,
     reading_json,
 )
+from identification.preprocessing.sync import SyncedRun
 from sindy_ekf.report.bag_facts import bag_notes
 
 
@@ -56,16 +57,21 @@ def format_summary(result: PreprocessResult) -> str:
     for name, why in result.skipped.items():
         lines.append(f"{name:<10} skipped: {why}")
     lines += bag_notes({name: reading_json(r) for name, r in result.runs.items()})
-    synced = [r.synced for r in result.runs.values()]
-    r0 = np.array([s.r_speed_before for s in synced])
-    if np.any(np.abs(r0) > TIMING_ERROR_R):
-        late = max({s.offset_tracker for s in synced}, key=[s.offset_tracker for s in synced].count)
-        dt = np.median([s.offset.dt for s in synced]) * 1e3
-        lines.append(f"timing error found: the baseline length follows the forward speed (median r "
-                     f"{np.median(r0):+.2f}); the {late.upper()} measures {dt:.3f} ms after the "
-                     f"trigger pulse (median over runs), corrected (median r after "
-                     f"{np.median([s.r_speed_after for s in synced]):+.2f})")
+    lines += _timing_error_lines([r.synced for r in result.runs.values()])
     return "\n".join(lines)
+
+
+def _timing_error_lines(synced: list[SyncedRun]) -> list[str]:
+    """Return the summary's line on a timing error, or none when no run's baseline length follows its speed."""
+    r0 = np.array([s.r_speed_before for s in synced])
+    if not np.any(np.abs(r0) > TIMING_ERROR_R):
+        return []
+    late = max({s.offset_tracker for s in synced}, key=[s.offset_tracker for s in synced].count)
+    dt = np.median([s.offset.dt for s in synced]) * 1e3
+    return [f"timing error found: the baseline length follows the forward speed (median r "
+            f"{np.median(r0):+.2f}); the {late.upper()} measures {dt:.3f} ms after the "
+            f"trigger pulse (median over runs), corrected (median r after "
+            f"{np.median([s.r_speed_after for s in synced]):+.2f})"]
 
 
 def run(args) -> int:

@@ -187,6 +187,14 @@ class ModelEKF(ExtendedKalmanFilter):
         self.n_gated = 0
         self.F = np.eye(N_X)
 
+    def _repaired(self, P: np.ndarray, what: str) -> np.ndarray:
+        """Return ``P`` through :func:`repair_covariance`, counting and logging a repair (``what`` happened)."""
+        P, repaired = repair_covariance(P)
+        if repaired:
+            self.pd_repairs += 1
+            log.warning("%s EKF: %s; eigenvalues clipped (repair %d)", self.model.name, what, self.pd_repairs)
+        return P
+
     def predict(self, u=np.zeros(2), t: float = 0.0, dt: float = 0.02) -> np.ndarray:
         """Propagate ``x`` and ``P`` over ``dt`` with the model; return the step Jacobian ``F``.
 
@@ -194,11 +202,7 @@ class ModelEKF(ExtendedKalmanFilter):
         """
         x, F, _ = self.model.step_and_jac(self.x, u, t, dt, input_jacobian=False)
         self.x = x
-        self.P, repaired = repair_covariance(F @ self.P @ F.T + self.model.Q(dt))
-        if repaired:
-            self.pd_repairs += 1
-            log.warning("%s EKF: predicted covariance lost positive definiteness; eigenvalues "
-                        "clipped (repair %d)", self.model.name, self.pd_repairs)
+        self.P = self._repaired(F @ self.P @ F.T + self.model.Q(dt), "predicted covariance lost positive definiteness")
         self.F = F
         self.x_prior, self.P_prior = self.x.copy(), self.P.copy()
         return F
@@ -231,11 +235,7 @@ class ModelEKF(ExtendedKalmanFilter):
         KC = K @ C.T
         P = self.P - KC - KC.T + K @ S @ K.T
         self.x = self.x + K @ y
-        self.P, repaired = repair_covariance(P)
-        if repaired:
-            self.pd_repairs += 1
-            log.warning("%s EKF: covariance lost positive definiteness after a GNSS update; "
-                        "eigenvalues clipped (repair %d)", self.model.name, self.pd_repairs)
+        self.P = self._repaired(P, "covariance lost positive definiteness after a GNSS update")
         self.K = K
         self.x_post, self.P_post = self.x.copy(), self.P.copy()
         return nis, True, K @ H

@@ -2,14 +2,18 @@
 
 Each ``section_*`` takes the finished :class:`~sindy_ekf.stages.chain.ChainResult` and returns
 a :class:`~sindy_ekf.report.blocks.Section`: campaign overview, calibration, synchronisation,
-poses, identification, evaluation, estimation, diagnosis. A section that does not apply (a
-trajectory campaign has no raw tracker data) or whose stage failed says so in one line.
+poses, identification, evaluation, estimation, diagnosis. Each is written as the body that fills
+its section, made a builder by :func:`_builds`, which names the stages it needs: a section that
+does not apply (a trajectory campaign has no raw tracker data) or whose stage failed says so in
+one line.
 """
 
 
 from __future__ import annotations
 
+import functools
 import html
+from typing import Callable
 
 import numpy as np
 
@@ -39,7 +43,7 @@ from simulation.gnss import PROFILES
 from sindy_ekf.benchmark.figures import plot_error_bands, plot_nees, plot_outage_errors, plot_trajectories
 from sindy_ekf.diagnose.figures import plot_lag_profile, plot_residual_structure
 from sindy_ekf.report.bag_facts import bag_notes, bag_words
-from sindy_ekf.report.blocks import Section, table_html
+from sindy_ekf.report.blocks import SECTIONS, Section, table_html
 from sindy_ekf.report.figures import (
     plot_driven_paths,
     plot_family_gains,
@@ -68,6 +72,29 @@ def _absent_or_failed(sec: Section, chain: ChainResult, stages: tuple[str, ...])
     return False
 
 
+Fill = Callable[[Section, ChainResult], None]  # writes one stage's notes, tables and figures into its section
+Builder = Callable[[ChainResult], Section]
+
+
+def _builds(sid: str, needs: tuple[str, ...] = ()) -> Callable[[Fill], Builder]:
+    """Return a decorator turning ``fill(sec, chain)`` into the builder of section ``sid``.
+
+    The builder makes the section (titled as in :data:`SECTIONS`) and fills it only when every
+    stage of ``needs`` gave a result; otherwise the section says which stage did not, and why.
+    """
+    def decorate(fill: Fill) -> Builder:
+        @functools.wraps(fill)
+        def build(chain: ChainResult) -> Section:
+            sec = Section(sid, dict(SECTIONS)[sid])
+            if not _absent_or_failed(sec, chain, needs):
+                fill(sec, chain)
+            return sec
+
+        return build
+
+    return decorate
+
+
 def _counts(intervals) -> dict[float, int]:
     """Return outage length (s) -> how many outages of that length ``{run: (m, 2)}`` holds."""
     lengths = np.round(np.concatenate([o[:, 1] - o[:, 0] for o in intervals.values()] or [np.empty(0)]), 6)
@@ -77,9 +104,9 @@ def _counts(intervals) -> dict[float, int]:
 # Sections
 # --------------------------------------------------------------------------------------------
 
-def section_overview(chain: ChainResult) -> Section:
-    """Return the campaign overview: runs, durations, driven paths, input coverage (fig. 6.3)."""
-    sec = Section("overview", "Campaign overview")
+@_builds("overview")
+def section_overview(sec: Section, chain: ChainResult) -> None:
+    """Write the campaign overview: runs, durations, driven paths, input coverage (fig. 6.3)."""
     traj = chain.trajectory
     rows = run_overview(traj)
     sec.note(f"{chain.campaign_path} ({chain.kind} campaign '{traj.name}'): {len(rows)} runs, "
@@ -100,14 +127,11 @@ def section_overview(chain: ChainResult) -> Section:
         states = states_of_runs(traj.runs, DEFAULT_SMOOTHING)[0]
     sec.figures([(lambda: plot_driven_paths(traj.runs), "driven paths in the local frame"),
                  (lambda: plot_input_coverage(states), "density of control inputs and driving states (fig. 6.3)")])
-    return sec
 
 
-def section_calibration(chain: ChainResult) -> Section:
-    """Return the calibration: transform (eq. 5.1, table 7.2), lever arms (table 7.1), residuals, global test."""
-    sec = Section("calibration", "Calibration")
-    if _absent_or_failed(sec, chain, ("calibration",)):
-        return sec
+@_builds("calibration", needs=("calibration",))
+def section_calibration(sec: Section, chain: ChainResult) -> None:
+    """Write the calibration: transform (eq. 5.1, table 7.2), lever arms (table 7.1), residuals, global test."""
     cal, tf = chain.calibration, chain.calibration.transform
     std = tf.params_std
     sec.note("x_at960 = t + R x_ltd800 with R = Rz(rz) Ry(ry) Rx(rx) (eqs. 5.1 to 5.5; Gauss-Helmert adjustment of "
@@ -133,14 +157,11 @@ def section_calibration(chain: ChainResult) -> Section:
     sec.figures([(lambda: plot_network(chain.survey, tf), "network points and tracker frames (fig. 6.1), "
                   "residuals exaggerated"),
                  (lambda: plot_body_frame(chain.survey, cal.body), "body frame from the wheel hubs (fig. 7.1)")])
-    return sec
 
 
-def section_synchronisation(chain: ChainResult) -> Section:
-    """Return the synchronisation: per-run clocks, offsets, baselines; figures of one run (5.2.2)."""
-    sec = Section("synchronisation", "Synchronisation")
-    if _absent_or_failed(sec, chain, ("calibration",)):
-        return sec
+@_builds("synchronisation", needs=("calibration",))
+def section_synchronisation(sec: Section, chain: ChainResult) -> None:
+    """Write the synchronisation: per-run clocks, offsets, baselines; figures of one run (5.2.2)."""
     runs = (chain.preprocess or {}).get("runs", {})
     rows = []
     for name, r in runs.items():
@@ -161,7 +182,7 @@ def section_synchronisation(chain: ChainResult) -> Section:
     for line in bag_notes(runs):
         sec.note(line)
     if _absent_or_failed(sec, chain, ("synchronisation",)):
-        return sec
+        return
     raw, run = chain.showcase.raw, chain.showcase.run
     s = run.synced
     sec.note(f"Figures for test run {raw.name}.")
@@ -180,12 +201,11 @@ def section_synchronisation(chain: ChainResult) -> Section:
     if run.hub is not None:
         items.append((lambda: plot_hub_model(run.hub), "turning-hub model, eq. 5.25 (fig. 5.7)"))
     sec.figures(items)
-    return sec
 
 
-def section_poses(chain: ChainResult) -> Section:
-    """Return the poses of one test run with their sigmas (figs. 7.2, 7.3) and its body states (7.9)."""
-    sec = Section("poses", "Poses and body-frame states")
+@_builds("poses")
+def section_poses(sec: Section, chain: ChainResult) -> None:
+    """Write the poses of one test run with their sigmas (figs. 7.2, 7.3) and its body states (7.9)."""
     run = chain.trajectory.split("test")[0]
     poses = chain.showcase.run.poses if chain.showcase is not None else run.poses
     items = [(lambda: plot_poses(poses), f"run {run.name}: position, attitude and their sigmas (figs. 7.2, 7.3)")]
@@ -197,14 +217,11 @@ def section_poses(chain: ChainResult) -> Section:
                           f"run {run.name}: body-frame velocities, spline smoothing s = {s:g} (eqs. 5.64-5.68, "
                           "fig. 7.9)"))
     sec.figures(items)
-    return sec
 
 
-def section_identification(chain: ChainResult) -> Section:
-    """Return the identification: grid search, selected model's equations, term prevalence."""
-    sec = Section("identification", "Identification")
-    if _absent_or_failed(sec, chain, ("identification",)):
-        return sec
+@_builds("identification", needs=("identification",))
+def section_identification(sec: Section, chain: ChainResult) -> None:
+    """Write the identification: grid search, selected model's equations, term prevalence."""
     model = chain.model
     hp = ", ".join(f"{k} = {v:g}" for k, v in model.hyperparameters.items())
     src = f"loaded from {chain.model_path}" if chain.search is None else f"selected by the grid search ({hp})"
@@ -212,7 +229,7 @@ def section_identification(chain: ChainResult) -> Section:
              f"terms, {src}.")
     sec.add(f"<pre>{html.escape(model.equations())}</pre>")
     if chain.search is None:
-        return sec
+        return
     res = chain.search
     tb = res.table
     n, n_finite = len(tb["s"]), int(np.isfinite(tb["pos_err_5s_m"]).sum())
@@ -235,14 +252,11 @@ def section_identification(chain: ChainResult) -> Section:
         items.append((lambda: plot_term_prevalence(res.top_models),
                       f"term prevalence in the {len(res.top_models)} best models (fig. 7.11)"))
     sec.figures(items)
-    return sec
 
 
-def section_evaluation(chain: ChainResult) -> Section:
-    """Return the multi-step evaluation on the test runs: s_p(t), s_h(t) (eqs. 5.76-5.78, fig. 7.8)."""
-    sec = Section("evaluation", "Evaluation")
-    if _absent_or_failed(sec, chain, ("identification", "evaluation")):
-        return sec
+@_builds("evaluation", needs=("identification", "evaluation"))
+def section_evaluation(sec: Section, chain: ChainResult) -> None:
+    """Write the multi-step evaluation on the test runs: s_p(t), s_h(t) (eqs. 5.76-5.78, fig. 7.8)."""
     ev = chain.evaluation
     sindy = ev["sindy"]
     errors = chain.prediction_errors()
@@ -254,14 +268,11 @@ def section_evaluation(chain: ChainResult) -> Section:
     sec.add(terms_html(errors))
     sec.figures([(lambda: plot_error_curves([sindy]), "SINDy model: per-window errors (grey) and s_p(t), s_h(t)"),
                  (lambda: plot_error_curves(list(ev.values()), stacked=False), "all models: s_p(t), s_h(t)")])
-    return sec
 
 
-def section_estimation(chain: ChainResult) -> Section:
-    """Return the estimator benchmark: trajectories with GNSS, errors with 3-sigma bands, outages, NEES."""
-    sec = Section("estimation", "Estimation")
-    if _absent_or_failed(sec, chain, ("identification", "estimation")):
-        return sec
+@_builds("estimation", needs=("identification", "estimation"))
+def section_estimation(sec: Section, chain: ChainResult) -> None:
+    """Write the estimator benchmark: trajectories with GNSS, errors with 3-sigma bands, outages, NEES."""
     b = chain.benchmark
     lo, hi = b.nees_bounds_95
     prof = PROFILES.get(b.profile)
@@ -286,14 +297,11 @@ def section_estimation(chain: ChainResult) -> Section:
                   "+-3 sigma band, the GNSS fixes' errors, outages shaded"),
                  (lambda: plot_outage_errors(b), "RMS position error against the time since the outage began"),
                  (lambda: plot_nees(b), f"run {first}: pose NEES with the 95 % bounds (consistency), outages shaded")])
-    return sec
 
 
-def section_diagnosis(chain: ChainResult) -> Section:
-    """Return the diagnosis: ranked causes with gain and threshold, verdict, gain of the extension."""
-    sec = Section("diagnosis", "Diagnosis")
-    if _absent_or_failed(sec, chain, ("identification", "diagnosis")):
-        return sec
+@_builds("diagnosis", needs=("identification", "diagnosis"))
+def section_diagnosis(sec: Section, chain: ChainResult) -> None:
+    """Write the diagnosis: ranked causes with gain and threshold, verdict, gain of the extension."""
     d = chain.diagnosis
     sec.note(f"Most likely cause: {d.verdict}. 5 s position error on the test runs {100 * d.before.pos_err_5s_m:.2f} "
              f"cm before, {100 * d.after.pos_err_5s_m:.2f} cm with the extended model.")
@@ -314,7 +322,6 @@ def section_diagnosis(chain: ChainResult) -> Section:
     if d.lag:
         items.insert(1, (lambda: plot_lag_profile(d.lag), "residual-input lag correlation"))
     sec.figures(items)
-    return sec
 
 
 SECTION_BUILDERS = {"overview": section_overview, "calibration": section_calibration,
