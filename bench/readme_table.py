@@ -205,6 +205,14 @@ def _estimation(r: Source) -> str:
             f"`v_y = 0`: {cell('sindy_ekf_lateral', 4):.3f} / {cell('sindy_graph_lateral', 4):.3f} m (EKF / graph)")
 
 
+def _ekf_speed(r: Source) -> str:
+    rows = [c for c in r.table("code") if c[1] == "sindy_ekf"]  # this tree first, then the baseline
+    wall, cpu = lead(rows[0][3]), lead(rows[0][5])
+    before = [c for c in rows[1:] if c[0].startswith("baseline")]
+    return (f"{wall:.0f}x real time (wall), {cpu:.0f}x (CPU)"
+            + (f"; {lead(before[0][5]):.0f}x (CPU) before the restructuring, side by side" if before else ""))
+
+
 _diagnose_q = _filled(r"suite of \d+ campaigns \((?P<effect>\d+) with an effect.*?(?P<free>\d+) effect-free\)",
                       "diagnosis, randomised suite of {effect} simulated campaigns + {free} effect-free")
 
@@ -271,6 +279,8 @@ ROWS = (
     Row("demo", _demo_q, _demo, "-"),
     Row("identify", "batched 5 s evaluation vs one solve_ivp per window (thesis 5.3.7)", _batched, "-"),
     Row("estimation", _estimation_q, _estimation, "outlook only"),
+    Row("ekf_speed", "SINDy EKF speed, default campaign (45 min, 9 runs in lockstep), full-grid model", _ekf_speed,
+        "-"),
     Row("diagnose", _diagnose_q, _diagnose, "outlook only"),
     Row("real", "real Warthog data, 5 s position error on the test runs (`identify` on the train runs picks the "
         "low-rate grid), against the data README's unicycle", _real, "-"),
