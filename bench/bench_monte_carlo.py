@@ -210,7 +210,10 @@ def main() -> int:
     rng = np.random.default_rng(args.seed)
     graph_on = set(rng.choice(args.runs, size=min(args.graph_runs, args.runs), replace=False).tolist())
     chunks = [list(range(i, min(i + args.chunk, args.runs))) for i in range(0, args.runs, args.chunk)]
-    done = Parallel(n_jobs=args.jobs)(delayed(run_chunk)(str(campaign_dir), str(model_path), c, args.seed,
+    # the workers import the chunk function from the module (a function of __main__ does not unpickle there)
+    from bench.bench_monte_carlo import run_chunk as chunk_fn
+
+    done = Parallel(n_jobs=args.jobs)(delayed(chunk_fn)(str(campaign_dir), str(model_path), c, args.seed,
                                                          args.profile, graph_on & set(c)) for c in chunks)
     rows = [r for out, _ in done for r in out]
     cpu_workers = sum(c for _, c in done)
