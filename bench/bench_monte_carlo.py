@@ -207,43 +207,55 @@ def main() -> int:
     if args.campaign is None or args.model is None:
         traj, model = build_default(args.cache)
     campaign_dir, model_path = (args.campaign or traj).resolve(), (args.model or model).resolve()
+    real_md, real_fig = [], {}
+    if not args.no_real:  # first: a minute, and its verdict does not wait for the Monte Carlo
+        real_model = args.real_model or args.cache / "warthog-drive-cmd.json"
+        if not real_model.is_file():
+            subprocess.run([str(Path(sys.executable).parent / "sindy-ekf"), "identify", str(REAL), "--out",
+                            str(real_model), "--jobs", "2", "--quiet"], check=True)
+        real_md, real_fig = real_cmd(real_model)
     rng = np.random.default_rng(args.seed)
     graph_on = set(rng.choice(args.runs, size=min(args.graph_runs, args.runs), replace=False).tolist())
     chunks = [list(range(i, min(i + args.chunk, args.runs))) for i in range(0, args.runs, args.chunk)]
     # the workers import the chunk function from the module (a function of __main__ does not unpickle there)
     from bench.bench_monte_carlo import run_chunk as chunk_fn
 
-    done = Parallel(n_jobs=args.jobs)(delayed(chunk_fn)(str(campaign_dir), str(model_path), c, args.seed,
-                                                         args.profile, graph_on & set(c)) for c in chunks)
-    rows = [r for out, _ in done for r in out]
-    cpu_workers = sum(c for _, c in done)
-    mc_wall = time.perf_counter() - wall0
+    rows, cpu_workers = [], 0.0
 
-    real_md, real_fig = [], {}
-    if not args.no_real:
-        real_model = args.real_model or args.cache / "warthog-drive-cmd.json"
-        if not real_model.is_file():
-            subprocess.run([str(Path(sys.executable).parent / "sindy-ekf"), "identify", str(REAL), "--out",
-                            str(real_model), "--jobs", "2", "--quiet"], check=True)
-        real_md, real_fig = real_cmd(real_model)
-    wall = time.perf_counter() - wall0
-    cpu = time.process_time() - cpu0 + cpu_workers
-    load1 = Path("/proc/loadavg").read_text().split()[:3]
+    def write(n_done: int) -> str:
+        """Write the results of the chunks done so far (all of them at the end); return the markdown."""
+        wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0 + cpu_workers
+        load1 = Path("/proc/loadavg").read_text().split()[:3]
+        n_runs = len({r["index"] for r in rows})
+        n_graph = len({r["index"] for r in rows if r["estimator"] == "sindy_graph"})
+        state = "" if n_done == len(chunks) else (f" **Partial: {n_done} of {len(chunks)} chunks done when this "
+                                                  "was written.**")
+        md = ["# Faults survived: Monte Carlo under GNSS faults (issue 14, item 3)", "",
+              f"Command: `python -m bench.bench_monte_carlo {' '.join(sys.argv[1:])}`", "",
+              f"Campaign `{campaign_dir}`, model `{model_path}`. {n_runs} of {args.runs} Monte-Carlo runs done "
+              f"({n_graph} of them also through `sindy_graph`, of {len(graph_on)} asked), {args.jobs} processes, "
+              f"chunks of {args.chunk} runs in lockstep.{state} Wall {wall:.0f} s, CPU {cpu:.0f} s over all "
+              f"processes; load average {' '.join(load0)} at start, {' '.join(load1)} when written (2 cores, "
+              "shared).", ""]
+        if real_md:
+            md += ["## Plain SINDy EKF on the real Warthog cmd runs", "", *real_md, ""]
+        md += ["## Monte Carlo", "", *(summarise(rows) if rows else ["(no chunk done yet)"]), ""]
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text("\n".join(md) + "\n")
+        args.out.with_suffix(".json").write_text(json.dumps({"runs": rows, "real": real_fig, "wall_s": wall,
+                                                             "cpu_s": cpu, "chunks_done": n_done,
+                                                             "chunks": len(chunks)}, default=float) + "\n")
+        return "\n".join(md)
 
-    md = ["# Faults survived: Monte Carlo under GNSS faults (issue 14, item 3)", "",
-          f"Command: `python -m bench.bench_monte_carlo {' '.join(sys.argv[1:])}`", "",
-          f"Campaign `{campaign_dir}`, model `{model_path}`. {args.runs} Monte-Carlo runs "
-          f"({len(graph_on)} of them also through `sindy_graph`), {args.jobs} processes, chunks of {args.chunk} "
-          f"runs in lockstep. Wall {wall:.0f} s (Monte Carlo {mc_wall:.0f} s), CPU {cpu:.0f} s over all processes; "
-          f"load average {' '.join(load0)} at start, {' '.join(load1)} at the end (2 cores, shared).", "",
-          "## Monte Carlo", "", *summarise(rows), ""]
-    if real_md:
-        md += ["## Plain SINDy EKF on the real Warthog cmd runs", "", *real_md, ""]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(md) + "\n")
-    args.out.with_suffix(".json").write_text(json.dumps({"runs": rows, "real": real_fig, "wall_s": wall,
-                                                         "cpu_s": cpu}, default=float) + "\n")
-    print("\n".join(md))
+    write(0)
+    jobs = Parallel(n_jobs=args.jobs, return_as="generator_unordered")(
+        delayed(chunk_fn)(str(campaign_dir), str(model_path), c, args.seed, args.profile, graph_on & set(c))
+        for c in chunks)
+    for n_done, (out, cpu_chunk) in enumerate(jobs, start=1):
+        rows += out
+        cpu_workers += cpu_chunk
+        text = write(n_done)
+    print(text)
     return 0
 
 
