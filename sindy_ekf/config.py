@@ -249,7 +249,9 @@ def _merge(default: dict, user: Any, where: str, source: str) -> dict:
         raise InputError(f"{source}: {where or 'top level'}: expected a mapping, got {user!r}")
     out = dict(default)
     for k, v in user.items():
-        key = f"{where}.{k}" if where else str(k)
+        if not isinstance(k, str):  # YAML 1.1 reads on/off/yes/no as booleans, numbers as numbers
+            raise InputError(f"{source}: {where or 'top level'}: key {k!r} is not a name (quote it)")
+        key = f"{where}.{k}" if where else k
         if k not in default:
             if where == "estimators":
                 raise InputError(f"{source}: {key}: unknown estimator (known: {', '.join(default)})")
