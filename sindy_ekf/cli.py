@@ -32,6 +32,7 @@ COMMANDS = {  # name -> help line; the module sindy_ekf.commands.<name> is impor
     "inject": "hide an input-side effect (delay, deadband, asymmetry, gain decay) in a campaign's recorded inputs",
     "report": "the whole chain as one HTML report with figures",
     "demo": "the whole chain on a built-in simulated campaign",
+    "config": "print the benchmark's default filter settings (YAML), or check a settings file",
 }
 
 

@@ -63,6 +63,7 @@ class BenchmarkResult:
     skipped_runs: dict[str, str] = field(default_factory=dict)  # test run -> why not scored (too short)
     gnss: dict[str, GnssSeries] = field(default_factory=dict)  # run -> the fixes the estimators had
     recorded_gnss: dict | None = None  # --gnss recorded: origin, ENU -> local (with std), counts per run
+    config: dict | None = None  # the effective filter settings (sindy_ekf.config.FilterConfig.to_dict)
 
     def to_json(self) -> dict:
         """Return the ``benchmark --json`` content (INTERFACES.md keys and more)."""
@@ -71,4 +72,5 @@ class BenchmarkResult:
                 "estimators": {n: {k: (v if not isinstance(v, float) or np.isfinite(v) else None)
                                    for k, v in s.__dict__.items()} for n, s in self.scores.items()},
                 "skipped_runs": dict(self.skipped_runs),
-                **({"recorded_gnss": self.recorded_gnss} if self.recorded_gnss else {})}
+                **({"recorded_gnss": self.recorded_gnss} if self.recorded_gnss else {}),
+                **({"config": self.config} if self.config else {})}

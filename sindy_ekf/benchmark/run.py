@@ -46,9 +46,11 @@ from sindy_ekf.benchmark.health import (
 )
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95
+from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
 from sindy_ekf.estimation.ekf import (
     GRID_TOL_S,
     EkfRun,
+    LateralConstraint,
     estimation_grid,
     fit_lateral_constraint,
 )
@@ -64,6 +66,8 @@ from sindy_ekf.estimation.process_models import (
 log = logging.getLogger(__name__)
 
 ALIGNMENT = "none"
+# P0_STD and LATERAL_EVERY are the shipped defaults of sindy_ekf/data/filters.yaml (initial_std,
+# lateral.every), which the benchmark reads; kept for the bench scripts, held equal by a test
 P0_STD = np.array([0.05, 0.05, np.radians(1.0), 0.05, 0.02, 0.05])
 # sindy_ekf_lateral and sindy_graph_lateral (with the v_y = 0 pseudo-measurement of a skid-steered
 # robot) run by default: on the real Warthog poses (10 Hz lidar ICP) the identified yaw equation
@@ -177,10 +181,24 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
     return _TestRun(run.name, t_pose, truth, grid, at_pose, u, u_motor, x0, gnss)
 
 
-def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int = 0,
-                       oracle_dynamics=None, estimators=ESTIMATORS, smoothing: float | None = None,
-                       train_campaign=None, outage_warmup_s: float = 30.0,
-                       outage_recovery_s: float = 30.0, outage_durations_s=OUTAGE_DURATIONS_S) -> BenchmarkResult:
+def _process_model(models: dict[str, ProcessModel], base: str, settings: EstimatorSettings) -> ProcessModel:
+    """Return the fitted process model ``models[base]``, or a copy with the configured ``Q_rate_``
+    (a copy, so that the estimators sharing the model keep the fitted one)."""
+    Q_rate = settings.Q_rate
+    if Q_rate is None:
+        return models[base]
+    model = ProcessModel(models[base].dynamics, models[base].name)
+    model.Q_rate_ = Q_rate
+    log.info("%s: process noise from the configuration: sqrt(diag Q_rate) = %s", settings.name,
+             np.array2string(np.sqrt(np.diag(Q_rate)), precision=4))
+    return model
+
+
+def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: int | None = None,
+                       oracle_dynamics=None, estimators=None, smoothing: float | None = None,
+                       train_campaign=None, outage_warmup_s: float | None = None,
+                       outage_recovery_s: float | None = None, outage_durations_s=None,
+                       config: FilterConfig | None = None) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign``.
 
     Parameters
@@ -193,16 +211,27 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     estimators : names to run, a subset of :data:`ESTIMATORS` and :data:`OPTIONAL_ESTIMATORS`
         (``sindy_ekf_lateral`` and ``sindy_graph_lateral``: sindy_ekf and sindy_graph with the
         ``v_y = 0`` pseudo-measurement of :func:`sindy_ekf.estimation.ekf.fit_lateral_constraint` on the train runs, every
-        :data:`LATERAL_EVERY` steps).
+        :data:`LATERAL_EVERY` steps by default).
     train_campaign : where to fit Q and the unicycle gains (default ``campaign``'s train runs).
     outage_warmup_s, outage_recovery_s, outage_durations_s : GNSS before the first outage and
         between outages, and the outage lengths taken in turn (:func:`simulation.gnss.schedule_outages`;
         default 5, 10, 30, 60 s).
+    config : the filter settings (:func:`sindy_ekf.config.load_config`; default the shipped
+        defaults): GNSS profile, seed and outages, and per estimator whether it runs, its process
+        noise, initial std, gate probability, ``v_y = 0`` constraint and sensors. ``profile``,
+        ``seed``, ``estimators`` and the outage arguments win over it when given (not None).
     """
     known = ESTIMATORS + OPTIONAL_ESTIMATORS
-    unknown = set(estimators) - set(known)
+    unknown = set(estimators or ()) - set(known)
     if unknown:
         raise InputError(f"benchmark: unknown estimator(s) {sorted(unknown)} (known: {', '.join(known)})")
+    config = load_config() if config is None else config
+    o = config.gnss.outages
+    outages = OutageSchedule(o.durations_s if outage_durations_s is None else tuple(outage_durations_s),
+                             o.warmup_s if outage_warmup_s is None else outage_warmup_s,
+                             o.recovery_s if outage_recovery_s is None else outage_recovery_s)
+    config = config.with_overrides(profile, seed, estimators, outages)
+    estimators, profile, seed = config.enabled(), config.gnss.profile, config.gnss.seed
     s = DEFAULT_SMOOTHING if smoothing is None else smoothing
     test = campaign.split("test")
     train = (train_campaign or campaign).split("train")
@@ -217,9 +246,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
     series = train_series(train, s)
     models = fit_models(train, sindy_body, oracle_dynamics, s, series)
     recorded = load_recorded_gnss(campaign) if profile == RECORDED else None
-    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outage_warmup_s, outage_recovery_s,
-                         outage_durations_s, recorded) for i, r in enumerate(test)]
-    P0 = np.diag(P0_STD ** 2)
+    runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outages.warmup_s, outages.recovery_s,
+                         outages.durations_s, recorded) for i, r in enumerate(test)]
     estimates: dict[str, dict[str, Estimate]] = {}
     runtimes: dict[str, float] = {}
     statuses: dict[str, dict[str, RunStatus]] = {}  # estimator -> run -> how it ended (health.py)
@@ -235,61 +263,78 @@ def benchmark_campaign(campaign, sindy_body, profile: str = "dgnss", seed: int =
                 getattr(res, "nis", np.empty(0)) if n else np.empty(0))
             statuses[name][r.name] = status
 
-    ekf_names = [n for n in ("cv_ekf", "unicycle_ekf", "sindy_ekf", "oracle_ekf") if n in estimators and n in models]
-    for name in ekf_names:
+    fitted_vy_std: list[float] = []  # the train runs' v_y std, fitted once when first asked for
+
+    def lateral_of(settings: EstimatorSettings) -> LateralConstraint | None:
+        """Return the estimator's ``v_y = 0`` constraint, or None when it has none."""
+        lat = settings.lateral
+        if lat is None or not lat.enabled:
+            return None
+        if lat.vy_std_m_s is not None:
+            return LateralConstraint(lat.vy_std_m_s, lat.every)
+        if not fitted_vy_std:
+            fitted_vy_std.append(fit_lateral_constraint([x.x6[:, 4] for x in series]).vy_std_m_s)
+        return LateralConstraint(fitted_vy_std[0], lat.every)
+
+    def gnss_of(settings: EstimatorSettings, r: _TestRun) -> GnssSeries | None:
+        return r.gnss if settings.fuses_gnss else None
+
+    # EKFs in the order of the scores; sindy_ekf_lateral runs the SINDy model
+    for name, base in (("cv_ekf", "cv_ekf"), ("unicycle_ekf", "unicycle_ekf"), ("sindy_ekf", "sindy_ekf"),
+                       ("oracle_ekf", "oracle_ekf"), ("sindy_ekf_lateral", "sindy_ekf")):
+        if name not in estimators or base not in models:
+            continue
+        cfg = config.estimator(name)
         use_motor = name == "oracle_ekf"
+        lateral = lateral_of(cfg)
+        if lateral is not None:
+            log.info("%s: v_y = 0 with std %.4f m/s every %d steps", name, lateral.vy_std_m_s, lateral.every)
         batch = [EkfRun(f"{r.name} {name}", r.grid, r.u_motor if use_motor and r.u_motor is not None else r.u,
-                        r.x0, P0, r.gnss) for r in runs]
+                        r.x0, cfg.P0, gnss_of(cfg, r)) for r in runs]
         start = time.perf_counter()
-        keep(name, guarded_ekf_batch(models[name], batch))
+        keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
+                                     gate_prob=cfg.gate_prob))
         runtimes[name] = time.perf_counter() - start
-    lateral = None
-    if any(n.endswith("_lateral") for n in estimators):
-        lateral = fit_lateral_constraint([x.x6[:, 4] for x in series], every=LATERAL_EVERY)
-    if "sindy_ekf_lateral" in estimators:
-        log.info("sindy_ekf_lateral: v_y = 0 with std %.4f m/s every %d steps", lateral.vy_std_m_s,
-                 lateral.every)
-        start = time.perf_counter()
-        keep("sindy_ekf_lateral", guarded_ekf_batch(models["sindy_ekf"], [
-            EkfRun(f"{r.name} sindy_ekf_lateral", r.grid, r.u, r.x0, P0, r.gnss) for r in runs],
-            lateral=lateral))
-        runtimes["sindy_ekf_lateral"] = time.perf_counter() - start
     if "dead_reckoning" in estimators:
+        cfg = config.estimator("dead_reckoning")
         start = time.perf_counter()
-        keep("dead_reckoning", guarded_ekf_batch(models["sindy_ekf"], [
-            EkfRun(f"{r.name} dead_reckoning", r.grid, r.u, r.x0, P0, None) for r in runs]))
+        keep("dead_reckoning", guarded_ekf_batch(_process_model(models, "sindy_ekf", cfg), [
+            EkfRun(f"{r.name} dead_reckoning", r.grid, r.u, r.x0, cfg.P0, None) for r in runs]))
         runtimes["dead_reckoning"] = time.perf_counter() - start
-    if {"sindy_graph", "sindy_isam2", "sindy_graph_lateral"} & set(estimators):
-        # batch smoothing, each started from its filter's estimate on the full grid
-        for name, init_name, constraint in (("sindy_graph", "sindy_ekf", None),
-                                            ("sindy_graph_lateral", "sindy_ekf_lateral", lateral)):
-            if name not in estimators:
-                continue
-            start = time.perf_counter()
-            init = estimates.get(init_name)
-            results = []
-            for r in runs:
-                x_init = None
-                if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
-                    x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
-                                              for i in range(6)])
-                results.append(guarded(smooth_batch, models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
-                                       x_init=x_init, marginal_stride=10, lateral=constraint,
-                                       name=f"{r.name} {name}"))
-            keep(name, results)
-            runtimes[name] = time.perf_counter() - start
-        if "sindy_isam2" in estimators:
-            start = time.perf_counter()
-            keep("sindy_isam2", [guarded(smooth_isam2, models["sindy_ekf"], r.grid, r.u, r.x0, P0, r.gnss,
-                                         name=f"{r.name} sindy_isam2") for r in runs])
-            runtimes["sindy_isam2"] = time.perf_counter() - start
+    # batch smoothing, each started from its filter's estimate on the full grid
+    for name, init_name in (("sindy_graph", "sindy_ekf"), ("sindy_graph_lateral", "sindy_ekf_lateral")):
+        if name not in estimators:
+            continue
+        cfg = config.estimator(name)
+        model, constraint = _process_model(models, "sindy_ekf", cfg), lateral_of(cfg)
+        start = time.perf_counter()
+        init = estimates.get(init_name)
+        results = []
+        for r in runs:
+            x_init = None
+            if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
+                x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
+                                          for i in range(6)])
+            results.append(guarded(smooth_batch, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
+                                   x_init=x_init, marginal_stride=10, lateral=constraint,
+                                   name=f"{r.name} {name}"))
+        keep(name, results)
+        runtimes[name] = time.perf_counter() - start
+    if "sindy_isam2" in estimators:
+        cfg = config.estimator("sindy_isam2")
+        model = _process_model(models, "sindy_ekf", cfg)
+        start = time.perf_counter()
+        keep("sindy_isam2", [guarded(smooth_isam2, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
+                                     name=f"{r.name} sindy_isam2") for r in runs])
+        runtimes["sindy_isam2"] = time.perf_counter() - start
     truth = {r.name: r.truth for r in runs}
-    outages = {r.name: r.gnss.outages for r in runs}
+    outages_of_runs = {r.name: r.gnss.outages for r in runs}
     scores, curves = {}, {}
     for name in estimates:
-        scores[name], curves[name] = score_partial(estimates[name], truth, outages, runtimes[name],
+        scores[name], curves[name] = score_partial(estimates[name], truth, outages_of_runs, runtimes[name],
                                                    combined_status(statuses[name]))
-    return BenchmarkResult(profile, ALIGNMENT, scores, estimates, truth, outages, curves,
+    return BenchmarkResult(config.gnss.profile_name, ALIGNMENT, scores, estimates, truth, outages_of_runs, curves,
                            chi2_bounds_95(3), chi2_bounds_95(2), campaign.name, skipped,
                            {r.name: r.gnss for r in runs},
-                           recorded_gnss=None if recorded is None else recorded.to_json_dict())
+                           recorded_gnss=None if recorded is None else recorded.to_json_dict(),
+                           config=config.to_dict())

@@ -12,6 +12,7 @@ from sindy_ekf.benchmark.figures import write_benchmark_figures
 from sindy_ekf.benchmark.files import write_benchmark
 from sindy_ekf.benchmark.gnss_source import RECORDED
 from sindy_ekf.benchmark.result import BenchmarkResult
+from sindy_ekf.config import load_config
 from sindy_ekf.stages.estimation import benchmark_files
 
 
@@ -19,13 +20,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Add the ``benchmark`` arguments to its parser."""
     p.add_argument("campaign", type=Path, help="trajectory or tracker campaign (test runs are scored)")
     p.add_argument("--model", type=Path, required=True, metavar="MODEL.json", help="model file of identify")
-    p.add_argument("--gnss", default="dgnss", choices=sorted(PROFILES) + [RECORDED],
-                   help="GNSS profile (default dgnss); recorded: the campaign's own fixes (gnss.csv or NavSatFix)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the GNSS errors (default 0)")
+    p.add_argument("--config", type=Path, default=None, metavar="FILE",
+                   help="filter settings (YAML) merged over the defaults that `sindy-ekf config --defaults` prints; "
+                        "--gnss, --seed and --estimators win over it")
+    p.add_argument("--gnss", default=None, choices=sorted(PROFILES) + [RECORDED],
+                   help="GNSS profile (default: the config's, dgnss); recorded: the campaign's own fixes "
+                        "(gnss.csv or NavSatFix)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the GNSS errors (default: the config's, 0)")
     p.add_argument("--estimators", default=None, metavar="A,B,...",
-                   help="comma-separated subset (default: all available: dead_reckoning, cv_ekf, unicycle_ekf, "
-                        "sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), oracle_ekf on "
-                        "simulated campaigns, sindy_graph, sindy_graph_lateral, sindy_isam2)")
+                   help="comma-separated subset (default: those the config enables, all available: dead_reckoning, "
+                        "cv_ekf, unicycle_ekf, sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), "
+                        "oracle_ekf on simulated campaigns, sindy_graph, sindy_graph_lateral, sindy_isam2)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write TUM files of every estimate, the JSON and the plots into DIR")
@@ -69,8 +74,10 @@ def run(args) -> int:
     1 when none did (the files are written all the same).
     """
     check_outputs(args, folders=("out",))
+    config = load_config(args.config)  # a bad file fails here, before the work
     estimators = None if args.estimators is None else tuple(n.strip() for n in args.estimators.split(","))
-    result = benchmark_files(args.campaign, args.model, profile=args.gnss, seed=args.seed, estimators=estimators)
+    result = benchmark_files(args.campaign, args.model, profile=args.gnss, seed=args.seed, estimators=estimators,
+                             config=config)
     if args.out is not None:
         write_benchmark(result, args.out)
         write_benchmark_figures(result, args.out)

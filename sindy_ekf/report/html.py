@@ -17,6 +17,7 @@ from pathlib import Path
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_text
 from groundfloor.progress import progress
+from sindy_ekf.config import FilterConfig
 from sindy_ekf.report.blocks import (
     CONTENT_LEFT_PX,
     FIGURE_GAP_PX,
@@ -118,7 +119,7 @@ class Report:
 
 
 def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | None = None, quick: bool = False,
-                 grid=None, stages=STAGES) -> Report:
+                 grid=None, stages=STAGES, config: FilterConfig | None = None) -> Report:
     """Return the report written for ``campaign`` into ``out_dir`` (``report.html``) and its chain.
 
     Parameters
@@ -128,6 +129,7 @@ def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | 
     model : a model file of ``identify``; without it one is identified on the train runs.
     quick : identify with the search's quick grid instead of the full one (``grid`` overrides).
     stages : the chain's stages to run (see :data:`sindy_ekf.stages.chain.STAGES`).
+    config : the benchmark's filter settings (:func:`sindy_ekf.config.load_config`; default the shipped ones).
 
     Raises
     ------
@@ -136,5 +138,5 @@ def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | 
     """
     check_report_dir(out_dir)  # fail before the work, not after it
     grid = grid if grid is not None else (QUICK if quick else None)
-    chain = run_chain(campaign, out_dir, model=model, grid=grid, stages=stages)
+    chain = run_chain(campaign, out_dir, model=model, grid=grid, stages=stages, config=config)
     return Report(render_report(chain, out_dir), chain)

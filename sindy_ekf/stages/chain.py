@@ -39,6 +39,7 @@ from identification.sindy.search import (
 )
 from simulation.truth import true_dynamics_of
 from sindy_ekf.benchmark.result import BenchmarkResult
+from sindy_ekf.config import FilterConfig, load_config
 from sindy_ekf.diagnose import Diagnosis, diagnose_campaign
 from sindy_ekf.stages.calibration import (
     Showcase,
@@ -160,7 +161,7 @@ def identification_plan(chain: ChainResult, grid: SearchGrid | str | None) -> Id
 
 def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid, out_dir: Path | None,
                  n_jobs: int, estimators: Sequence[str] | None,
-                 outages: OutageSchedule) -> dict[str, Callable[[], dict]]:
+                 outages: OutageSchedule | None, config: FilterConfig | None) -> dict[str, Callable[[], dict]]:
     """Return each stage as a function of what the stages before it ``found``, returning its fields."""
     traj, path = chain.trajectory, chain.campaign_path
 
@@ -192,9 +193,12 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
 
     def estimation() -> dict:
         oracle = true_dynamics_of(path)
-        wished = estimators or (QUICK_ESTIMATORS if grid == QUICK else None)
+        cfg = load_config() if config is None else config
+        quick = tuple(n for n in QUICK_ESTIMATORS if n in cfg.enabled())  # of those the settings enable
+        wished = estimators or (quick if grid == QUICK else None)
         names = None if wished is None else tuple(n for n in wished if n != ORACLE_EKF or oracle is not None)
-        return {"benchmark": estimation_stage(traj, found["model"], oracle, estimators=names, outages=outages)}
+        return {"benchmark": estimation_stage(traj, found["model"], oracle, estimators=names, outages=outages,
+                                              config=cfg)}
 
     def diagnosis() -> dict:
         if found.get("model_path") is None:
@@ -207,7 +211,7 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
 
 def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: str | Path | None = None,
               grid=QUICK, stages=STAGES, n_jobs: int = 1, estimators=None,
-              outages: OutageSchedule = OutageSchedule()) -> ChainResult:
+              outages: OutageSchedule | None = None, config: FilterConfig | None = None) -> ChainResult:
     """Return the chain run on ``campaign``: each stage of ``stages`` in order, failures recorded.
 
     Parameters
@@ -217,9 +221,10 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     model : a model file of ``identify``; without it one is identified on the train runs.
     grid : search grid for the identification (see :func:`identification_plan`).
     stages : the stages to run, a subset of :data:`STAGES`.
-    estimators : the benchmark's estimators (default: :data:`QUICK_ESTIMATORS` with the quick
-        grid, else all; ``oracle_ekf`` only on a simulated campaign).
-    outages : when the benchmark drops GNSS (default: 5, 10, 30, 60 s in turn, 30 s apart).
+    estimators : the benchmark's estimators (default: those ``config`` enables, of them only
+        :data:`QUICK_ESTIMATORS` with the quick grid; ``oracle_ekf`` only on a simulated campaign).
+    outages : when the benchmark drops GNSS (default: ``config``'s, 5, 10, 30, 60 s in turn, 30 s apart).
+    config : the benchmark's filter settings (:mod:`sindy_ekf.config`; default the shipped ones).
 
     Raises
     ------
@@ -232,7 +237,7 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     chain = open_chain(campaign, need_train=model is None)
     found: dict = {}
     errors, skipped, seconds = {}, {}, dict(chain.seconds)
-    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators, outages)
+    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators, outages, config)
     for name in STAGES:
         if name not in stages:
             skipped[name] = "stage not requested"

@@ -1,7 +1,7 @@
 """Estimation stage: the estimators under degraded GNSS on the test runs (:mod:`sindy_ekf.benchmark`).
 
-Which estimators run: all of :data:`sindy_ekf.benchmark.run.ESTIMATORS` by default, without
-``oracle_ekf`` on a measured campaign (it runs the simulator's true dynamics, which only a
+Which estimators run: those the filter settings enable (:mod:`sindy_ekf.config`; by default all
+of :data:`sindy_ekf.benchmark.run.ESTIMATORS`), without ``oracle_ekf`` on a measured campaign (it runs the simulator's true dynamics, which only a
 simulated campaign has). Q and the lag model come from the train runs' states at the model's
 own smoothing ``s``. ``sindy-ekf benchmark`` prints and writes the result; the report's chain
 keeps it for its section.
@@ -9,7 +9,6 @@ keeps it for its section.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -18,26 +17,20 @@ from groundfloor.errors import InputError
 from groundfloor.types import TrajectoryCampaign
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.model import SindyModel
-from simulation.gnss import OUTAGE_DURATIONS_S
 from simulation.truth import true_dynamics_of
 from sindy_ekf.benchmark.result import BenchmarkResult
 from sindy_ekf.benchmark.run import ESTIMATORS, benchmark_campaign
+from sindy_ekf.config import FilterConfig, OutageSchedule, load_config
+
+__all__ = ["ORACLE_EKF", "OutageSchedule", "estimators_for", "estimation_stage", "benchmark_files"]
 
 ORACLE_EKF = "oracle_ekf"
 
 
-@dataclass(frozen=True)
-class OutageSchedule:
-    """When the benchmark drops GNSS on a test run: the outage lengths in turn, with GNSS for
-    ``warmup_s`` before the first and ``recovery_s`` between two (:func:`simulation.gnss.schedule_outages`)."""
-
-    durations_s: tuple[float, ...] = OUTAGE_DURATIONS_S
-    warmup_s: float = 30.0
-    recovery_s: float = 30.0
-
-
-def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, campaign: str | Path) -> tuple[str, ...]:
-    """Return the estimators to run: ``estimators``, or by default all that the campaign allows.
+def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, campaign: str | Path,
+                   enabled: Sequence[str] = ESTIMATORS) -> tuple[str, ...]:
+    """Return the estimators to run: ``estimators``, or by default those of ``enabled`` (the
+    configuration's) that the campaign allows.
 
     Raises
     ------
@@ -45,7 +38,7 @@ def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, ca
         ``oracle_ekf`` asked for on a campaign without the simulator's truth (names ``campaign``).
     """
     if estimators is None:
-        return tuple(n for n in ESTIMATORS if n != ORACLE_EKF or oracle is not None)
+        return tuple(n for n in enabled if n != ORACLE_EKF or oracle is not None)
     names = tuple(estimators)
     if ORACLE_EKF in names and oracle is None:
         raise InputError(f"{campaign}: oracle_ekf needs a simulated campaign (truth/truth.yaml)")
@@ -53,29 +46,38 @@ def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, ca
 
 
 def estimation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dynamics | None = None,
-                     profile: str = "dgnss", seed: int = 0, estimators: Sequence[str] | None = None,
-                     campaign_path: str | Path | None = None,
-                     outages: OutageSchedule = OutageSchedule()) -> BenchmarkResult:
+                     profile: str | None = None, seed: int | None = None, estimators: Sequence[str] | None = None,
+                     campaign_path: str | Path | None = None, outages: OutageSchedule | None = None,
+                     config: FilterConfig | None = None) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign`` with the model.
 
     ``oracle`` (the simulator's true dynamics) runs as ``oracle_ekf``; ``estimators`` as in
     :func:`estimators_for`; ``campaign_path`` names the campaign in errors (default its root);
-    ``outages`` when GNSS drops out.
+    ``outages`` when GNSS drops out. ``config``: the filter settings (default the shipped ones,
+    :mod:`sindy_ekf.config`); ``profile``, ``seed``, ``estimators`` and ``outages`` win over it
+    when given.
     """
-    names = estimators_for(estimators, oracle, campaign.root if campaign_path is None else campaign_path)
+    config = load_config() if config is None else config
+    names = estimators_for(estimators, oracle, campaign.root if campaign_path is None else campaign_path,
+                           config.enabled())
     s = model.hyperparameters.get("s")  # Q and the lag model from states at the model's own smoothing
+    if outages is not None:
+        config = config.with_overrides(outages=outages)
     return benchmark_campaign(campaign, model, profile=profile, seed=seed, oracle_dynamics=oracle, estimators=names,
-                              smoothing=None if s is None else float(s), outage_warmup_s=outages.warmup_s,
-                              outage_recovery_s=outages.recovery_s, outage_durations_s=outages.durations_s)
+                              smoothing=None if s is None else float(s), config=config)
 
 
-def benchmark_files(campaign: str | Path, model_path: str | Path, profile: str = "dgnss", seed: int = 0,
-                    estimators: Sequence[str] | None = None) -> BenchmarkResult:
+def benchmark_files(campaign: str | Path, model_path: str | Path, profile: str | None = None,
+                    seed: int | None = None, estimators: Sequence[str] | None = None,
+                    config: FilterConfig | None = None) -> BenchmarkResult:
     """Return the benchmark of the model file on a campaign (``sindy-ekf benchmark``).
 
     A tracker campaign is preprocessed first (cached); a simulated campaign's true dynamics
-    (:func:`simulation.truth.true_dynamics_of`) run as ``oracle_ekf``.
+    (:func:`simulation.truth.true_dynamics_of`) run as ``oracle_ekf``. ``config``: the filter
+    settings (:func:`sindy_ekf.config.load_config`); ``profile``, ``seed`` and ``estimators``
+    (the command line's) win over it when given.
     """
     model = SindyModel.load(model_path)
     traj = open_campaign(campaign)
-    return estimation_stage(traj, model, true_dynamics_of(campaign), profile, seed, estimators, campaign)
+    return estimation_stage(traj, model, true_dynamics_of(campaign), profile, seed, estimators, campaign,
+                            config=config)

@@ -75,3 +75,24 @@ def test_prediction_errors_are_one_value_type(mini):
     r = ev.results["sindy"]["rk4"]
     # the triple at 5 s is the last sample of the RMS curves (eqs. 5.77, 5.78)
     assert prediction_error(r) == PredictionError(float(r.s_p[-1]), float(np.degrees(r.s_h[-1])), r.eps_p.shape[0])
+
+
+def test_the_chain_benchmarks_with_the_settings_given(mini):
+    """``report --config``: the chain's estimation stage runs what the settings enable (of the
+    quick estimators, with the quick grid), with their GNSS profile and outages."""
+    from sindy_ekf.config import config_from_dict
+    from sindy_ekf.stages.chain import QUICK, run_chain
+
+    root, path = mini
+    config = config_from_dict({"gnss": {"profile": "standalone",
+                                        "outages": {"warmup_s": 10, "recovery_s": 12, "durations_s": [4]}},
+                               "estimators": {n: {"enabled": n in ("sindy_ekf", "sindy_ekf_lateral")}
+                                              for n in ESTIMATORS}}, "f.yaml")
+    stages = ("identification", "estimation")
+    quick = run_chain(root, model=path, grid=QUICK, stages=stages, config=config).benchmark
+    assert set(quick.scores) == {"sindy_ekf"}  # sindy_ekf_lateral is not a quick estimator
+    assert quick.profile == "standalone"
+    t0 = quick.truth["run_c"][0, 0]
+    np.testing.assert_allclose(quick.outages["run_c"] - t0, [[10, 14], [26, 30]], atol=1e-6)  # 45 s run
+    full = run_chain(root, model=path, grid=None, stages=stages, config=config).benchmark
+    assert set(full.scores) == {"sindy_ekf", "sindy_ekf_lateral"}
