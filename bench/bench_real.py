@@ -18,6 +18,7 @@ bench/RESULTS.md by ``bench/run_all.py``) with, per campaign of ``../shared/data
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import platform
 import sys
 import time
