@@ -65,8 +65,10 @@ NOTES = """### Notes on these data
   of about 60 % of the ideal differential drive's (the wheels skid).
 - The identified yaw equation may hold a vy term (cmd): vy from a spline through 10 Hz poses
   is noise-dominated, and the regression uses it. An EKF sees vy only through GNSS positions,
-  so vy wanders and the yaw rate with it: `sindy_ekf` and `sindy_graph` drift away, their
-  `_lateral` variants (the non-holonomic `v_y = 0` pseudo-measurement) do not (benchmark table).
+  so vy wanders and the yaw rate with it: the plain `sindy_ekf` loses the track and is kept only by
+  the NIS monitor's re-initialisation (issue 14; without it, it diverges at 35 s), and `sindy_graph`
+  starts from that estimate; their `_lateral` variants (the non-holonomic `v_y = 0`
+  pseudo-measurement) need no re-initialisation (benchmark table; bench/results/monte_carlo.md).
 """
 
 
