@@ -148,11 +148,16 @@ class ActiveTerms:
         shape. The dynamics do not depend on time, so no time is passed.
         """
         x6, u, dt = np.asarray(x6, dtype=float), np.asarray(u, dtype=float), np.asarray(dt, dtype=float)
-        lead = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1], dt.shape)
+        lead = x6.shape[:-1]
+        if u.shape[:-1] != lead or dt.shape != lead:  # the filters' case (one shape) skips this: per
+            # grid step the broadcasting cost several times the compiled step itself
+            lead = np.broadcast_shapes(lead, u.shape[:-1], dt.shape)
+            x6, u, dt = (np.broadcast_to(x6, lead + (N_X,)), np.broadcast_to(u, lead + (2,)),
+                         np.broadcast_to(dt, lead))
         m = math.prod(lead)
-        x = np.ascontiguousarray(np.broadcast_to(x6, lead + (N_X,))).reshape(m, N_X)
-        uu = np.ascontiguousarray(np.broadcast_to(u, lead + (2,))).reshape(m, 2)
-        h = np.ascontiguousarray(np.broadcast_to(dt, lead)).reshape(m)
+        x = np.ascontiguousarray(x6).reshape(m, N_X)
+        uu = np.ascontiguousarray(u).reshape(m, 2)
+        h = np.ascontiguousarray(dt).reshape(m)
         x_next, F = np.empty((m, N_X)), np.empty((m, N_X, N_X))
         G = np.empty((m, N_X, 2) if input_jacobian else (0, N_X, 2))
         _rk4_steps(x, uu, h, input_jacobian, self._n_table, self.monomials, self._prod_rows, self._prod_f0,
