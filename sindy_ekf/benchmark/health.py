@@ -35,7 +35,7 @@ from scipy.stats import chi2
 
 from groundfloor.errors import DivergenceError
 from sindy_ekf.benchmark.result import Estimate, Score
-from sindy_ekf.benchmark.scoring import score_estimator
+from sindy_ekf.benchmark.scoring import pose_truth, score_estimator
 from sindy_ekf.estimation.ekf import GATE_PROB, GRID_TOL_S, EkfResult, EkfRun, LateralConstraint, run_ekf_batch
 from sindy_ekf.estimation.process_models import ProcessModel
 
@@ -286,9 +286,7 @@ def split_short_runs(runs, min_s: float = MIN_RUN_S) -> tuple[list, dict[str, st
     """
     kept, skipped = [], {}
     for run in runs:
-        p = run.poses
-        ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
-        t = np.asarray(p.t, float)[ok]
+        t = pose_truth(run.poses)[0][:, 0]
         span = float(t[-1] - t[0]) if t.size else 0.0
         if t.size < MIN_RUN_POSES or span < min_s:
             skipped[run.name] = (f"run {run.name}: {span:.1f} s with {t.size} usable poses, shorter than "

@@ -36,6 +36,8 @@ from identification.preprocessing.states import body_states_from_poses
 from simulation.gnss import simulate_gnss
 from simulation.gnss_faults import FAULT_MIXES, GnssFaults, apply_gnss_faults, draw_gnss_faults
 from sindy_ekf.benchmark.health import guarded, guarded_ekf_batch
+from sindy_ekf.benchmark.run import hold_inputs
+from sindy_ekf.benchmark.scoring import pose_truth
 from sindy_ekf.estimation.ekf import GRID_TOL_S, EkfRun, LateralConstraint, estimation_grid
 from sindy_ekf.estimation.graph import smooth_batch
 from sindy_ekf.estimation.process_models import ProcessModel
@@ -97,13 +99,9 @@ def prepare_sources(test_runs, smoothing: float) -> list[McSource]:
     """Return the test runs as :class:`McSource` (smoothed states computed once per run)."""
     out = []
     for run in test_runs:
-        p = run.poses
-        ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
-        t = np.asarray(p.t, float)[ok]
-        truth = np.column_stack([t, np.asarray(p.x)[ok], np.asarray(p.y)[ok], np.unwrap(np.asarray(p.yaw)[ok])])
-        st = body_states_from_poses(p, run.inputs, smoothing, t_eval=t)
+        truth, z = pose_truth(run.poses)
+        st = body_states_from_poses(run.poses, run.inputs, smoothing, t_eval=truth[:, 0])
         x6 = np.column_stack([st.x, st.y, st.yaw, st.vx, st.vy, st.omega])
-        z = np.asarray(p.z, float)[ok] if p.z is not None else None
         inp = run.inputs
         out.append(McSource(run.name, truth, z, x6, np.asarray(inp.t, float), np.column_stack([inp.u1, inp.u2])))
     return out
@@ -136,10 +134,10 @@ def draw_window(sources: list[McSource], index: int, seed: int, profile: str = "
     gnss = apply_gnss_faults(gnss, faults)
     grid = estimation_grid(truth[:, 0], gnss.t_valid)
     at_pose = np.searchsorted(grid, truth[:, 0] - GRID_TOL_S)
-    k = np.clip(np.searchsorted(src.t_input, grid + GRID_TOL_S, side="right") - 1, 0, len(src.t_input) - 1)
     x0 = src.x6[sel[0]].copy()
     x0[2] = truth[0, 3] + wrap_angle(x0[2] - truth[0, 3])
-    return McWindow(index, mix, src.name, truth, grid, at_pose, src.u_input[k], x0, gnss, faults)
+    return McWindow(index, mix, src.name, truth, grid, at_pose, hold_inputs(src.t_input, src.u_input, grid), x0,
+                    gnss, faults)
 
 
 def nees_band_95(n: int, dof: int = 3) -> tuple[float, float]:

@@ -45,7 +45,7 @@ from sindy_ekf.benchmark.health import (
     split_short_runs,
 )
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
-from sindy_ekf.benchmark.scoring import chi2_bounds_95
+from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
 from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
 from sindy_ekf.estimation.ekf import (
     GRID_TOL_S,
@@ -100,7 +100,7 @@ def outage_ekf_run(states, sel, t_out: float, t_resume: float, profile: str, see
     return EkfRun(name, grid, u, x0, np.diag(OUTAGE_P0_STD ** 2), gnss)
 
 
-def _zoh(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
+def hold_inputs(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Return ``v_src`` held from each stamp to the next, sampled at ``t`` (first value before)."""
     idx = np.clip(np.searchsorted(t_src, t + GRID_TOL_S, side="right") - 1, 0, len(t_src) - 1)
     return v_src[idx]
@@ -154,13 +154,10 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
                  outage_durations_s=OUTAGE_DURATIONS_S, recorded: RecordedGnss | None = None) -> _TestRun:
     """Return the GNSS series, grid, inputs and initial state of one test run."""
     p = run.poses
-    ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
-    t_pose = np.asarray(p.t, float)[ok]
+    truth, z = pose_truth(p)
+    t_pose, yaw = truth[:, 0], truth[:, 3]
     if len(t_pose) < 10:
         raise InputError(f"run {run.name}: fewer than 10 usable poses to benchmark on")
-    yaw = np.unwrap(np.asarray(p.yaw, float)[ok])
-    truth = np.column_stack([t_pose, p.x[ok], p.y[ok], yaw])
-    z = np.asarray(p.z, float)[ok] if p.z is not None else None
     outages = schedule_outages(t_pose[0], t_pose[-1], durations=tuple(outage_durations_s), warmup_s=outage_warmup_s,
                                recovery_s=outage_recovery_s)
     gnss = simulate_gnss(t_pose, truth[:, 1], truth[:, 2], yaw, profile, seed=seed, z=z,
@@ -168,7 +165,7 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
     grid = estimation_grid(t_pose, gnss.t_valid)
     at_pose = np.searchsorted(grid, t_pose - GRID_TOL_S)
     inp = run.inputs
-    u = _zoh(np.asarray(inp.t, float), np.column_stack([inp.u1, inp.u2]), grid)
+    u = hold_inputs(np.asarray(inp.t, float), np.column_stack([inp.u1, inp.u2]), grid)
     u_motor = None
     if isinstance(oracle_dynamics, TrueDynamics):  # the simulator drove it with the motor inputs
         u_motor = oracle_dynamics.motor_inputs(grid - t_pose[0], np.asarray(inp.t) - t_pose[0],

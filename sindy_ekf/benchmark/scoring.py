@@ -19,6 +19,15 @@ from sindy_ekf.benchmark.result import BenchmarkResult, Estimate, Score
 OUTAGE_TAU_STEP_S = 0.1
 
 
+def pose_truth(poses) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return the truth ``(n, 4)`` [t, x, y, yaw unwrapped] at the poses whose t, x, y and yaw are all
+    finite, and the height of the body origin there (None when the poses have no z)."""
+    ok = np.isfinite(poses.t) & np.isfinite(poses.x) & np.isfinite(poses.y) & np.isfinite(poses.yaw)
+    truth = np.column_stack([np.asarray(poses.t, float)[ok], np.asarray(poses.x, float)[ok],
+                             np.asarray(poses.y, float)[ok], np.unwrap(np.asarray(poses.yaw, float)[ok])])
+    return truth, (np.asarray(poses.z, float)[ok] if poses.z is not None else None)
+
+
 def chi2_bounds_95(dof: int) -> tuple[float, float]:
     """Return the per-sample two-sided 95 % bounds of a chi-square variable with ``dof`` degrees."""
     lo, hi = chi2.ppf([0.025, 0.975], dof)
