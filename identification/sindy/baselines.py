@@ -17,12 +17,12 @@ All three plug into the multi-step evaluation and, through
 
 from __future__ import annotations
 
+import logging
 from typing import Sequence
 
 import numpy as np
 
 from groundfloor.dynamics import N_U, N_X, Dynamics
-from groundfloor.errors import InputError
 from groundfloor.types import BodyStates, TrajectoryRun
 from identification.sindy.evaluate import Windows, errors_from_rollout, rollout
 from identification.sindy.output_error import (
@@ -34,6 +34,8 @@ from identification.sindy.output_error import (
     fit_output_error,
 )
 from identification.sindy.reference import Reference, reference, thin_windows
+
+log = logging.getLogger(__name__)
 
 
 def _zero_accel(x6: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -57,16 +59,18 @@ class UnicycleModel(Dynamics):
             self.k1_, self.k2_ = float(k1), float(k2)
 
     def fit(self, states: Sequence[BodyStates]) -> "UnicycleModel":
-        """Fit ``vx ~ k1 u1`` and ``omega ~ k2 u2`` by least squares over all samples; return self."""
+        """Fit ``vx ~ k1 u1`` and ``omega ~ k2 u2`` by least squares over all samples; return self.
+
+        An input that is zero throughout gets gain 0 (with a warning)."""
         u1 = np.concatenate([s.u1 for s in states])
         u2 = np.concatenate([s.u2 for s in states])
         vx = np.concatenate([s.vx for s in states])
         om = np.concatenate([s.omega for s in states])
         for name, u in (("u1", u1), ("u2", u2)):
             if not np.any(np.abs(u) > 1e-6):
-                raise InputError(f"unicycle fit: input {name} is zero in all training runs")
-        self.k1_ = float(u1 @ vx / (u1 @ u1))
-        self.k2_ = float(u2 @ om / (u2 @ u2))
+                log.warning("unicycle fit: input %s is zero in all training runs; its gain is 0", name)
+        self.k1_ = float(u1 @ vx / (u1 @ u1)) if np.any(np.abs(u1) > 1e-6) else 0.0
+        self.k2_ = float(u2 @ om / (u2 @ u2)) if np.any(np.abs(u2) > 1e-6) else 0.0
         return self
 
     def accel_and_jacobians(self, x6, u, t=0.0):
@@ -129,17 +133,16 @@ class LagModel(Dynamics):
         axis a least-squares fit of ``(v_{k+1} - v_k) / dt = b u_k - c (v_k + v_{k+1}) / 2`` gives
         ``k = b / c`` and ``tau = 1 / c``. The dead times are left as they are.
 
-        Raises
-        ------
-        InputError
-            If an axis shows no lag to fit (too little excitation).
+        An axis that shows no lag to fit (too little excitation) gets gain 0 and a time
+        constant of 1 s, with a warning.
         """
         def fit_axis(v: np.ndarray, u: np.ndarray, a: np.ndarray, axis: str) -> tuple[float, float]:
             coef, *_ = np.linalg.lstsq(np.column_stack([u, -v]), a, rcond=None)
             b, c = coef
             if c <= 0 or not np.isfinite(c):
-                raise InputError(f"train runs: lag fit of {axis} is unstable (no lag to fit); "
-                                 "the train runs hold too little excitation")
+                log.warning("train runs: no lag of %s to fit (too little excitation); gain 0, time constant 1 s",
+                            axis)
+                return 0.0, 1.0
             return float(b / c), float(1.0 / c)
 
         dt = np.concatenate([np.diff(s.t) for s in states])[:, None]

@@ -13,10 +13,10 @@ file records them (``checks`` in the model JSON, :func:`run_checks`):
   (``-vx / tau + k u1 / tau`` with ``tau`` of tens of milliseconds, what measured wheel speeds
   give) has large, cancelling, well-determined linear terms, and the linear part is what the
   stability and dissipativity checks judge;
-- **dissipative outside the envelope**: on a grid of states around the training envelope (one
-  envelope width beyond it) and inputs at their extremes, the derivative points back toward the
-  envelope, measured by the Lyapunov function of the model's linear part (:func:`dissipativity`),
-  so an estimator's wandering state cannot run away;
+- **dissipative outside the envelope**: from training states with one body velocity pushed one
+  envelope width beyond the envelope (inputs as they were), the derivative points back toward
+  it, measured by the Lyapunov function of the model's linear part (:func:`dissipativity`), so
+  an estimator's wandering state cannot run away;
 - **significant terms**: every active coefficient beyond the first-order lag's is at least
   :data:`MIN_T_STAT` standard errors from zero (the output-error fit's cluster-robust standard
   errors). The lag's own terms (:func:`lag_core`: each state's damping by itself, each input's
@@ -44,6 +44,8 @@ from identification.sindy.model import SindyModel
 STABILITY_TOL = 1e-9  # largest real part of an eigenvalue of J_f_x at rest still counted as stable
 #: a term may contribute at most this many times the largest measured acceleration of its equation
 CONTRIBUTION_FACTOR = 10.0
+#: how far beyond the envelope (in its widths) the dissipativity check pushes a state
+DISSIPATIVE_WIDTHS = 1.0
 #: percentile of |measured acceleration| taken as "the largest" (robust to a single glitch)
 ACCEL_PERCENTILE = 99.0
 #: smallest |coefficient| / standard error of a kept term (about 95 % two-sided)
@@ -95,39 +97,48 @@ def contribution_bound(model: SindyModel, states: Sequence[BodyStates], accel_ma
             "accel_max": [float(a) for a in accel_max]}
 
 
-def dissipativity(model: SindyModel) -> dict:
-    """Return the dissipativity check on a grid around the training envelope.
+def dissipativity(model: SindyModel, states: Sequence[BodyStates], n_samples: int = 200) -> dict:
+    """Return the dissipativity check: from training states pushed out of the envelope, the
+    derivatives point back toward it.
 
-    With frozen extrapolation (:class:`~identification.sindy.model.SindyModel`) the model far
-    outside its envelope is its linear part ``A v`` plus bounded terms, so a state cannot run
-    away exactly when ``A`` is stable (the check "stable at rest"), and the quadratic Lyapunov
-    function ``V`` of ``A`` (``A^T P + P A = -I`` in coordinates scaled by the envelope's widths,
-    centred on the envelope) measures the way back. The check: ``dV/dt < 0`` at every grid point
-    outside the envelope, states at ``lo - w, lo, mid, hi, hi + w`` of each body velocity
-    (``w`` the width), inputs at the envelope's ends and zero; i.e. the derivatives point back
-    toward the envelope from one width out. Returns ``{"passed", "worst_rate", "worst_state",
-    "n_points"}`` (``worst_rate`` the largest ``dV/dt``, 1/s in the scaled units); without an
-    envelope it passes vacuously with ``n_points`` 0.
+    With frozen extrapolation (:class:`~identification.sindy.model.SindyModel`) the model
+    outside its envelope continues linearly from the envelope's edge with its linear part ``A``,
+    ``f(v) = f(v_edge) + A (v - v_edge)``, so a state cannot run away exactly when ``A`` is stable
+    (the check "stable at rest"). How far out the edge's acceleration can still push is measured
+    with the quadratic Lyapunov function ``V`` of ``A`` (``A^T P + P A = -I`` in coordinates
+    scaled by the envelope's widths ``w``, centred on the envelope): ``n_samples`` training
+    samples (evenly spread) are each pushed, one body velocity at a time, to
+    :data:`DISSIPATIVE_WIDTHS` widths beyond the envelope on either side, with the other
+    velocities and the inputs as they were; at every such state ``dV/dt`` must be negative. The
+    states are those an estimator reaches when one velocity wanders off, not the corners of the
+    envelope's box (a reversing robot at full forward throttle and full left steering), where a
+    polynomial fitted on the data means nothing. Returns ``{"passed", "worst_rate",
+    "worst_state", "n_points"}`` (``worst_rate`` the largest ``dV/dt``, 1/s in the scaled units);
+    without an envelope it passes vacuously with ``n_points`` 0.
     """
     env = model.envelope or {}
     if not all(v in env for v in LIBRARY_VARIABLE_NAMES):
         return {"passed": True, "worst_rate": None, "worst_state": None, "n_points": 0}
-    lo = np.array([env[v][0] for v in LIBRARY_VARIABLE_NAMES], float)
-    hi = np.array([env[v][1] for v in LIBRARY_VARIABLE_NAMES], float)
-    w = np.maximum(hi - lo, 1e-6)[:3]
-    c = 0.5 * (lo + hi)[:3]
+    lo = np.array([env[v][0] for v in LIBRARY_STATE_NAMES], float)
+    hi = np.array([env[v][1] for v in LIBRARY_STATE_NAMES], float)
+    w = np.maximum(hi - lo, 1e-6)
+    c = 0.5 * (lo + hi)
     A = model.f_and_jacobians(np.zeros(3), np.zeros(2))[1]  # the linear part: J_f_x at rest
     A_scaled = A * w[None, :] / w[:, None]
     if not np.all(np.isfinite(A_scaled)) or np.linalg.eigvals(A_scaled).real.max() >= 0:
         return {"passed": False, "worst_rate": float("inf"), "worst_state": None, "n_points": 0,
                 "reason": "linear part not stable: no way back from far outside"}
     P = solve_continuous_lyapunov(A_scaled.T, -np.eye(3))
-    axes = [(lo[i] - w[i], lo[i], c[i], hi[i], hi[i] + w[i]) for i in range(3)]
-    axes += [sorted({lo[i], hi[i], float(np.clip(0.0, lo[i], hi[i]))}) for i in (3, 4)]
-    z = np.array(list(itertools.product(*axes)), float)
-    z = z[np.any((z[:, :3] < lo[:3]) | (z[:, :3] > hi[:3]), axis=1)]
-    v_scaled = (z[:, :3] - c) / w
-    rate = 2.0 * np.einsum("ni,ij,nj->n", v_scaled, P, model.f(z[:, :3], z[:, 3:]) / w)
+    z = np.vstack([np.column_stack([st.state, st.inputs]) for st in states])
+    z = z[np.round(np.linspace(0, len(z) - 1, min(n_samples, len(z)))).astype(int)]
+    pushed = []
+    for i in range(3):
+        for edge in (lo[i] - DISSIPATIVE_WIDTHS * w[i], hi[i] + DISSIPATIVE_WIDTHS * w[i]):
+            p = z.copy()
+            p[:, i] = edge
+            pushed.append(p)
+    z = np.vstack(pushed)
+    rate = 2.0 * np.einsum("ni,ij,nj->n", (z[:, :3] - c) / w, P, model.f(z[:, :3], z[:, 3:]) / w)
     rate = np.where(np.isfinite(rate), rate, np.inf)
     k = int(np.argmax(rate))
     return {"passed": bool(rate[k] < 0), "worst_rate": float(rate[k]),
@@ -186,7 +197,7 @@ def run_checks(model: SindyModel, states: Sequence[BodyStates], names: Sequence[
     eig = float(max_re_eig_at_rest(model.library, model.coef))
     out = {"stable_at_rest": {"passed": bool(eig <= STABILITY_TOL), "max_re_eig": eig},
            "contribution": contribution_bound(model, states, accel_max),
-           "dissipative": dissipativity(model)}
+           "dissipative": dissipativity(model, states)}
     if t_stat is not None:
         out["significance"] = significance(names, t_stat, lag_core(model)[np.nonzero(model.coef)])
     out["passed"] = all(v["passed"] for v in out.values())

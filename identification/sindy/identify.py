@@ -13,10 +13,12 @@
 5. **Candidates refined by output error, cross-validated**: the best :data:`N_CANDIDATES`
    distinct admissible structures of the screening, and the lag as a sparse SINDy model
    (``vx' = a vx + b u1``, ``vy' = e vy``, ``omega' = c omega + d u2``). In every fold each is
-   refitted on the fold's train groups (regression for the terms, then output error for the
-   coefficients and dead times, then the terms that are not significant dropped and refitted,
-   :func:`refine`), checked (:func:`identification.sindy.checks.run_checks`) and scored on the
-   held-out group's reference windows. The one-standard-error rule over the folds picks the
+   refitted on the fold's train groups: the regression picks the terms (the lag's own always
+   among them), the terms that are not significant in the least-squares adjustment of thesis
+   5.3.9 are dropped one by one (:func:`identification.sindy.adjust.prune_insignificant`, over
+   non-overlapping windows), then output error fits the coefficients and the dead times
+   (:func:`refine`); each is checked (:func:`identification.sindy.checks.run_checks`) and scored
+   on the held-out group's reference windows. The one-standard-error rule over the folds picks the
    sparsest candidate that passes the checks in every fold.
 6. **Final model**: the picked candidate refitted on all train runs the same way; if it fails
    the checks, the next candidate by CV error is taken (never a failing model).
@@ -34,6 +36,7 @@ import numpy as np
 from groundfloor.errors import InputError
 from groundfloor.progress import progress
 from groundfloor.types import TrajectoryRun
+from identification.sindy.adjust import Adjustment, prune_insignificant
 from identification.sindy.baselines import LagModel, fit_lag
 from identification.sindy.checks import (
     MIN_T_STAT,
@@ -62,8 +65,6 @@ log = logging.getLogger(__name__)
 
 #: distinct structures of the screening refined by output error and cross-validated (plus the lag)
 N_CANDIDATES = 4
-#: rounds of dropping non-significant terms and refitting
-MAX_PRUNE_ROUNDS = 3
 
 
 @dataclass(frozen=True)
@@ -128,47 +129,48 @@ def lag_as_sindy(lag: LagModel, envelope: dict) -> SindyModel:
                             hyperparameters={"structure": "lag"})
 
 
-def with_self_terms(model: SindyModel, lag: LagModel) -> SindyModel:
-    """Return ``model`` with each state's damping by itself active (seeded from the lag where zero)."""
+def with_lag_core(model: SindyModel, lag: LagModel) -> SindyModel:
+    """Return ``model`` with the lag's terms active (:func:`~identification.sindy.checks.lag_core`),
+    seeded from the lag where the regression left them out."""
+    core = lag_as_sindy(lag, model.envelope)
     coef = model.coef.copy()
-    mask = self_terms(model)
-    seed = np.array([-1.0 / lag.tau_v_, -1.0 / lag.tau_v_, -1.0 / lag.tau_w_])
-    for e, j in zip(*np.nonzero(mask)):
+    for e, j in zip(*np.nonzero(lag_core(model))):
         if coef[e, j] == 0.0:
-            coef[e, j] = seed[e]
+            coef[e, j] = core.coef[e, core.library.feature_names.index(model.library.feature_names[j])]
     return model.with_coefficients(coef)
 
 
-def refine(model: SindyModel, windows: Windows, fit_dead_time: bool = True,
-           max_rounds: int = MAX_PRUNE_ROUNDS) -> tuple[SindyModel, OutputErrorFit]:
-    """Return ``model`` refitted by output error on ``windows``, its non-significant terms dropped.
+def without_excluded(model: SindyModel, excluded) -> SindyModel:
+    """Return ``model`` without the terms of the ``excluded`` variables: no feature containing one,
+    and an excluded state's equation reduced to its own damping (its data are noise)."""
+    if not excluded:
+        return model
+    drop = np.array([any(v in excluded for v, _ in atoms) for atoms in model.library.atoms])[None, :] | \
+        np.array([e in excluded for e in range(3)])[:, None]
+    return model.with_coefficients(np.where(drop & ~self_terms(model), 0.0, model.coef))
 
-    Each round fits the active coefficients and the dead times (:func:`fit_output_error`), then
-    drops the terms below :data:`MIN_T_STAT` (all of them below half of it, else the weakest;
-    the lag's own terms, :func:`~identification.sindy.checks.lag_core`, are never dropped) and
-    refits, until every term is significant. Intermediate rounds stop the optimiser early: they
-    only rank the terms.
+
+def _fixed(model: SindyModel, excluded) -> np.ndarray:
+    """Return the mask of the terms no fit may move: the damping of the states in ``excluded``."""
+    return self_terms(model) & np.array([e in excluded for e in range(3)])[:, None]
+
+
+def refine(model: SindyModel, windows: Windows, excluded=frozenset(),
+           fit_dead_time: bool = True) -> tuple[SindyModel, OutputErrorFit]:
+    """Return ``model``'s active coefficients and dead times refitted by output error on ``windows``.
+
+    The damping of a state the data do not excite (in ``excluded``) keeps its value.
     """
-    for k in range(max_rounds + 1):
-        spec = SindyStructure(model)
-        last = k == max_rounds
-        fit = fit_output_error(spec, spec.theta0, windows, model.dead_time_s, fit_dead_time,
-                               max_nfev=40 if last else 20)
-        model = spec.build(fit.theta, fit.dead_time_s)
-        t = fit.t_stat
-        weak = np.flatnonzero((t < MIN_T_STAT) & ~lag_core(model)[spec.eq, spec.col])
-        if not len(weak) or last:
-            break
-        very = weak[t[weak] < 0.5 * MIN_T_STAT]
-        drop = very if len(very) else weak[np.argsort(t[weak])][:1]
-        coef = model.coef.copy()
-        coef[spec.eq[drop], spec.col[drop]] = 0.0
-        model = model.with_coefficients(coef)
-    if fit.nfev >= 20 and not last:  # the accepted round stopped early: finish it
-        spec = SindyStructure(model)
-        fit = fit_output_error(spec, spec.theta0, windows, model.dead_time_s, fit_dead_time)
-        model = spec.build(fit.theta, fit.dead_time_s)
-    return model, fit
+    spec = SindyStructure(model, _fixed(model, excluded))
+    fit = fit_output_error(spec, spec.theta0, windows, model.dead_time_s, fit_dead_time)
+    return spec.build(fit.theta, fit.dead_time_s), fit
+
+
+def _significance(adj: Adjustment | None) -> tuple[tuple[str, ...], np.ndarray | None]:
+    """Return the term names and t statistics of an adjustment (none for the lag)."""
+    if adj is None:
+        return (), None
+    return tuple(f"{e}: {f}" for e, f in adj.terms), np.abs(adj.coef) / adj.coef_std
 
 
 def _fold_score(model, windows: Windows | None) -> tuple[float, int]:
@@ -195,16 +197,20 @@ def select_candidate(candidates: Sequence[Candidate]) -> int:
 
 
 def _initial(label: str, hp: dict | None, search_result: SearchResult, cache: dict, excluded, runs, lag: LagModel,
-             states) -> SindyModel:
-    """Return a candidate's starting model on the segments ``runs`` (all when None)."""
+             states) -> tuple[SindyModel, Adjustment | None]:
+    """Return a candidate's starting model on the segments ``runs`` (all when None) and the
+    adjustment its non-significant terms were dropped by (None for the lag)."""
     x = np.vstack([st.state for st in states])
     u = np.vstack([st.inputs for st in states])
     envelope = envelope_from_data(x, u)
     if hp is None:
-        return lag_as_sindy(lag, envelope)
+        return without_excluded(lag_as_sindy(lag, envelope), excluded), None
     model = refit(search_result.states_by_s, search_result.names, hp, cache, excluded, runs=runs)
     model = replace(model, envelope=envelope, extrapolation="frozen", dead_time_s=lag.dead_time_s)
-    return with_self_terms(model, lag)
+    model = without_excluded(with_lag_core(model, lag), excluded)
+    problem = cache[(float(hp["s"]), float(hp["tau"]), str(hp["library"]))][0]
+    rows = None if runs is None else np.isin(problem.run_index, runs)
+    return prune_insignificant(model, problem, lag_core(model), MIN_T_STAT, rows, fixed=_fixed(model, excluded))
 
 
 def _candidates(result: SearchResult, n: int) -> list[tuple[str, dict]]:
@@ -237,9 +243,9 @@ def _fold_job(job) -> dict:
     out = {"lag baseline": _fold_score(fold_lag, held)}
     cache: dict = {}
     for label, hp in specs:
-        start = _initial(label, hp, result, cache, excluded, train, fold_lag, fold_ref.states)
-        model, fit = refine(start, fold_oe)
-        checks = run_checks(model, fold_ref.states, fit.names, fit.t_stat, accel_max)
+        start, adj = _initial(label, hp, result, cache, excluded, train, fold_lag, fold_ref.states)
+        model, fit = refine(start, fold_oe, excluded)
+        checks = run_checks(model, fold_ref.states, *_significance(adj), accel_max)
         out[label] = _fold_score(model, held) + (model.complexity, [k for k, v in checks.items()
                                                                     if isinstance(v, dict) and not v["passed"]])
     return out
@@ -294,9 +300,9 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     cache: dict = {}
     for i in [chosen] + [j for j in order if j != chosen and candidates[j].passed]:
         c = candidates[i]
-        model, fit = refine(_initial(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states),
-                            all_oe)
-        checks = run_checks(model, ref.states, fit.names, fit.t_stat, accel_max)
+        start, adj = _initial(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states)
+        model, fit = refine(start, all_oe, excluded)
+        checks = run_checks(model, ref.states, *_significance(adj), accel_max)
         if checks["passed"]:
             chosen = i
             break

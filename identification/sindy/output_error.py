@@ -87,18 +87,24 @@ class SindyStructure(ParametricModel):
     """The active terms of a SINDy model as parameters (its coefficients; the structure fixed).
 
     The accelerations are linear in the coefficients, so ``d a_e / d xi_(e, j)`` is the feature
-    ``theta_j`` at the state (evaluated on a library of the active features only).
+    ``theta_j`` at the state (evaluated on a library of the active features only). Terms in
+    ``fixed`` (a ``(3, k)`` mask) keep the template's coefficients: a direction the data do not
+    move has no gradient, and a Jacobian-scaled optimiser takes huge steps along it.
     """
 
-    def __init__(self, model: SindyModel):
+    def __init__(self, model: SindyModel, fixed: np.ndarray | None = None):
         self.template = model
-        eq, col = np.nonzero(model.coef)
+        free = model.coef != 0 if fixed is None else (model.coef != 0) & ~np.asarray(fixed, bool)
+        eq, col = np.nonzero(free)
         self.eq, self.col = eq, col
+        all_eq, all_col = np.nonzero(model.coef)
         self.names = tuple(f"{LIBRARY_STATE_NAMES[e]}: {model.library.feature_names[j]}" for e, j in zip(eq, col))
-        cols = sorted(set(col.tolist()))
+        cols = sorted(set(all_col.tolist()))
         self.sub = FeatureLibrary(name=f"{model.library.name}[active]",
                                   feature_names=tuple(model.library.feature_names[j] for j in cols))
         self.sub_col = np.array([cols.index(j) for j in col], dtype=int)
+        self.all_eq, self.all_sub_col = all_eq, np.array([cols.index(j) for j in all_col], dtype=int)
+        self.all_col = all_col
         self.sub_linear = model.linear_columns[cols]
         self.bounds = model._clamp_bounds()
         self.lower = np.full(len(eq), -np.inf)
@@ -110,7 +116,7 @@ class SindyStructure(ParametricModel):
         return self.template.coef[self.eq, self.col].copy()
 
     def build(self, theta, dead_time_s) -> SindyModel:
-        coef = np.zeros_like(self.template.coef)
+        coef = self.template.coef.copy()  # the fixed terms keep their values
         coef[self.eq, self.col] = theta
         return self.template.with_coefficients(coef, dead_time_s)
 
@@ -129,7 +135,7 @@ class SindyStructure(ParametricModel):
             theta = np.where(self.sub_linear, theta, theta_c)
             d_theta = np.where(self.sub_linear, d_theta, d_theta_c)
         C = np.zeros((self.sub.n_features, 3))
-        C[self.sub_col, self.eq] = dynamics.coef[self.eq, self.col]
+        C[self.all_sub_col, self.all_eq] = dynamics.coef[self.all_eq, self.all_col]
         lead = z.shape[:-1]
         f = np.empty(lead + (6,))
         J_x = np.zeros(lead + (6, 6))

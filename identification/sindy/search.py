@@ -32,7 +32,7 @@ from identification.sindy.checks import STABILITY_TOL, max_re_eig_at_rest
 from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import errors_from_rollout, make_windows, rollout
 from identification.sindy.reference import Folds, Reference, cv_folds, delayed_inputs, reference, select_windows
-from identification.sindy.library import make_library
+from identification.sindy.library import LIBRARY_VARIABLE_NAMES, make_library
 from identification.sindy.active_terms import StackedSindy
 from identification.sindy.model import SindyModel, envelope_from_data
 from identification.sindy.regression import (
@@ -337,7 +337,7 @@ def _score_combo_serial(job) -> dict[str, np.ndarray]:
     """Return the scores of all ``(alpha, T)`` of one ``(s, tau, library)`` (see :func:`_score_combo`)."""
     states, names, fold, s_val, tau, lib_name, grid, held_windows, dead_time, excluded = job
     library = make_library(lib_name)
-    problem = integral_problem(states, library, tau, names)
+    problem = integral_problem(states, library, tau, names, allow_constant=_variable_names(excluded))
     keep = allowed_features(library, excluded)
     at = list(itertools.product(grid.alpha, grid.T))
     n_folds = int(fold.max()) + 1
@@ -417,9 +417,10 @@ def refit(states_by_s: dict, names: Sequence[str], hp: dict, cache: dict | None 
     key = (float(hp["s"]), float(hp["tau"]), str(hp["library"]))
     cache = {} if cache is None else cache
     if key not in cache:
-        problem = integral_problem(states, key[2], key[1], names)
+        problem = integral_problem(states, key[2], key[1], names, allow_constant=_variable_names(excluded))
         r, c = problem.compressed()
-        cond = check_conditioning(r, f"runs {', '.join(names)}, s={key[0]:g}, tau={key[1]:g} s")
+        keep = allowed_features(problem.library, excluded)
+        cond = check_conditioning(r[:, keep], f"runs {', '.join(names)}, s={key[0]:g}, tau={key[1]:g} s")
         cache[key] = (problem, r, c, cond)
     problem, r, c, cond = cache[key]
     if runs is not None:
@@ -441,3 +442,8 @@ def refit(states_by_s: dict, names: Sequence[str], hp: dict, cache: dict | None 
 def allowed_features(library, excluded=frozenset()) -> np.ndarray:
     """Return per feature of ``library`` whether it contains none of the ``excluded`` variable indices."""
     return np.array([not any(v in excluded for v, _ in atoms) for atoms in library.atoms], dtype=bool)
+
+
+def _variable_names(indices) -> tuple[str, ...]:
+    """Return the library variable names of ``indices``."""
+    return tuple(LIBRARY_VARIABLE_NAMES[i] for i in sorted(indices))
