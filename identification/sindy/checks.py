@@ -32,14 +32,18 @@ extends. :func:`excitation` says which variables the training data do not excite
 from __future__ import annotations
 
 import itertools
+import logging
 from typing import Sequence
 
 import numpy as np
 from scipy.linalg import solve_continuous_lyapunov
 
+from groundfloor.errors import InputError
 from groundfloor.types import BodyStates
 from identification.sindy.library import LIBRARY_STATE_NAMES, LIBRARY_VARIABLE_NAMES, FeatureLibrary
 from identification.sindy.model import SindyModel
+
+log = logging.getLogger(__name__)
 
 STABILITY_TOL = 1e-9  # largest real part of an eigenvalue of J_f_x at rest still counted as stable
 #: a term may contribute at most this many times the largest measured acceleration of its equation
@@ -207,3 +211,24 @@ def run_checks(model: SindyModel, states: Sequence[BodyStates], names: Sequence[
 def failed_checks(checks: dict) -> list[str]:
     """Return the names of the checks in a model file's ``checks`` that failed."""
     return [k for k, v in checks.items() if isinstance(v, dict) and not v.get("passed", True)]
+
+
+def require_checks_passed(model: SindyModel, source: str) -> None:
+    """Return nothing when the model file's recorded checks passed; refuse a model that failed them.
+
+    A model without recorded checks (format 1, or built by hand) is used with a loud warning:
+    nothing says it is well posed. ``source`` names the file in the messages.
+
+    Raises
+    ------
+    InputError
+        The model's ``checks`` say it failed (names the failed checks).
+    """
+    if not model.checks:
+        log.warning("%s: the model records no well-posedness checks (format 1 or built by hand); its "
+                    "predictions may run away outside its training envelope: re-identify it", source)
+        return
+    failed = failed_checks(model.checks)
+    if failed or not model.checks.get("passed", True):
+        raise InputError(f"{source}: the model fails its well-posedness checks "
+                         f"({', '.join(failed) or 'passed: false'}); re-identify it (sindy-ekf identify)")

@@ -75,6 +75,7 @@ class Candidate:
     hyperparameters: dict | None  # the screening's grid point, None for the lag
     fold_rms_m: np.ndarray  # (folds,) RMS 5 s position error on each held-out fold
     fold_n: np.ndarray  # (folds,) windows per held-out fold
+    fold_yaw_deg: np.ndarray  # (folds,) RMS 5 s heading error on each held-out fold
     complexity: float  # mean number of active terms over the folds
     passed: bool  # every fold's model passed the checks
     failed: tuple[str, ...] = ()
@@ -84,6 +85,12 @@ class Candidate:
         """Return the RMS 5 s position error over all held-out windows."""
         n = self.fold_n.sum()
         return float(np.sqrt(np.sum(self.fold_n * self.fold_rms_m**2) / n)) if n else float("nan")
+
+    @property
+    def cv_yaw_err_5s_deg(self) -> float:
+        """Return the RMS 5 s heading error over all held-out windows."""
+        n = self.fold_n.sum()
+        return float(np.sqrt(np.sum(self.fold_n * self.fold_yaw_deg**2) / n)) if n else float("nan")
 
     @property
     def cv_se_m(self) -> float:
@@ -97,6 +104,7 @@ class Candidate:
         """Return the JSON-ready description."""
         return {"label": self.label, "hyperparameters": self.hyperparameters,
                 "cv_pos_err_5s_m": self.cv_pos_err_5s_m, "cv_se_m": self.cv_se_m,
+                "cv_yaw_err_5s_deg": self.cv_yaw_err_5s_deg,
                 "fold_pos_err_5s_m": [float(v) for v in self.fold_rms_m], "complexity": self.complexity,
                 "passed_checks": self.passed, "failed_checks": list(self.failed)}
 
@@ -173,14 +181,17 @@ def _significance(adj: Adjustment | None) -> tuple[tuple[str, ...], np.ndarray |
     return tuple(f"{e}: {f}" for e, f in adj.terms), np.abs(adj.coef) / adj.coef_std
 
 
-def _fold_score(model, windows: Windows | None) -> tuple[float, int]:
-    """Return the RMS 5 s position error of ``model`` on ``windows`` and their number."""
+def _fold_score(model, windows: Windows | None) -> tuple[float, int, float]:
+    """Return the RMS 5 s position error of ``model`` on ``windows``, their number and the RMS
+    5 s heading error in degrees."""
     if windows is None:
-        return float("nan"), 0
-    eps_p, _ = errors_from_rollout(rollout(model, windows)[..., -1:, :],
-                                   replace(windows, pose_truth=windows.pose_truth[:, -1:], t_rel=windows.t_rel[-1:]))
+        return float("nan"), 0, float("nan")
+    eps_p, eps_h = errors_from_rollout(rollout(model, windows)[..., -1:, :],
+                                       replace(windows, pose_truth=windows.pose_truth[:, -1:],
+                                               t_rel=windows.t_rel[-1:]))
     with np.errstate(over="ignore"):
-        return float(np.sqrt(np.mean(eps_p[:, 0] ** 2))), windows.n_windows
+        return (float(np.sqrt(np.mean(eps_p[:, 0] ** 2))), windows.n_windows,
+                float(np.degrees(np.sqrt(np.mean(eps_h[:, 0] ** 2)))))
 
 
 def select_candidate(candidates: Sequence[Candidate]) -> int:
@@ -287,10 +298,11 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     def collect(label, complexity=None):
         rms = np.array([p[label][0] for p in per_fold])
         n = np.array([p[label][1] for p in per_fold], int)
+        yaw = np.array([p[label][2] for p in per_fold])
         if complexity is not None:
-            return Candidate(label, None, rms, n, complexity, True)
-        failed = [k for p in per_fold for k in p[label][3]]
-        return rms, n, float(np.mean([p[label][2] for p in per_fold])), not failed, tuple(dict.fromkeys(failed))
+            return Candidate(label, None, rms, n, yaw, complexity, True)
+        failed = [k for p in per_fold for k in p[label][4]]
+        return rms, n, yaw, float(np.mean([p[label][3] for p in per_fold])), not failed, tuple(dict.fromkeys(failed))
 
     candidates = tuple(Candidate(label, hp, *collect(label)) for label, hp in specs)
     lag_cv = collect("lag baseline", complexity=6.0)
@@ -323,7 +335,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
                 "output_error": {"names": list(fit.names), "std": [float(v) for v in fit.std],
                                  "rms_pos_m": fit.rms_pos_m, "n_windows": fit.n_windows,
                                  "window_s": OE_WINDOW_S}}
-    hyper = dict(c.hyperparameters or {"structure": "lag"}) | {"dead_time_s": list(model.dead_time_s)}
+    hyper = dict(c.hyperparameters or {"structure": "lag", "s": ref.smoothing}) | {"dead_time_s": list(model.dead_time_s)}
     model = replace(model, checks=checks, training=training, hyperparameters=hyper)
     ident = Identification(model=model, lag=lag, search=result, candidates=candidates, selected=chosen, folds=folds,
                            lag_cv=lag_cv, not_excited=tuple(quiet), notes=tuple(notes))
