@@ -31,7 +31,6 @@ extends. :func:`excitation` says which variables the training data do not excite
 
 from __future__ import annotations
 
-import itertools
 import logging
 from typing import Sequence
 

@@ -8,9 +8,9 @@ scored on the same 5 s windows from the same start states:
   their noise and no more: the given pose sigmas, or a noise level estimated per segment and
   component from the poses' fourth differences when a track has none). Each segment gets its
   own splines, so the rule needs nothing but that segment's poses. Why this rule and not
-  generalised cross-validation: ``docs/reference_states.md`` (GCV interpolates 6 of the 39
-  pose components of the real Warthog runs, a known failure of GCV on correlated errors, and is
-  no better against simulator truth; ``bench/results/reference.md``).
+  generalised cross-validation: ``docs/identification.md`` (GCV is known to interpolate
+  correlated errors; the comparison against simulator truth over the simulator variants is
+  still to be made).
 - **Reference windows**: every window starts from the reference state (smoothed pose and
   velocities) at a pose sample; its pose truth is the measured poses interpolated linearly,
   never smoothed; its inputs are the recorded inputs, held from message to message, with the
