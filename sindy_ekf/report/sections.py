@@ -212,6 +212,12 @@ def section_evaluation(chain: ChainResult) -> Section:
              "Thesis (model B, real data): 14.0 cm and 4.2 deg after 5 s.")
     sec.add(table_html(["model", "pos. error 5 s cm", "heading error 5 s deg"],
                        [[n, f"{100 * e.pos_err_5s_m:.2f}", f"{e.yaw_err_5s_deg:.2f}"] for n, e in errors.items()]))
+    if "lag" in errors:  # the hand-written model to beat (first-order lag per axis with input dead time)
+        model_m, lag_m = errors["sindy"].pos_err_5s_m, errors["lag"].pos_err_5s_m
+        sec.note(f"The identified model beats the lag baseline ({model_m / lag_m:.2f}x its 5 s position error)."
+                 if model_m < lag_m else
+                 f"The identified model does NOT beat the lag baseline (first-order lag per axis with input dead "
+                 f"time, fitted on the train runs): {100 * model_m:.2f} cm against {100 * lag_m:.2f} cm.")
     sec.figures([(lambda: plot_error_curves([sindy]), "SINDy model: per-window errors and s_p(t), s_h(t)"),
                  (lambda: plot_error_curves(list(ev.values()), stacked=False), "all models: s_p(t), s_h(t)")])
     return sec
