@@ -5,7 +5,8 @@ Problem
     multipath outliers) that drops out for 5 and 10 s. Six estimators of its pose are compared
     against the ground truth of a test run: dead reckoning on the identified model (no GNSS),
     EKFs with a constant-velocity, a kinematic unicycle, a first-order lag and the identified
-    SINDy model, and a factor-graph smoother (gtsam, Levenberg-Marquardt over the whole run) with the SINDy model.
+    SINDy model, and a factor-graph smoother (gtsam, Levenberg-Marquardt over the whole run)
+    with the SINDy model.
 
 Model
     State ``[x, y, psi, vx, vy, omega]``; the pose follows eq. 5.75, the body velocities the
