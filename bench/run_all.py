@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "estimation", "ekf_speed", "real", "real_cli",
+ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "identification", "estimation", "ekf_speed", "real", "real_cli",
          "diagnose", "demo"]
 
 
