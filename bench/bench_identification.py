@@ -137,7 +137,8 @@ def markdown(lodo: list[dict], walls: dict, sim: dict | None, command: str) -> s
         lines.append(f"- {r['campaign']} train {r['train_day']} ({r['grid']}, {r['grid_size']} points; {r['cv']}):")
         lines += [f"    - `{eq}`" for eq in r["equations"]]
         lines.append("    - start-state sensitivity (s: identified / lag, m): " + ", ".join(
-            f"{s}: {v.get(MODEL, float('nan')):.3f} / {v.get(LAG, float('nan')):.3f}" for s, v in r["sensitivity"].items()))
+            f"{s}: {v.get(MODEL, float('nan')):.3f} / {v.get(LAG, float('nan')):.3f}"
+            for s, v in r["sensitivity"].items()))
     if walls:
         lines += ["", "## identify wall time on each real campaign (its own train split, target <= 60 s)", ""]
         lines += [f"- {n}: {w:.0f} s ({'met' if w <= 60 else 'NOT met'})" for n, w in walls.items()]
@@ -159,6 +160,7 @@ def main(argv=None) -> int:
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--quick", action="store_true", help="the quick grids (for a smoke run; not the recorded figures)")
     p.add_argument("--no-sim", action="store_true", help="leave out the simulated campaign")
+    p.add_argument("--no-lodo", action="store_true", help="leave out the leave-one-day-out part")
     p.add_argument("--no-walls", action="store_true", help="leave out the wall time on the campaigns' own splits")
     p.add_argument("--sim", type=Path, default=Path("/tmp/sindy_ekf_bench_identification_sim"),
                    help="where the default simulated campaign is (simulated there when missing)")
@@ -176,7 +178,8 @@ def main(argv=None) -> int:
         print(args.out.read_text())
         return 0
     found = {"command": command.strip(), "leave_one_day_out": [], "identify_wall_s": {}, "simulated": None}
-    for name in CAMPAIGNS:  # the figures are saved after every step: a crash keeps what was measured
+    # the figures are saved after every step: a crash keeps what was measured
+    for name in () if args.no_lodo else CAMPAIGNS:
         found["leave_one_day_out"] += leave_one_day_out(name, args.jobs, args.quick)
         atomic_write_json(raw, found)
     for name in () if args.no_walls else CAMPAIGNS:

@@ -20,9 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gnss", default="dgnss", choices=sorted(PROFILES), help="GNSS profile (default dgnss)")
     p.add_argument("--seed", type=int, default=0, help="seed of the GNSS errors (default 0)")
     p.add_argument("--estimators", default=None, metavar="A,B,...",
-                   help="comma-separated subset (default: all available: dead_reckoning, cv_ekf, unicycle_ekf, lag_ekf, "
-                        "sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), oracle_ekf on "
-                        "simulated campaigns, sindy_graph, sindy_graph_lateral, sindy_isam2)")
+                   help="comma-separated subset (default: all available: dead_reckoning, cv_ekf, unicycle_ekf, "
+                        "lag_ekf, sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), oracle_ekf "
+                        "on simulated campaigns, sindy_graph, sindy_graph_lateral, sindy_isam2)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write TUM files of every estimate, the JSON and the plots into DIR")
