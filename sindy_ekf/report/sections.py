@@ -179,7 +179,9 @@ def section_identification(chain: ChainResult) -> Section:
     if _absent_or_failed(sec, chain, ("identification",)):
         return sec
     model = chain.model
-    hp = ", ".join(f"{k} = {v:g}" for k, v in model.hyperparameters.items())
+    # numbers as %g; the library name, the lag structure's name and the dead times as they are
+    hp = ", ".join(f"{k} = {v:g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else f"{k} = {v}"
+                   for k, v in model.hyperparameters.items())
     src = f"loaded from {chain.model_path}" if chain.search is None else f"selected by the grid search ({hp})"
     sec.note(f"Integral SINDy (eqs. 5.55 to 5.59), library {model.library.name}, {model.complexity} active "
              f"terms, {src}.")
@@ -191,6 +193,8 @@ def section_identification(chain: ChainResult) -> Section:
              f"{100 * r['pos_err_5s_m']:.2f}", f"{r['yaw_err_5s_deg']:.2f}"] for i, r in enumerate(res.ranking(8), 1)]
     sec.add(table_html(["rank", "s", "tau s", "alpha", "T", "terms", "CV pos 5 s cm", "CV yaw 5 s deg"], rows))
     s = float(model.hyperparameters["s"])
+    if s not in set(np.asarray(res.table["s"], float).tolist()):  # the lag structure: not a grid point
+        s = float(res.table["s"][0])
     items = [(lambda: plot_grid(res, s), f"grid over alpha and T at s = {s:g} (figs. 7.4-7.7)"),
              (lambda: plot_error_vs_complexity(res), "5 s errors against complexity (fig. 7.10)")]
     if res.top_models:
