@@ -48,7 +48,7 @@ from identification.sindy.checks import (
     self_terms,
 )
 from identification.sindy.evaluate import Windows, errors_from_rollout, rollout
-from identification.sindy.library import LIBRARY_VARIABLE_NAMES, make_library
+from identification.sindy.library import LIBRARY_VARIABLE_NAMES
 from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
 from identification.sindy.output_error import (
     OE_DT,
@@ -254,7 +254,12 @@ def _fold_job(job) -> dict:
     out = {"lag baseline": _fold_score(fold_lag, held)}
     cache: dict = {}
     for label, hp in specs:
-        start, adj = _initial(label, hp, result, cache, excluded, train, fold_lag, fold_ref.states)
+        try:
+            start, adj = _initial(label, hp, result, cache, excluded, train, fold_lag, fold_ref.states)
+        except InputError as exc:  # more active terms than independent windows: significance unjudgeable
+            log.info("fold %d, %s: %s; not admissible", f, label, exc)
+            out[label] = (float("nan"), 0, float("nan"), float("nan"), ["significance"])
+            continue
         model, fit = refine(start, fold_oe, excluded)
         checks = run_checks(model, fold_ref.states, *_significance(adj), accel_max)
         out[label] = _fold_score(model, held) + (model.complexity, [k for k, v in checks.items()
@@ -312,7 +317,11 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     cache: dict = {}
     for i in [chosen] + [j for j in order if j != chosen and candidates[j].passed]:
         c = candidates[i]
-        start, adj = _initial(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states)
+        try:
+            start, adj = _initial(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states)
+        except InputError as exc:  # more active terms than independent windows: significance unjudgeable
+            log.warning("identification: candidate %s refitted on all train runs: %s; trying the next", c.label, exc)
+            continue
         model, fit = refine(start, all_oe, excluded)
         checks = run_checks(model, ref.states, *_significance(adj), accel_max)
         if checks["passed"]:
