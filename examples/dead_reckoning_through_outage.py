@@ -10,7 +10,7 @@ Model
     State ``[x, y, psi, vx, vy, omega]``: pose in the local frame and body velocities. The pose
     follows the kinematics of eq. 5.75; the velocities follow a body model stepped by RK4 with
     the exact chain-rule Jacobian (``sindy_ekf.estimation.process_models``): the SINDy model identified on
-    the train runs (integral SINDy, eqs. 5.55 to 5.59), a unicycle with first-order lags fitted
+    the train runs (integral SINDy, eqs. 5.55 to 5.59), a first-order lag per axis and a kinematic unicycle fitted
     on the same runs, constant velocity, and the simulator's true dynamics as the best possible
     reference. The process noise of each is fitted from its one-step residuals on the train
     runs. GNSS (``simulation.gnss``, RTK profile, 10 Hz, 50 ms latency) measures the antenna at a
@@ -26,7 +26,7 @@ import numpy as np
 
 from identification.preprocessing.campaigns import open_campaign
 from identification.preprocessing.trajectory import write_trajectory_campaign
-from identification.sindy.baselines import ConstantVelocityModel, LagModel
+from identification.sindy.baselines import ConstantVelocityModel, LagModel, UnicycleModel
 from identification.sindy.data import states_of_runs
 from identification.sindy.regression import fit_sindy
 from simulation.robot import TrueDynamics
@@ -67,8 +67,9 @@ def main(campaign: str | Path | None = None) -> dict:
     series = [state_series_from_body_states(st, f"train{i}") for i, st in enumerate(train)]
 
     sindy = fit_sindy(train, "poly3", tau=TAU_S, alpha=ALPHA, threshold=THRESHOLD, smoothing=SMOOTHING)
-    # "unicycle": the unicycle with first-order lag (issue 13 splits it into lag and kinematic unicycle)
-    models = {"sindy": ProcessModel(sindy), "unicycle": ProcessModel(LagModel().fit(train)),
+    # "lag": first-order lag per axis toward gain x input; "unicycle": the kinematic unicycle
+    models = {"sindy": ProcessModel(sindy), "lag": ProcessModel(LagModel().fit(train)),
+              "unicycle": ProcessModel(UnicycleModel().fit(train)),
               "constant_velocity": ProcessModel(ConstantVelocityModel())}
     if simulated:
         models["true_dynamics"] = ProcessModel(TrueDynamics(), "true_dynamics")

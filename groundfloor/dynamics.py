@@ -19,6 +19,11 @@ place where models differ in how the pose moves, so no caller asks a model what 
 
 Time ``t`` (s) is the time since the start of the run; no model of the project reads it today
 (time-dependent mechanisms act on the inputs), but every call passes it.
+
+Input dead time: a model that sees its inputs late, ``u_i(t - d_i)``, says so in
+:attr:`Dynamics.dead_time_s` (``(d1, d2)`` in seconds, zero by default). The model's methods take
+the inputs it sees; whoever drives it (the multi-step evaluation, the filters) feeds it the
+recorded inputs delayed by that much.
 """
 
 from __future__ import annotations
@@ -96,6 +101,7 @@ class Dynamics(ABC):
     """
 
     name: str = "dynamics"
+    dead_time_s: tuple[float, float] = (0.0, 0.0)  # input dead times (d1, d2): the model sees u_i(t - d_i)
 
     # -- to implement --------------------------------------------------------------------------
     @abstractmethod

@@ -160,6 +160,7 @@ class TrajectoryRun:
     poses: PoseTrack
     inputs: InputSeries
     repairs: dict[str, int] = field(default_factory=dict)  # what was repaired -> count
+    group: str = ""  # the day or session it was recorded in (campaign.yaml ``group``), "" when not given
 
 
 @dataclass(frozen=True)

@@ -188,7 +188,7 @@ def unwrap_yaw(yaw: np.ndarray) -> np.ndarray:
     return yaw
 
 
-def _read_run(run_dir: Path, name: str, split: str) -> TrajectoryRun:
+def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> TrajectoryRun:
     """Return one validated run of a trajectory campaign (see the module docstring)."""
     repairs: dict[str, int] = {}
     poses_path, inputs_path = run_dir / "poses.csv", run_dir / "inputs.csv"
@@ -228,7 +228,7 @@ def _read_run(run_dir: Path, name: str, split: str) -> TrajectoryRun:
         log.warning("run %s: %s", name, ", ".join(f"{k}={v}" for k, v in problems.items()))
     poses = PoseTrack(**{c: np.ascontiguousarray(pc[c]) for c in POSE_COLUMNS})
     inputs = InputSeries(t=ic["t"], u1=ic["u1"], u2=ic["u2"])
-    return TrajectoryRun(name=name, split=split, poses=poses, inputs=inputs, repairs=repairs)
+    return TrajectoryRun(name=name, split=split, poses=poses, inputs=inputs, repairs=repairs, group=group)
 
 
 def _load_yaml(path: Path) -> dict:
@@ -258,6 +258,8 @@ def _load_yaml(path: Path) -> dict:
                              "expected 'train' or 'test'")
         if r["name"] in seen:
             raise InputError(f"{path}: run {r['name']} listed twice")
+        if r.get("group") is not None and not isinstance(r["group"], (str, int)):
+            raise InputError(f"{path}: run {r['name']}: key 'group' is {r['group']!r}, expected a name")
         seen.add(r["name"])
     return meta
 
@@ -289,7 +291,7 @@ def read_trajectory_campaign(path: str | os.PathLike) -> TrajectoryCampaign:
         run_dir = root / "runs" / r["name"]
         if not run_dir.is_dir():
             raise InputError(f"{yaml_path}: run {r['name']}: folder {run_dir} missing")
-        runs.append(_read_run(run_dir, r["name"], r["split"]))
+        runs.append(_read_run(run_dir, r["name"], r["split"], str(r.get("group") or "")))
     return TrajectoryCampaign(root=root, name=str(meta.get("name") or root.name), runs=tuple(runs))
 
 
@@ -341,7 +343,8 @@ def write_trajectory_campaign(out_dir: str | os.PathLike, name: str,
         if s is not None and len({getattr(s, c).size for c in STATE_COLUMNS}) != 1:
             raise InputError(f"run {r.name}: BodyStates arrays differ in length")
     meta = {"name": name, "kind": "trajectory", **provenance,
-            "runs": [{"name": r.name, "split": r.split} for r, _ in runs]}
+            "runs": [{"name": r.name, "split": r.split} | ({"group": r.group} if r.group else {})
+                     for r, _ in runs]}
     with atomic_output_dir(out_dir, force=force) as tmp:
         (tmp / "campaign.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
         for run, states in runs:

@@ -12,6 +12,12 @@ product whatever the model's size. Two evaluations share that table:
   step), not the arithmetic, was the cost (``bench/results/ekf_speed.md``). It computes what
   ``groundfloor.dynamics.Dynamics.rk4_step_and_jacobians`` computes from :meth:`__call__`; the
   tests hold the two against each other and against finite differences.
+
+Both evaluate *frozen extrapolation* when given the widened training envelope of the body
+velocities: the nonlinear terms see the velocities clamped to it while the constant and linear
+terms go on linearly (:class:`identification.sindy.model.SindyModel`). :class:`StackedSindy` is
+many models of one library as one :class:`groundfloor.dynamics.Dynamics`, for the search's
+rollout of all its grid points at once.
 """
 
 from __future__ import annotations
@@ -22,11 +28,28 @@ from itertools import combinations_with_replacement
 import numpy as np
 from numba import njit
 
+from groundfloor.dynamics import Dynamics
 from identification.sindy.library import FeatureLibrary
 
 N_X = 6  # [x, y, psi, vx, vy, omega] (eq. 5.60)
 N_OUT_X = 3 + 18  # accelerations and J_a_x (3, 6): the columns the EKF's F needs
 N_OUT = N_OUT_X + 6  # and J_a_u (3, 2)
+
+
+def linear_part(library: FeatureLibrary, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the constant ``b (3,)`` and the matrix ``W (3, 5)`` of the linear columns of ``coef``."""
+    b, W = np.zeros(3), np.zeros((3, len(library.variables)))
+    for j, atoms in enumerate(library.atoms):
+        if not atoms:
+            b += coef[:, j]
+        elif len(atoms) == 1 and atoms[0][1] == 0:
+            W[:, atoms[0][0]] += coef[:, j]
+    return b, W
+
+
+def linear_columns(library: FeatureLibrary) -> np.ndarray:
+    """Return per feature whether it is the constant or a plain variable (extrapolates linearly)."""
+    return np.array([len(a) == 0 or (len(a) == 1 and a[0][1] == 0) for a in library.atoms])
 
 
 class ActiveTerms:
@@ -42,14 +65,26 @@ class ActiveTerms:
     (at most three) atoms from a table of atom values and their derivatives instead. The filters
     evaluate the model four times per step on a few runs at a time, where numpy's per-call
     overhead, not the arithmetic, is the cost.
+
+    With ``frozen = (lo (3,), hi (3,))`` the nonlinear terms are evaluated at the body velocities
+    clamped to ``[lo, hi]`` (a clamped velocity moves none of them) and the constant and linear
+    terms at the velocities themselves.
     """
 
     # atom code (^1, ^2, ^3, abs, signsq) -> table block of its value; of its derivative and factor
     _VALUE = ("z", "z2", "z3", "abs", "zabs")
     _DERIV = ((None, 1.0), ("z", 2.0), ("z2", 3.0), ("sign", 1.0), ("abs", 2.0))
 
-    def __init__(self, library: FeatureLibrary, coef: np.ndarray):
+    def __init__(self, library: FeatureLibrary, coef: np.ndarray, frozen: tuple | None = None):
         nv = len(library.variables)  # [vx, vy, omega, u1, u2]
+        self.frozen = frozen is not None
+        self.lo, self.hi = (np.full(3, -np.inf), np.full(3, np.inf)) if frozen is None else \
+            (np.asarray(frozen[0], float).copy(), np.asarray(frozen[1], float).copy())
+        self.lin_b, self.lin_W = np.zeros(3), np.zeros((3, nv))
+        if self.frozen:
+            lin = linear_columns(library)
+            self.lin_b, self.lin_W = linear_part(library, np.where(lin, coef, 0.0))
+            coef = np.where(lin, 0.0, coef)
         self.n_vars = nv
         self.monomials = all(code <= 2 for atoms in library.atoms for _, code in atoms) and \
             all(sum(code + 1 for _, code in atoms) <= 3 for atoms in library.atoms)
@@ -118,6 +153,10 @@ class ActiveTerms:
         lead = v_body.shape[:-1]
         n = math.prod(lead)
         weight = self.weight if jacobians else self.weight_a
+        if self.frozen:
+            v_free = v_body
+            linear = self.lin_b + v_free @ self.lin_W[:, :3].T + u @ self.lin_W[:, 3:].T
+            v_body = np.clip(v_free, self.lo, self.hi)
         if self.monomials:
             # the monomial table, one row per monomial: each degree is one gather and one product
             # written in place, a handful of numpy calls whatever the model's size
@@ -136,8 +175,13 @@ class ActiveTerms:
             out = (g[:, 0, :] * g[:, 1, :] * g[:, 2, :]) @ weight
         out = out.reshape(lead + (weight.shape[1],))
         if not jacobians:
-            return out
-        return out[..., :3], out[..., 3:21].reshape(lead + (3, 6)), out[..., 21:].reshape(lead + (3, 2))
+            return out + linear if self.frozen else out
+        a, J_x, J_u = out[..., :3], out[..., 3:21].reshape(lead + (3, 6)), out[..., 21:].reshape(lead + (3, 2))
+        if self.frozen:  # a clamped velocity moves no nonlinear term; the linear ones add theirs
+            J_x[..., 3:] *= (v_body == v_free)[..., None, :]
+            J_x[..., 3:] += self.lin_W[:, :3]
+            return a + linear, J_x, J_u + self.lin_W[:, 3:]
+        return a, J_x, J_u
 
     def rk4_step(self, x6: np.ndarray, u: np.ndarray, dt, input_jacobian: bool = True
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -161,7 +205,8 @@ class ActiveTerms:
         x_next, F = np.empty((m, N_X)), np.empty((m, N_X, N_X))
         G = np.empty((m, N_X, 2) if input_jacobian else (0, N_X, 2))
         _rk4_steps(x, uu, h, input_jacobian, self._n_table, self.monomials, self._prod_rows, self._prod_f0,
-                   self._prod_f1, self.index, self._rows, self.weight, x_next, F, G)
+                   self._prod_f1, self.index, self._rows, self.weight, self.frozen, self.lo, self.hi,
+                   self.lin_b, self.lin_W, x_next, F, G)
         return (x_next.reshape(lead + (N_X,)), F.reshape(lead + (N_X, N_X)),
                 G.reshape(lead + (N_X, 2)) if input_jacobian else None)
 
@@ -204,18 +249,22 @@ def _terms_into(out: np.ndarray, table: np.ndarray, z: np.ndarray, n_out: int, m
 @njit(cache=True)
 def _rk4_steps(x: np.ndarray, u: np.ndarray, dt: np.ndarray, want_g: bool, n_table: int, monomials: bool,
                prod_rows: np.ndarray, prod_f0: np.ndarray, prod_f1: np.ndarray, index: np.ndarray,
-               rows: np.ndarray, weight: np.ndarray, x_next: np.ndarray, F: np.ndarray, G: np.ndarray) -> None:
+               rows: np.ndarray, weight: np.ndarray, frozen: bool, lo: np.ndarray, hi: np.ndarray,
+               lin_b: np.ndarray, lin_W: np.ndarray, x_next: np.ndarray, F: np.ndarray, G: np.ndarray) -> None:
     """Write the held-input RK4 step (eqs. 5.70, 5.71) of every sample and its exact Jacobians.
 
     ``x (m, 6)``, ``u (m, 2)``, ``dt (m,)``; out: ``x_next (m, 6)``, ``F (m, 6, 6)`` and, if
     ``want_g``, ``G (m, 6, 2)``. Each stage evaluates the eq. 5.75 derivative (body velocities
     rotated by ``psi``, accelerations from :func:`_terms_into`) with its Jacobians ``A_s``,
     ``B_s``; the step's Jacobians follow the chain rule ``D_s = A_s (I + c_s h D_{s-1})``.
+    With ``frozen`` the nonlinear terms see the body velocities clamped to ``[lo, hi]`` and the
+    linear part ``lin_b + lin_W z`` is added (:class:`ActiveTerms`).
     """
     n_out = N_OUT if want_g else N_OUT_X
     table = np.empty(n_table)
     acc = np.empty(N_OUT)
     z = np.empty(5)
+    zc = np.empty(5)
     xs = np.empty(N_X)
     k = np.empty((4, N_X))
     A = np.zeros((4, N_X, N_X))
@@ -234,7 +283,22 @@ def _rk4_steps(x: np.ndarray, u: np.ndarray, dt: np.ndarray, want_g: bool, n_tab
             for j in range(N_X):
                 xs[j] = x[i, j] + (c * k[s - 1, j] if s > 0 else 0.0)
             z[0], z[1], z[2], z[3], z[4] = xs[3], xs[4], xs[5], u[i, 0], u[i, 1]
-            _terms_into(acc, table, z, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
+            if frozen:
+                for v in range(5):
+                    zc[v] = min(max(z[v], lo[v]), hi[v]) if v < 3 else z[v]
+                _terms_into(acc, table, zc, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
+                for e in range(3):
+                    acc[e] += lin_b[e]
+                    for v in range(5):
+                        acc[e] += lin_W[e, v] * z[v]
+                    for v in range(3):
+                        c_ev = 3 + 6 * e + 3 + v
+                        acc[c_ev] = (acc[c_ev] if zc[v] == z[v] else 0.0) + lin_W[e, v]
+                    if want_g:
+                        acc[21 + 2 * e] += lin_W[e, 3]
+                        acc[22 + 2 * e] += lin_W[e, 4]
+            else:
+                _terms_into(acc, table, z, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
             cp, sp = math.cos(xs[2]), math.sin(xs[2])
             k[s, 0] = cp * xs[3] - sp * xs[4]
             k[s, 1] = sp * xs[3] + cp * xs[4]
@@ -280,3 +344,34 @@ def _rk4_steps(x: np.ndarray, u: np.ndarray, dt: np.ndarray, want_g: bool, n_tab
             if want_g:
                 for q in range(2):
                     G[i, r, q] = (hh / 3.0) * Gs[r, q]
+
+
+class StackedSindy(Dynamics):
+    """Many SINDy models of one library as one dynamics: ``coef (M, 3, k)``, states ``(M, W, 6)``.
+
+    The search's rollout predicts the held-out windows ``(W,)`` of all ``M`` models at once;
+    inputs ``(W, 2)`` are shared by the models.
+    """
+
+    name = "stacked_sindy"
+
+    def __init__(self, library: FeatureLibrary, coef: np.ndarray, dead_time_s=(0.0, 0.0)):
+        self.library, self.coef = library, coef
+        self.dead_time_s = dead_time_s  # (2,) shared by the models, or (M, 2)
+
+    def _features(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return the library's variables ``(M, W, 5)`` at states ``(M, W, 6)`` and inputs ``(W, 2)``."""
+        return np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (2,))], axis=-1)
+
+    def accel(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
+        """Return accelerations ``(M, W, 3)``."""
+        theta = self.library.transform(self._features(x6, u))
+        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False)
+
+    def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
+        """Return accelerations ``(M, W, 3)`` and their Jacobians ``(M, W, 3, 6)``, ``(M, W, 3, 2)``."""
+        theta, d_theta = self.library.transform_with_jacobian(self._features(x6, u))
+        J_a_z = np.einsum("mwvk,mek->mwev", d_theta, self.coef, optimize=False)
+        J_a_x = np.zeros(J_a_z.shape[:-1] + (6,))
+        J_a_x[..., 3:] = J_a_z[..., :3]
+        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False), J_a_x, J_a_z[..., 3:]

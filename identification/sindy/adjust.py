@@ -113,6 +113,51 @@ def adjust_coefficients(model: SindyModel, problem: IntegralProblem, rows: np.nd
                       condition_number=cond, n_obs=len(theta))
 
 
+def nonoverlapping_rows(problem: IntegralProblem) -> np.ndarray:
+    """Return a boolean mask of windows that do not overlap: per run, each starts a window length
+    ``tau`` after the last kept one. Their residuals are (nearly) independent, so the adjustment's
+    standard errors on them are not optimistic (overlapping windows share most of their samples)."""
+    keep = np.zeros(problem.n_windows, bool)
+    for r in np.unique(problem.run_index):
+        idx = np.flatnonzero(problem.run_index == r)
+        next_t = -np.inf
+        for i in idx[np.argsort(problem.t_start[idx], kind="stable")]:
+            if problem.t_start[i] >= next_t - 1e-9:
+                keep[i] = True
+                next_t = problem.t_start[i] + problem.tau
+    return keep
+
+
+def prune_insignificant(model: SindyModel, problem: IntegralProblem, protected: np.ndarray, min_t: float = 2.0,
+                        rows: np.ndarray | None = None, fixed: np.ndarray | None = None
+                        ) -> tuple[SindyModel, Adjustment]:
+    """Return ``model`` with its non-significant terms dropped one by one, and the last adjustment.
+
+    Backward elimination on the adjustment of eq. 5.79 over non-overlapping windows
+    (:func:`nonoverlapping_rows`, within ``rows`` when given): while some term that is not
+    ``protected`` (a ``(3, k)`` mask) has ``|coefficient| / std < min_t``, the weakest one is
+    dropped and the rest readjusted (one at a time: collinear terms, the thesis's finding, can
+    each look insignificant while together they are not). The returned coefficients are the
+    adjustment's; terms in ``fixed`` (a ``(3, k)`` mask) are neither adjusted nor dropped.
+    """
+    keep = nonoverlapping_rows(problem) if rows is None else nonoverlapping_rows(problem) & rows
+    fixed = np.zeros(model.coef.shape, bool) if fixed is None else np.asarray(fixed, bool)
+    held = np.where(fixed, model.coef, 0.0)
+    while True:
+        free_model = model.with_coefficients(np.where(fixed, 0.0, model.coef))
+        adj = adjust_coefficients(free_model, problem, rows=keep)
+        t = np.abs(adj.coef) / np.where(adj.coef_std > 0, adj.coef_std, np.inf)
+        eq, col = np.nonzero(free_model.coef)  # the adjustment's parameter order
+        free = ~protected[eq, col]
+        coef = held.copy()
+        coef[eq, col] = adj.coef
+        if not free.any() or t[free].min() >= min_t:
+            return model.with_coefficients(coef), adj
+        k = np.flatnonzero(free)[np.argmin(t[free])]
+        coef[eq[k], col[k]] = 0.0
+        model = model.with_coefficients(coef)
+
+
 def subsample_low_acceleration(problem: IntegralProblem, keep_fraction: float = 0.2, quantile: float = 0.5,
                                seed: int = 0) -> np.ndarray:
     """Return a boolean mask of windows: all high-acceleration windows, a random few low ones.

@@ -1,17 +1,61 @@
-"""Questions asked of an identified model, without fitting anything: is it stable at rest?
+"""Questions asked of an identified model and of its training data, without fitting anything.
 
-The search ranks grid points by these checks, the diagnosis asks them of the models it
-extends, and the examples of the models they pick; none of them needs the search to ask.
+Well-posedness (issue 13, item 4): a model the package selects must pass all of these, and its
+file records them (``checks`` in the model JSON, :func:`run_checks`):
+
+- **stable at rest**: every eigenvalue of ``J_f_x(0, 0)`` has a real part <= :data:`STABILITY_TOL`
+  (a robot left alone comes to rest);
+- **contribution bound**: no active nonlinear term contributes more than
+  :data:`CONTRIBUTION_FACTOR` times the largest measured body acceleration of its equation at
+  any training sample (:func:`contribution_bound`): a term that only fits by cancelling another
+  huge one, or a huge coefficient on a feature the data barely move (powers of ``vy`` when ``vy``
+  is millimetres per second), fails. Linear terms are exempt: a fast first-order lag
+  (``-vx / tau + k u1 / tau`` with ``tau`` of tens of milliseconds, what measured wheel speeds
+  give) has large, cancelling, well-determined linear terms, and the linear part is what the
+  stability and dissipativity checks judge;
+- **dissipative outside the envelope**: from training states with one body velocity pushed one
+  envelope width beyond the envelope (inputs as they were), the derivative points back toward
+  it, measured by the Lyapunov function of the model's linear part (:func:`dissipativity`), so
+  an estimator's wandering state cannot run away;
+- **significant terms**: every active coefficient beyond the first-order lag's is at least
+  :data:`MIN_T_STAT` standard errors from zero (the output-error fit's cluster-robust standard
+  errors). The lag's own terms (:func:`lag_core`: each state's damping by itself, each input's
+  gain on its axis) are the model class's base and are not tested one by one: a fast lag's two
+  terms are strongly correlated (only their ratio, the gain, is sharp), so each alone can look
+  insignificant although dropping either destroys the model; without the damping a state drifts
+  with whatever it starts from.
+
+The search ranks grid points by stability at rest; the diagnosis asks it of the models it
+extends. :func:`excitation` says which variables the training data do not excite.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import logging
+from typing import Sequence
 
-from identification.sindy.library import FeatureLibrary
+import numpy as np
+from scipy.linalg import solve_continuous_lyapunov
+
+from groundfloor.errors import InputError
+from groundfloor.types import BodyStates
+from identification.sindy.library import LIBRARY_STATE_NAMES, LIBRARY_VARIABLE_NAMES, FeatureLibrary
 from identification.sindy.model import SindyModel
 
+log = logging.getLogger(__name__)
+
 STABILITY_TOL = 1e-9  # largest real part of an eigenvalue of J_f_x at rest still counted as stable
+#: a term may contribute at most this many times the largest measured acceleration of its equation
+CONTRIBUTION_FACTOR = 10.0
+#: how far beyond the envelope (in its widths) the dissipativity check pushes a state
+DISSIPATIVE_WIDTHS = 1.0
+#: percentile of |measured acceleration| taken as "the largest" (robust to a single glitch)
+ACCEL_PERCENTILE = 99.0
+#: smallest |coefficient| / standard error of a kept term (about 95 % two-sided)
+MIN_T_STAT = 2.0
+#: below this standard deviation over the train runs an input (dimensionless, about [-1, 1]) or a
+#: body velocity (m/s, rad/s: what pose noise alone makes) is not excited
+MIN_EXCITATION = 0.01
 
 
 def max_re_eig_at_rest(library: FeatureLibrary, coef: np.ndarray) -> np.ndarray:
@@ -28,3 +72,162 @@ def max_re_eig_at_rest(library: FeatureLibrary, coef: np.ndarray) -> np.ndarray:
 def stable_at_rest(model: SindyModel) -> bool:
     """Return whether the model comes to rest by itself: :func:`max_re_eig_at_rest` <= :data:`STABILITY_TOL`."""
     return bool(max_re_eig_at_rest(model.library, model.coef) <= STABILITY_TOL)
+
+
+def measured_accel_max(states: Sequence[BodyStates]) -> np.ndarray:
+    """Return the largest measured body acceleration per equation ``(3,)`` (the
+    :data:`ACCEL_PERCENTILE` of ``|dv/dt|`` of the states, by central differences per segment)."""
+    acc = [np.gradient(st.state, st.t, axis=0) for st in states if len(st.t) > 2]
+    return np.percentile(np.abs(np.vstack(acc)), ACCEL_PERCENTILE, axis=0)
+
+
+def contribution_bound(model: SindyModel, states: Sequence[BodyStates], accel_max: np.ndarray | None = None,
+                       factor: float = CONTRIBUTION_FACTOR) -> dict:
+    """Return the contribution check: the largest ``|xi_ej theta_j|`` over the training samples
+    per active nonlinear term against ``factor`` times the largest measured acceleration of equation ``e``.
+
+    Returns ``{"passed", "worst_term", "worst_ratio", "factor", "accel_max"}`` (ratio 1 = at the bound).
+    """
+    accel_max = measured_accel_max(states) if accel_max is None else np.asarray(accel_max, float)
+    z = np.vstack([np.column_stack([st.state, st.inputs]) for st in states])
+    theta = model.features(z)
+    worst, worst_term = 0.0, ""
+    for e, j in zip(*np.nonzero(model.coef * ~model.linear_columns)):
+        ratio = float(np.max(np.abs(model.coef[e, j] * theta[:, j])) / (factor * max(accel_max[e], 1e-9)))
+        if ratio > worst:
+            worst, worst_term = ratio, f"{LIBRARY_STATE_NAMES[e]}: {model.library.feature_names[j]}"
+    return {"passed": bool(worst <= 1.0), "worst_term": worst_term, "worst_ratio": worst, "factor": factor,
+            "accel_max": [float(a) for a in accel_max]}
+
+
+def dissipativity(model: SindyModel, states: Sequence[BodyStates], n_samples: int = 200) -> dict:
+    """Return the dissipativity check: from training states pushed out of the envelope, the
+    derivatives point back toward it.
+
+    With frozen extrapolation (:class:`~identification.sindy.model.SindyModel`) the model
+    outside its envelope continues linearly from the envelope's edge with its linear part ``A``,
+    ``f(v) = f(v_edge) + A (v - v_edge)``, so a state cannot run away exactly when ``A`` is stable
+    (the check "stable at rest"). How far out the edge's acceleration can still push is measured
+    with the quadratic Lyapunov function ``V`` of ``A`` (``A^T P + P A = -I`` in coordinates
+    scaled by the envelope's widths ``w``, centred on the envelope): ``n_samples`` training
+    samples (evenly spread) are each pushed, one body velocity at a time, to
+    :data:`DISSIPATIVE_WIDTHS` widths beyond the envelope on either side, with the other
+    velocities and the inputs as they were; at every such state ``dV/dt`` must be negative. The
+    states are those an estimator reaches when one velocity wanders off, not the corners of the
+    envelope's box (a reversing robot at full forward throttle and full left steering), where a
+    polynomial fitted on the data means nothing. Returns ``{"passed", "worst_rate",
+    "worst_state", "n_points"}`` (``worst_rate`` the largest ``dV/dt``, 1/s in the scaled units);
+    without an envelope it passes vacuously with ``n_points`` 0.
+    """
+    env = model.envelope or {}
+    if not all(v in env for v in LIBRARY_VARIABLE_NAMES):
+        return {"passed": True, "worst_rate": None, "worst_state": None, "n_points": 0}
+    lo = np.array([env[v][0] for v in LIBRARY_STATE_NAMES], float)
+    hi = np.array([env[v][1] for v in LIBRARY_STATE_NAMES], float)
+    w = np.maximum(hi - lo, 1e-6)
+    c = 0.5 * (lo + hi)
+    A = model.f_and_jacobians(np.zeros(3), np.zeros(2))[1]  # the linear part: J_f_x at rest
+    A_scaled = A * w[None, :] / w[:, None]
+    if not np.all(np.isfinite(A_scaled)) or np.linalg.eigvals(A_scaled).real.max() >= 0:
+        return {"passed": False, "worst_rate": float("inf"), "worst_state": None, "n_points": 0,
+                "reason": "linear part not stable: no way back from far outside"}
+    P = solve_continuous_lyapunov(A_scaled.T, -np.eye(3))
+    z = np.vstack([np.column_stack([st.state, st.inputs]) for st in states])
+    z = z[np.round(np.linspace(0, len(z) - 1, min(n_samples, len(z)))).astype(int)]
+    pushed = []
+    for i in range(3):
+        for edge in (lo[i] - DISSIPATIVE_WIDTHS * w[i], hi[i] + DISSIPATIVE_WIDTHS * w[i]):
+            p = z.copy()
+            p[:, i] = edge
+            pushed.append(p)
+    z = np.vstack(pushed)
+    rate = 2.0 * np.einsum("ni,ij,nj->n", (z[:, :3] - c) / w, P, model.f(z[:, :3], z[:, 3:]) / w)
+    rate = np.where(np.isfinite(rate), rate, np.inf)
+    k = int(np.argmax(rate))
+    return {"passed": bool(rate[k] < 0), "worst_rate": float(rate[k]),
+            "worst_state": dict(zip(LIBRARY_VARIABLE_NAMES, map(float, z[k]))), "n_points": int(len(z))}
+
+
+def self_terms(model: SindyModel) -> np.ndarray:
+    """Return the mask ``(3, k)`` of each state's damping by itself (``vx`` in the ``vx`` equation, ...)."""
+    return _linear_terms(model, ((0, 0), (1, 1), (2, 2)))
+
+
+def lag_core(model: SindyModel) -> np.ndarray:
+    """Return the mask ``(3, k)`` of the first-order lag's terms: the self-damping of each state
+    and each input's gain on its axis (``u1`` in the ``vx`` equation, ``u2`` in the ``omega`` one)."""
+    return _linear_terms(model, ((0, 0), (1, 1), (2, 2), (0, 3), (2, 4)))
+
+
+def _linear_terms(model: SindyModel, pairs) -> np.ndarray:
+    """Return the mask ``(3, k)`` of the plain-variable features ``(equation, variable index)``."""
+    mask = np.zeros(model.coef.shape, bool)
+    for e, v in pairs:
+        if ((v, 0),) in model.library.atoms:
+            mask[e, model.library.atoms.index(((v, 0),))] = True
+    return mask
+
+
+def significance(names: Sequence[str], t_stat: np.ndarray, protected: np.ndarray) -> dict:
+    """Return the significance check of active terms ``names`` with ``t_stat`` (``protected`` exempt)."""
+    t = np.asarray(t_stat, float)
+    free = ~np.asarray(protected, bool)
+    if not free.any():
+        return {"passed": True, "min_t": None, "weakest": None, "min_t_required": MIN_T_STAT}
+    k = int(np.flatnonzero(free)[np.argmin(t[free])])
+    return {"passed": bool(t[k] >= MIN_T_STAT), "min_t": float(t[k]), "weakest": names[k],
+            "min_t_required": MIN_T_STAT}
+
+
+def excitation(states: Sequence[BodyStates]) -> dict[str, float]:
+    """Return the standard deviation over ``states`` of each library variable ``{name: std}``."""
+    z = np.vstack([np.column_stack([st.state, st.inputs]) for st in states])
+    return {name: float(np.std(z[:, i])) for i, name in enumerate(LIBRARY_VARIABLE_NAMES)}
+
+
+def not_excited(stds: dict[str, float]) -> list[str]:
+    """Return the variables whose standard deviation is below :data:`MIN_EXCITATION`."""
+    return [name for name, sd in stds.items() if sd < MIN_EXCITATION]
+
+
+def run_checks(model: SindyModel, states: Sequence[BodyStates], names: Sequence[str] = (),
+               t_stat: np.ndarray | None = None, accel_max: np.ndarray | None = None) -> dict:
+    """Return all checks of the module docstring as a JSON-ready dict with ``"passed"`` overall.
+
+    ``names`` and ``t_stat`` are the output-error fit's active terms and their t statistics
+    (significance is reported as not run without them).
+    """
+    eig = float(max_re_eig_at_rest(model.library, model.coef))
+    out = {"stable_at_rest": {"passed": bool(eig <= STABILITY_TOL), "max_re_eig": eig},
+           "contribution": contribution_bound(model, states, accel_max),
+           "dissipative": dissipativity(model, states)}
+    if t_stat is not None:
+        out["significance"] = significance(names, t_stat, lag_core(model)[np.nonzero(model.coef)])
+    out["passed"] = all(v["passed"] for v in out.values())
+    return out
+
+
+def failed_checks(checks: dict) -> list[str]:
+    """Return the names of the checks in a model file's ``checks`` that failed."""
+    return [k for k, v in checks.items() if isinstance(v, dict) and not v.get("passed", True)]
+
+
+def require_checks_passed(model: SindyModel, source: str) -> None:
+    """Return nothing when the model file's recorded checks passed; refuse a model that failed them.
+
+    A model without recorded checks (format 1, or built by hand) is used with a loud warning:
+    nothing says it is well posed. ``source`` names the file in the messages.
+
+    Raises
+    ------
+    InputError
+        The model's ``checks`` say it failed (names the failed checks).
+    """
+    if not model.checks:
+        log.warning("%s: the model records no well-posedness checks (format 1 or built by hand); its "
+                    "predictions may run away outside its training envelope: re-identify it", source)
+        return
+    failed = failed_checks(model.checks)
+    if failed or not model.checks.get("passed", True):
+        raise InputError(f"{source}: the model fails its well-posedness checks "
+                         f"({', '.join(failed) or 'passed: false'}); re-identify it (sindy-ekf identify)")

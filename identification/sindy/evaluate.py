@@ -14,6 +14,12 @@ integrated by one fixed-step RK4 loop over time (eqs. 5.70, 5.71); the thesis's 
 Errors per window: position ``eps_p`` (eq. 5.76) and heading ``eps_h``; their RMS over windows
 ``s_p(t)``, ``s_h(t)`` (eqs. 5.77, 5.78) at the end of the window are ``pos_err_5s_m`` and
 ``yaw_err_5s_deg``.
+
+Windows know their runs' input history (:class:`InputTrack`), so a model with input dead time
+(``Dynamics.dead_time_s``) is fed ``u(t - d)`` from the recorded inputs before the window's
+start; they may take their pose truth from the measured poses rather than from the states they
+start from (:func:`make_windows` with ``poses``; the reference windows of
+:mod:`identification.sindy.reference`).
 """
 
 from __future__ import annotations
@@ -27,10 +33,77 @@ from scipy.integrate import solve_ivp
 
 from groundfloor.dynamics import Dynamics, pose_rate, rk4_rollout_step
 from groundfloor.errors import InputError
-from groundfloor.types import BodyStates
+from groundfloor.types import BodyStates, InputSeries, PoseTrack
 from identification.sindy.data import gap_threshold_s, states_of_runs
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class InputTrack:
+    """The recorded inputs of one run as a function of time, for any input dead time.
+
+    ``hold="zoh"``: each sample holds until the next (what a robot does with its command
+    messages; before the first sample the first one holds), averaged over ``width_s`` around
+    the query time, so that a prediction is continuous, and differentiable, in the dead time
+    (the average over the integration step of what the motors see). ``hold="linear"``: straight
+    lines between the samples, the thesis's choice and the right one for inputs that are
+    themselves samples at the pose times (:class:`~groundfloor.types.BodyStates`: a change
+    between two samples happened on average half-way). Times ``t`` are relative to the start of
+    the window's run (the windows' ``t0_run`` base).
+    """
+
+    t: np.ndarray  # (m,) strictly increasing sample times, s
+    u: np.ndarray  # (m, 2)
+    hold: str = "linear"
+    width_s: float = 0.02
+
+    def _cumulative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return knots, the integral of the held inputs at the knots (both padded far out) and the held values."""
+        pad = 1e4  # seconds beyond both ends: the end values hold there
+        knots = np.concatenate([[self.t[0] - pad], self.t, [self.t[-1] + pad]])
+        held = np.vstack([self.u[:1], self.u])  # value on [knots[i], knots[i + 1])
+        integral = np.vstack([np.zeros((1, 2)), np.cumsum(held * np.diff(knots)[:, None], axis=0)])
+        return knots, integral, held
+
+    def at(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
+        """Return the inputs ``u_i(t - d_i)`` ``(*t_query.shape, 2)``; ``delay_s`` is ``(2,)`` or
+        ``(M, 2)`` (then ``(M, *t_query.shape, 2)``)."""
+        return self._eval(t_query, delay_s, rate=False)
+
+    def rate(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
+        """Return the time derivative of :meth:`at` (same shape): what a dead time's sensitivity needs."""
+        return self._eval(t_query, delay_s, rate=True)
+
+    def _eval(self, t_query, delay_s, rate: bool) -> np.ndarray:
+        d = np.asarray(delay_s, dtype=float)
+        tq = np.asarray(t_query, dtype=float)
+        if d.ndim == 2:
+            return np.stack([self._eval(tq, row, rate) for row in d])
+        out = np.empty(tq.shape + (2,))
+        if self.hold == "linear":
+            slope = np.diff(self.u, axis=0) / np.diff(self.t)[:, None]
+            for i in range(2):
+                q = tq - d[i]
+                if rate:
+                    k = np.searchsorted(self.t, q, side="right") - 1
+                    inside = (k >= 0) & (k < len(self.t) - 1)
+                    out[..., i] = np.where(inside, slope[np.clip(k, 0, len(slope) - 1), i], 0.0) if len(slope) else 0.0
+                else:
+                    out[..., i] = np.interp(q, self.t, self.u[:, i])
+            return out
+        knots, integral, held = self._cumulative()
+        h = 0.5 * self.width_s
+        for i in range(2):
+            q = tq - d[i]
+            if rate:
+                k_hi = np.clip(np.searchsorted(knots, q + h, side="right") - 1, 0, len(held) - 1)
+                k_lo = np.clip(np.searchsorted(knots, q - h, side="right") - 1, 0, len(held) - 1)
+                out[..., i] = (held[k_hi, i] - held[k_lo, i]) / self.width_s
+            else:
+                out[..., i] = (np.interp(q + h, knots, integral[:, i]) - np.interp(q - h, knots, integral[:, i])) \
+                    / self.width_s
+        return out
 
 
 @dataclass(frozen=True)
@@ -43,8 +116,9 @@ class Windows:
     ``t0_run`` (W,) the start time of the window in seconds since the start of its run.
     x0 : (W, 6) initial ``[x, y, psi, vx, vy, omega]`` from the data.
     t_rel : (n,) relative times ``0, dt, ..., window_s``.
-    u_half : (W, 2n - 1, 2) inputs at ``t_rel`` and the midpoints between (for RK4).
+    u_half : (W, 2n - 1, 2) inputs at ``t_rel`` and the midpoints between (for RK4), no dead time.
     pose_truth : (W, n, 3) ``[x, y, yaw]`` of the data at ``t0 + t_rel``.
+    tracks : one :class:`InputTrack` per run index: the inputs for any dead time (:meth:`inputs_for`).
     """
 
     run: np.ndarray
@@ -55,11 +129,37 @@ class Windows:
     pose_truth: np.ndarray
     run_names: tuple[str, ...] = ()
     t0_run: np.ndarray | None = None
+    tracks: tuple[InputTrack, ...] = ()
 
     @property
     def n_windows(self) -> int:
         """Number of windows."""
         return len(self.t0)
+
+    @property
+    def t_half(self) -> np.ndarray:
+        """Return the relative times of :attr:`u_half` ``(2n - 1,)``: the grid and its midpoints."""
+        return np.arange(2 * len(self.t_rel) - 1) * (0.5 * (self.t_rel[1] - self.t_rel[0]))
+
+    def inputs_for(self, delay_s=(0.0, 0.0), rate: bool = False) -> np.ndarray:
+        """Return the inputs a model with dead times ``delay_s`` sees, ``(W, 2n - 1, 2)``.
+
+        ``delay_s`` ``(2,)``, or ``(M, 2)`` for ``M`` models at once (then ``(M, W, 2n - 1, 2)``);
+        ``rate`` returns their time derivatives instead. Zero dead time gives :attr:`u_half`.
+        """
+        d = np.asarray(delay_s, dtype=float)
+        if not rate and not np.any(d):
+            return self.u_half if d.ndim == 1 else np.broadcast_to(self.u_half, d.shape[:1] + self.u_half.shape)
+        if not self.tracks:
+            raise InputError("windows without input tracks cannot apply an input dead time")
+        t0 = self.t0_run if self.t0_run is not None else np.zeros_like(self.t0)
+        out = np.empty(d.shape[:-1] + self.u_half.shape)
+        for r in np.unique(self.run):
+            sel = self.run == r
+            tq = t0[sel][:, None] + self.t_half[None, :]
+            track = self.tracks[r]
+            out[..., sel, :, :] = track.rate(tq, d) if rate else track.at(tq, d)
+        return out
 
 
 @dataclass(frozen=True)
@@ -97,13 +197,21 @@ class EvaluationResult:
 
 
 def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: float = 0.5, dt: float = 0.02,
-                 names: Sequence[str] | None = None, max_gap_s: float | None = None) -> Windows:
+                 names: Sequence[str] | None = None, max_gap_s: float | None = None,
+                 poses: Sequence[PoseTrack] | None = None, inputs: Sequence[InputSeries] | None = None) -> Windows:
     """Return the windows of ``window_s`` with ``overlap`` over all runs (thesis 5.3.8).
 
     Windows start at the data sample nearest to every ``window_s * (1 - overlap)``; windows
     that cross the end of a run or a data gap longer than ``max_gap_s`` are left out. The
     default gap is the data's own, per run: :func:`identification.sindy.data.gap_threshold_s`
     (``max(0.5 s, 10 x`` the median interval), so 10 Hz poses with a 0.5 s hole keep their windows).
+
+    Each window starts from the state of ``states`` at its first sample. Its pose truth is the
+    states' own poses, or, given ``poses`` (one pose track per entry of ``states``, e.g. the
+    measured poses of the segment's run), those poses interpolated linearly, never smoothed.
+    Its inputs are the states' inputs interpolated linearly, or, given ``inputs`` (the recorded
+    inputs of the segment's run), those held from sample to sample (:class:`InputTrack`, averaged
+    over ``dt``); either way a model's input dead time reads the history before the window.
 
     Raises
     ------
@@ -116,9 +224,15 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
     n = int(round(window_s / dt))
     t_rel = np.arange(n + 1) * dt
     t_half = np.arange(2 * n + 1) * (dt / 2)
-    runs, t0s, t0_runs, x0s, us, truths = [], [], [], [], [], []
+    runs, t0s, t0_runs, x0s, us, truths, tracks = [], [], [], [], [], [], []
     for i, st in enumerate(states):
         t = np.asarray(st.t, dtype=float)
+        tr = t - t[0]
+        if inputs is not None:
+            ins = inputs[i]
+            tracks.append(InputTrack(np.asarray(ins.t, float) - t[0], np.column_stack([ins.u1, ins.u2]), "zoh", dt))
+        else:
+            tracks.append(InputTrack(tr, np.column_stack([st.u1, st.u2]), "linear"))
         if len(t) < 2 or t[-1] - t[0] < window_s:
             continue
         nominal = np.arange(t[0], t[-1] - window_s + 1e-9, window_s * (1 - overlap))
@@ -131,10 +245,15 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
         if not len(k):
             continue
         tq = t[k][:, None] - t[0] + t_half[None, :]  # relative to run start: keeps float precision
-        tr = t - t[0]
-        us.append(np.stack([np.interp(tq, tr, st.u1), np.interp(tq, tr, st.u2)], axis=-1))
+        us.append(tracks[-1].at(tq))
         tq = tq[:, ::2]
-        truths.append(np.stack([np.interp(tq, tr, st.x), np.interp(tq, tr, st.y), np.interp(tq, tr, st.yaw)], -1))
+        if poses is None:
+            tp, px, py, pyaw = tr, st.x, st.y, st.yaw
+        else:
+            p = poses[i]
+            ok = np.isfinite(p.t) & np.isfinite(p.x) & np.isfinite(p.y) & np.isfinite(p.yaw)
+            tp, px, py, pyaw = np.asarray(p.t, float)[ok] - t[0], p.x[ok], p.y[ok], np.unwrap(p.yaw[ok])
+        truths.append(np.stack([np.interp(tq, tp, px), np.interp(tq, tp, py), np.interp(tq, tp, pyaw)], -1))
         x0s.append(np.column_stack([st.x[k], st.y[k], st.yaw[k], st.vx[k], st.vy[k], st.omega[k]]))
         runs.append(np.full(len(k), i))
         t0s.append(t[k])
@@ -143,7 +262,7 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
         raise InputError(f"runs {', '.join(names)}: none is longer than one {window_s:g} s window")
     return Windows(run=np.concatenate(runs), t0=np.concatenate(t0s), x0=np.vstack(x0s), t_rel=t_rel,
                    u_half=np.concatenate(us), pose_truth=np.concatenate(truths), run_names=names,
-                   t0_run=np.concatenate(t0_runs))
+                   t0_run=np.concatenate(t0_runs), tracks=tuple(tracks))
 
 
 def rollout(model: Dynamics, windows: Windows, method: str = "rk4", batch_shape: tuple[int, ...] = ()) -> np.ndarray:
@@ -154,7 +273,9 @@ def rollout(model: Dynamics, windows: Windows, method: str = "rk4", batch_shape:
     two-step method: body velocities by RK4 on their own (the pose held), then the pose by
     explicit Euler with the velocities that move it at the step's start (eqs. 5.72 to 5.74).
     ``batch_shape`` lets a model with stacked coefficients predict for many models at once.
-    Time passed to the model: seconds since the start of each window's run.
+    Time passed to the model: seconds since the start of each window's run. The model sees the
+    recorded inputs delayed by its ``dead_time_s`` (``(2,)``, or ``(*batch_shape, 2)`` for a
+    stacked model with one dead time per model).
     """
     if method not in ("rk4", "euler2"):
         raise InputError(f"method {method!r}: expected 'rk4' or 'euler2'")
@@ -164,9 +285,12 @@ def rollout(model: Dynamics, windows: Windows, method: str = "rk4", batch_shape:
     t0 = windows.t0_run if windows.t0_run is not None else np.zeros_like(windows.t0)
     out = np.empty(s.shape[:-1] + (n, 6))
     out[..., 0, :] = s
+    delay = np.asarray(model.dead_time_s, dtype=float)
+    u_half = windows.inputs_for(delay.reshape(-1, 2)).reshape(delay.shape[:-1] + windows.u_half.shape) \
+        if delay.ndim > 1 else windows.inputs_for(delay)
     with np.errstate(over="ignore", invalid="ignore"):
         for i in range(n - 1):
-            u0, um, u1 = (windows.u_half[:, 2 * i + j] for j in range(3))
+            u0, um, u1 = (u_half[..., 2 * i + j, :] for j in range(3))
             t = t0 + windows.t_rel[i]
             if method == "rk4":
                 s = rk4_rollout_step(model, s, u0, um, u1, t, dt)
@@ -237,14 +361,13 @@ def evaluate_reference(model: Dynamics, states: Sequence[BodyStates], names=None
     windows = make_windows(states, window_s, overlap, dt, names)
     n = len(windows.t_rel)
     pred = np.empty((windows.n_windows, n, 6))
+    delay = np.asarray(model.dead_time_s, dtype=float)
     for w in range(windows.n_windows):  # deliberately one solve per window: the reference
-        st = states[windows.run[w]]
-        t_run = np.asarray(st.t) - st.t[0]
-        t0 = windows.t0[w] - st.t[0]
+        track = windows.tracks[windows.run[w]]
+        t0 = windows.t0_run[w]
 
-        def rhs(tt, s, st=st, t_run=t_run, t0=t0):
-            u = np.array([np.interp(t0 + tt, t_run, st.u1), np.interp(t0 + tt, t_run, st.u2)])
-            return model.derivative(s, u, t0 + tt)
+        def rhs(tt, s, track=track, t0=t0):
+            return model.derivative(s, track.at(np.array(t0 + tt), delay), t0 + tt)
 
         sol = solve_ivp(rhs, (0.0, windows.t_rel[-1]), windows.x0[w], t_eval=windows.t_rel, rtol=rtol,
                         atol=atol, method="RK45")

@@ -5,11 +5,11 @@ the body dynamics ``x_dot = Theta(x, u) Xi`` with its analytic Jacobians, vector
 leading axes. It speaks SINDy's own terms (``f(x3, u)`` on the body states, used by the search,
 the diagnosis and the adjustment) and is a :class:`groundfloor.dynamics.Dynamics` (six states,
 used by the evaluation and the filters, which call it at every step: there only the model's
-active terms are evaluated, :class:`ActiveTerms`); :class:`StackedSindy` is many such models as
-one dynamics, for the search's rollout of all grid points at once. The JSON file records
+active terms are evaluated, :class:`~identification.sindy.active_terms.ActiveTerms`); the JSON file records
 everything needed to rebuild it and to judge where it may be trusted: feature names,
 coefficients per equation, library, hyperparameters ``s, tau, alpha, T``, the envelope of
-states and inputs seen in training, the package version and a format version.
+states and inputs seen in training, the input dead times, how the model extrapolates beyond
+that envelope, the well-posedness checks, the package version and a format version.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +26,7 @@ from groundfloor import __version__
 from groundfloor.dynamics import Dynamics, EnvelopeWarning, broadcast_inputs
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
-from identification.sindy.active_terms import ActiveTerms
+from identification.sindy.active_terms import ActiveTerms, linear_columns
 from identification.sindy.library import (
     LIBRARY_INPUT_NAMES,
     LIBRARY_STATE_NAMES,
@@ -39,7 +39,12 @@ from identification.sindy.library import (
 log = logging.getLogger(__name__)
 
 FORMAT = "sindy-ekf-model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: dead_time_s, extrapolation, checks (format 1 still loads)
+
+
+#: part of the envelope's width added on both sides: where a model is still trusted (the
+#: envelope warning's margin) and where frozen extrapolation begins
+EXTRAPOLATION_MARGIN = 0.1
 
 
 def envelope_from_data(x_body: np.ndarray, u: np.ndarray) -> dict[str, list[float]]:
@@ -65,6 +70,17 @@ class SindyModel(Dynamics):
         Variable name to ``[min, max]`` seen in training.
     training : dict
         Free-form facts about the fit (condition number, number of windows, runs).
+    dead_time_s : (d1, d2)
+        Input dead times: the model sees ``u_i(t - d_i)`` (the caller delays the inputs).
+    extrapolation : str
+        ``"polynomial"``: the polynomial everywhere (models of format 1). ``"frozen"``: outside
+        the training envelope widened by :data:`EXTRAPOLATION_MARGIN` of its width, the
+        nonlinear terms see the body velocities clamped to it while the constant and linear
+        terms go on linearly, so what the data never constrained stays bounded and a stable
+        linear part pulls a wandering state back (the check of
+        :func:`identification.sindy.checks.dissipativity`). Inside, both are the same.
+    checks : dict
+        The well-posedness checks with their numbers (:mod:`identification.sindy.checks`).
     """
 
     library: FeatureLibrary
@@ -73,6 +89,9 @@ class SindyModel(Dynamics):
     envelope: dict = field(default_factory=dict)
     training: dict = field(default_factory=dict)
     version: str = ""
+    dead_time_s: tuple = (0.0, 0.0)
+    extrapolation: str = "polynomial"
+    checks: dict = field(default_factory=dict)
     name = "sindy"
     _active: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -81,17 +100,73 @@ class SindyModel(Dynamics):
         if self.coef.shape != (len(LIBRARY_STATE_NAMES), self.library.n_features):
             raise InputError(f"model coefficients: shape {self.coef.shape}, expected "
                              f"{(len(LIBRARY_STATE_NAMES), self.library.n_features)} for library {self.library.name!r}")
+        if self.extrapolation not in ("polynomial", "frozen"):
+            raise InputError(f"model extrapolation {self.extrapolation!r}: expected 'polynomial' or 'frozen'")
+        self.dead_time_s = tuple(float(d) for d in self.dead_time_s)
+        if len(self.dead_time_s) != 2 or not all(np.isfinite(self.dead_time_s)) or min(self.dead_time_s) < 0:
+            raise InputError(f"model dead_time_s {self.dead_time_s!r}: expected two finite values >= 0")
         if not self.version:
             self.version = __version__
+
+    def with_coefficients(self, coef: np.ndarray, dead_time_s=None) -> "SindyModel":
+        """Return a copy with other coefficients (and dead times), everything else kept."""
+        return replace(self, coef=np.asarray(coef, dtype=float),
+                       dead_time_s=self.dead_time_s if dead_time_s is None else tuple(dead_time_s))
+
+    # extrapolation ----------------------------------------------------------------------------
+    @property
+    def linear_columns(self) -> np.ndarray:
+        """Return per feature whether it is the constant or a plain variable (extrapolates linearly)."""
+        return linear_columns(self.library)
+
+    def _clamp_bounds(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Return the widened envelope ``(lo, hi)`` of the body velocities, or None when not frozen."""
+        env = self.envelope or {}
+        if self.extrapolation != "frozen" or not all(v in env for v in LIBRARY_STATE_NAMES):
+            return None
+        lo = np.array([env[v][0] for v in LIBRARY_STATE_NAMES], float)
+        hi = np.array([env[v][1] for v in LIBRARY_STATE_NAMES], float)
+        pad = EXTRAPOLATION_MARGIN * (hi - lo)
+        return lo - pad, hi + pad
+
+    def library_variables(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Return ``[vx, vy, omega, u1, u2]`` ``(..., 5)`` at six states ``x6`` and inputs ``u``."""
+        x6, u = np.asarray(x6, dtype=float), np.asarray(u, dtype=float)
+        lead = np.broadcast_shapes(x6.shape[:-1], u.shape[:-1])
+        return np.concatenate([np.broadcast_to(x6[..., 3:], lead + (3,)), np.broadcast_to(u, lead + (2,))], -1)
+
+    def features(self, z: np.ndarray) -> np.ndarray:
+        """Return the features ``(..., k)`` the model multiplies by its coefficients at ``z (..., 5)``.
+
+        ``Theta(z)`` (eq. 5.53); with ``extrapolation="frozen"`` the nonlinear features are taken
+        at the body velocities clamped to the widened envelope.
+        """
+        theta = self.library.transform(z)
+        bounds = self._clamp_bounds()
+        if bounds is None:
+            return theta
+        zc = z.copy()
+        zc[..., :3] = np.clip(z[..., :3], *bounds)
+        return np.where(self.linear_columns, theta, self.library.transform(zc))
 
     # dynamics -------------------------------------------------------------------------------
     def f(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Return body accelerations ``[vx_dot, vy_dot, omega_dot]`` ``(..., 3)``. Implements eq. 5.53."""
-        return self.library.transform(np.concatenate(_stack_xu(x, u), axis=-1)) @ self.coef.T
+        return self.features(np.concatenate(_stack_xu(x, u), axis=-1)) @ self.coef.T
 
     def f_and_jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Return ``f (..., 3)``, ``J_f_x (..., 3, 3)`` and ``J_f_u (..., 3, 2)`` in one pass."""
-        theta, d_theta = self.library.transform_with_jacobian(np.concatenate(_stack_xu(x, u), axis=-1))
+        z = np.concatenate(_stack_xu(x, u), axis=-1)
+        theta, d_theta = self.library.transform_with_jacobian(z)
+        bounds = self._clamp_bounds()
+        if bounds is not None:
+            zc = z.copy()
+            zc[..., :3] = np.clip(z[..., :3], *bounds)
+            theta_c, d_theta_c = self.library.transform_with_jacobian(zc)
+            d_theta_c[..., :3, :] *= (zc[..., :3] == z[..., :3])[..., None]  # a clamped variable moves nothing
+            lin = self.linear_columns
+            theta = np.where(lin, theta, theta_c)
+            d_theta = np.where(lin, d_theta, d_theta_c)
         J_f_z = np.einsum("...vk,ek->...ev", d_theta, self.coef)
         return theta @ self.coef.T, J_f_z[..., :3], J_f_z[..., 3:]
 
@@ -116,7 +191,8 @@ class SindyModel(Dynamics):
         """Return :meth:`f` and its Jacobians padded to the six states, ``(..., 3, 6)`` and ``(..., 3, 2)``.
 
         Evaluates only the active terms (:class:`ActiveTerms`, rebuilt when ``coef`` changes);
-        equal to :meth:`f_and_jacobians` up to the order of summation.
+        equal to :meth:`f_and_jacobians` up to the order of summation. Frozen extrapolation
+        evaluates the linear terms as one product and the nonlinear ones at the clamped state.
         """
         x6, u = broadcast_inputs(x6, u)
         return self._active_terms()(x6[..., 3:], u)
@@ -125,19 +201,21 @@ class SindyModel(Dynamics):
         """Return the held-input RK4 step and its exact Jacobians ``(x_next, F, G)``, compiled.
 
         The same map as :meth:`groundfloor.dynamics.Dynamics.rk4_step_and_jacobians` (which this
-        overrides) in one compiled call (:meth:`ActiveTerms.rk4_step`): the filters take it once per
-        grid step. ``t`` is not used: the identified dynamics do not depend on time.
+        overrides) in one compiled call (:meth:`ActiveTerms.rk4_step`), frozen extrapolation
+        included: the filters take it once per grid step. ``t`` is not used: the identified
+        dynamics do not depend on time.
         """
         return self._active_terms().rk4_step(x6, u, dt, input_jacobian)
 
     def _active_terms(self) -> ActiveTerms:
-        """Return the :class:`ActiveTerms` of the current ``coef`` (built again when it changed)."""
-        key = self.coef.tobytes()
+        """Return the :class:`ActiveTerms` of the current ``coef`` and extrapolation (built again
+        when either changed)."""
+        key = self.coef.tobytes() + repr((self.extrapolation, self.envelope)).encode()
         if self._active is None or self._active[0] != key:
-            self._active = (key, ActiveTerms(self.library, self.coef))
+            self._active = (key, ActiveTerms(self.library, self.coef, frozen=self._clamp_bounds()))
         return self._active[1]
 
-    def in_envelope(self, x6: np.ndarray, u: np.ndarray, margin: float = 0.1) -> np.ndarray:
+    def in_envelope(self, x6: np.ndarray, u: np.ndarray, margin: float = EXTRAPOLATION_MARGIN) -> np.ndarray:
         """Return True per sample where ``[vx, vy, omega, u1, u2]`` lies in the training envelope
         widened by ``margin`` times its width on both sides (the rule of :meth:`check_envelope`)."""
         x6 = np.asarray(x6, dtype=float)
@@ -182,7 +260,7 @@ class SindyModel(Dynamics):
         return "\n".join(lines)
 
     # envelope -------------------------------------------------------------------------------
-    def check_envelope(self, x: np.ndarray, u: np.ndarray, margin: float = 0.1, name: str = "data") -> float:
+    def check_envelope(self, x: np.ndarray, u: np.ndarray, margin: float = EXTRAPOLATION_MARGIN, name: str = "data") -> float:
         """Return the fraction of samples outside the training envelope; warn naming the variables.
 
         The envelope is widened by ``margin`` times its width on both sides before testing.
@@ -216,7 +294,10 @@ class SindyModel(Dynamics):
             "coefficients": {eq: [float(c) for c in row] for eq, row in zip(LIBRARY_STATE_NAMES, self.coef)},
             "equations": self.equations().splitlines(),
             "hyperparameters": self.hyperparameters,
+            "dead_time_s": list(self.dead_time_s),
+            "extrapolation": self.extrapolation,
             "envelope": self.envelope,
+            "checks": self.checks,
             "training": self.training,
         }
 
@@ -230,9 +311,13 @@ class SindyModel(Dynamics):
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             got = d.get("format") if isinstance(d, dict) else type(d).__name__
             raise InputError(f"{source}: not a sindy-ekf model file (format {got!r}, expected {FORMAT!r})")
-        if d.get("format_version") != FORMAT_VERSION:
-            raise InputError(f"{source}: model format_version {d.get('format_version')!r} not supported "
-                             f"(this is sindy-ekf reading version {FORMAT_VERSION})")
+        version = d.get("format_version")
+        if version not in (1, FORMAT_VERSION):
+            raise InputError(f"{source}: model format_version {version!r} not supported "
+                             f"(this is sindy-ekf reading versions 1 and {FORMAT_VERSION}); re-identify the model")
+        if version == 1:
+            log.warning("%s: a model of format 1 (no dead time, no well-posedness checks, polynomial "
+                        "extrapolation); re-identify it with this version for the checks", source)
         lib_name = (d.get("library") or {}).get("name")
         try:
             library = make_library(lib_name)
@@ -251,9 +336,14 @@ class SindyModel(Dynamics):
             raise InputError(f"{source}: key coefficients holds non-finite values")
         if str(d.get("package_version", "")).split(".")[:2] != __version__.split(".")[:2]:
             log.warning("%s: written by sindy-ekf %s, read by %s", source, d.get("package_version"), __version__)
+        try:
+            dead_time = tuple(float(v) for v in d.get("dead_time_s") or (0.0, 0.0))
+        except (TypeError, ValueError):
+            raise InputError(f"{source}: key dead_time_s is malformed ({d.get('dead_time_s')!r})") from None
         return cls(library=library, coef=coef, hyperparameters=dict(d.get("hyperparameters") or {}),
                    envelope=dict(d.get("envelope") or {}), training=dict(d.get("training") or {}),
-                   version=str(d.get("package_version", "")))
+                   version=str(d.get("package_version", "")), dead_time_s=dead_time,
+                   extrapolation=str(d.get("extrapolation") or "polynomial"), checks=dict(d.get("checks") or {}))
 
     @classmethod
     def load(cls, path: str | Path) -> "SindyModel":
@@ -266,36 +356,6 @@ class SindyModel(Dynamics):
             unknown library, or its feature names differ from that library's.
         """
         return cls.from_dict(read_model_json(path), source=str(path))
-
-
-class StackedSindy(Dynamics):
-    """Many SINDy models of one library as one dynamics: ``coef (M, 3, k)``, states ``(M, W, 6)``.
-
-    The search's rollout predicts the held-out windows ``(W,)`` of all ``M`` models at once;
-    inputs ``(W, 2)`` are shared by the models.
-    """
-
-    name = "stacked_sindy"
-
-    def __init__(self, library: FeatureLibrary, coef: np.ndarray):
-        self.library, self.coef = library, coef
-
-    def _features(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Return the library's variables ``(M, W, 5)`` at states ``(M, W, 6)`` and inputs ``(W, 2)``."""
-        return np.concatenate([x6[..., 3:], np.broadcast_to(u, x6.shape[:-1] + (2,))], axis=-1)
-
-    def accel(self, x6: np.ndarray, u: np.ndarray, t=0.0) -> np.ndarray:
-        """Return accelerations ``(M, W, 3)``."""
-        theta = self.library.transform(self._features(x6, u))
-        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False)
-
-    def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
-        """Return accelerations ``(M, W, 3)`` and their Jacobians ``(M, W, 3, 6)``, ``(M, W, 3, 2)``."""
-        theta, d_theta = self.library.transform_with_jacobian(self._features(x6, u))
-        J_a_z = np.einsum("mwvk,mek->mwev", d_theta, self.coef, optimize=False)
-        J_a_x = np.zeros(J_a_z.shape[:-1] + (6,))
-        J_a_x[..., 3:] = J_a_z[..., :3]
-        return np.einsum("mwk,mek->mwe", theta, self.coef, optimize=False), J_a_x, J_a_z[..., 3:]
 
 
 def _stack_xu(x, u) -> tuple[np.ndarray, np.ndarray]:

@@ -87,10 +87,11 @@ class IntegralProblem:
         return r, c
 
 
-def check_states(states: Sequence[BodyStates], names: Sequence[str]) -> None:
+def check_states(states: Sequence[BodyStates], names: Sequence[str], allow_constant: Sequence[str] = ()) -> None:
     """Raise InputError if a run has missing values or the inputs cannot be identified.
 
-    Constant (or all-missing) inputs over all runs make the input terms unidentifiable.
+    Constant (or all-missing) inputs over all runs make the input terms unidentifiable, unless
+    named in ``allow_constant`` (the identification leaves their terms out).
     """
     if not states:
         raise InputError("identification: no training runs")
@@ -104,7 +105,7 @@ def check_states(states: Sequence[BodyStates], names: Sequence[str]) -> None:
                                  "or non-finite values")
         if len(st.t) > 1 and np.any(np.diff(st.t) <= 0):
             raise InputError(f"run {name}: times are not strictly increasing")
-    for col in LIBRARY_INPUT_NAMES:
+    for col in (c for c in LIBRARY_INPUT_NAMES if c not in allow_constant):
         u = np.concatenate([np.asarray(getattr(st, col), dtype=float) for st in states])
         if np.ptp(u) < 1e-6:
             raise InputError(f"input {col}: constant ({u[0]:.3g}) over all training runs "
@@ -112,7 +113,8 @@ def check_states(states: Sequence[BodyStates], names: Sequence[str]) -> None:
 
 
 def integral_problem(states: Sequence[BodyStates], library: FeatureLibrary | str = "poly3", tau: float = 3.0,
-                     names: Sequence[str] | None = None, max_gap_s: float = 0.2) -> IntegralProblem:
+                     names: Sequence[str] | None = None, max_gap_s: float = 0.2,
+                     allow_constant: Sequence[str] = ()) -> IntegralProblem:
     """Return the integral regression problem of eqs. 5.55 to 5.57 over several runs.
 
     Parameters
@@ -127,6 +129,8 @@ def integral_problem(states: Sequence[BodyStates], library: FeatureLibrary | str
         Run names for messages.
     max_gap_s : float
         Windows containing a time step longer than this are dropped.
+    allow_constant : sequence of str
+        Inputs that may be constant (their terms are left out by the caller).
 
     Raises
     ------
@@ -135,7 +139,7 @@ def integral_problem(states: Sequence[BodyStates], library: FeatureLibrary | str
     """
     library = make_library(library) if isinstance(library, str) else library
     names = tuple(names) if names is not None else tuple(f"#{i}" for i in range(len(states)))
-    check_states(states, names)
+    check_states(states, names, allow_constant)
     if not tau > 0:
         raise InputError(f"tau={tau}: the integration window length must be positive")
     thetas, dxs, runs, t0s, rs, cs = [], [], [], [], [], []

@@ -6,12 +6,20 @@ outages. Estimators (all sharing one initial state per run, taken from the smoot
 run's first pose, and one GNSS series per run):
 
 - ``dead_reckoning``: the SINDy model alone, no GNSS;
-- ``cv_ekf``, ``unicycle_ekf``, ``sindy_ekf``, ``oracle_ekf`` (the simulator's true dynamics, when
-  given): :func:`sindy_ekf.estimation.ekf.run_ekf_batch` with each process model, Q fitted on the train runs;
+- ``cv_ekf``, ``unicycle_ekf`` (the kinematic unicycle of the baselines), ``lag_ekf`` (the ``lag``
+  baseline: first-order lag per axis with input dead time, output-error fit on the train runs),
+  ``sindy_ekf``, ``oracle_ekf`` (the simulator's true dynamics, when given):
+  :func:`sindy_ekf.estimation.ekf.run_ekf_batch` with each process model, Q fitted on the train runs;
 - ``sindy_graph``: batch smoothing of each run (:func:`sindy_ekf.estimation.graph.smooth_batch`), started
   from the ``sindy_ekf`` estimate; ``sindy_isam2``: fixed-lag iSAM2 in real time;
 - ``sindy_ekf_lateral``, ``sindy_graph_lateral``: the same with the non-holonomic ``v_y = 0``
   pseudo-measurement of a skid-steered robot (std from the train runs' lateral velocity).
+
+A model with input dead time (``Dynamics.dead_time_s``) gets the recorded inputs shifted by it
+before filtering (:func:`inputs_for`): at grid time ``t`` the filter holds the input recorded at
+``t - d``. That is exact, the same as an input buffer in the process model (online, the buffer
+holds the inputs of the last ``d`` seconds; offline the recording does), and keeps the filter's
+state the six states of eq. 5.60.
 
 The estimates are scored by :mod:`sindy_ekf.benchmark.scoring` (ATE, error through outages,
 NEES, NIS, runtime), written by :mod:`sindy_ekf.benchmark.files` and drawn by
@@ -31,7 +39,7 @@ from groundfloor.errors import InputError
 from groundfloor.gnss import GnssSeries
 from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
 from identification.preprocessing.states import body_states_from_poses
-from identification.sindy.baselines import ConstantVelocityModel, LagModel
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel, fit_lag
 from identification.sindy.data import body_states
 from simulation.gnss import OUTAGE_DURATIONS_S, schedule_outages, simulate_gnss
 from simulation.robot import TrueDynamics
@@ -74,8 +82,9 @@ P0_STD = np.array([0.05, 0.05, np.radians(1.0), 0.05, 0.02, 0.05])
 # holds a vy term learned from spline noise; without the constraint vy wanders, sindy_ekf diverges
 # (ATE 5.5 m on warthog-drive-cmd, 0.215 m with it) and the graph's ATE is 1.7 m (0.154 m with it;
 # bench/results/real_cli.md)
-ESTIMATORS = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "sindy_ekf_lateral", "oracle_ekf",
+ESTIMATORS = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "lag_ekf", "sindy_ekf", "sindy_ekf_lateral", "oracle_ekf",
               "sindy_graph", "sindy_graph_lateral", "sindy_isam2")
+EKF_ESTIMATORS = ("cv_ekf", "unicycle_ekf", "lag_ekf", "sindy_ekf", "oracle_ekf")  # one process model each
 OPTIONAL_ESTIMATORS: tuple[str, ...] = ()  # accepted in ``estimators`` but not run by default
 LATERAL_EVERY = 10  # steps between v_y = 0 pseudo-measurements (5 Hz on the 50 Hz grid)
 
@@ -118,15 +127,18 @@ def train_series(train_runs, smoothing: float | None = None) -> list[StateSeries
 
 
 def fit_models(train_runs, sindy_body, oracle_dynamics=None, smoothing: float | None = None,
-               series: list[StateSeries] | None = None) -> dict[str, ProcessModel]:
+               series: list[StateSeries] | None = None, lag: bool = True) -> dict[str, ProcessModel]:
     """Return the process models of the EKFs, each with ``Q`` fitted on the train runs' states
-    (``series``: those states if already computed by :func:`train_series`)."""
+    (``series``: those states if already computed by :func:`train_series`): the kinematic
+    unicycle (gains from the states), the ``lag`` baseline (:func:`identification.sindy.baselines.fit_lag`,
+    output error on the train runs; left out when ``lag`` is False), the model, the oracle."""
     series = train_series(train_runs, smoothing) if series is None else series
-    # unicycle_ekf runs the first-order lag model (what it always ran); issue 13 gives lag_ekf a
-    # lag model with dead time and unicycle_ekf the kinematic unicycle of the baselines
-    lag = LagModel().fit([body_states_from_state_series(s) for s in series])
-    models = {"cv_ekf": ProcessModel(ConstantVelocityModel(), "cv"), "unicycle_ekf": ProcessModel(lag, "lag"),
-              "sindy_ekf": ProcessModel(sindy_body, "sindy")}
+    unicycle = UnicycleModel().fit([body_states_from_state_series(s) for s in series])
+    models = {"cv_ekf": ProcessModel(ConstantVelocityModel(), "cv"),
+              "unicycle_ekf": ProcessModel(unicycle, "unicycle")}
+    if lag:
+        models["lag_ekf"] = ProcessModel(fit_lag(list(train_runs)), "lag")
+    models["sindy_ekf"] = ProcessModel(sindy_body, "sindy")
     if oracle_dynamics is not None:
         models["oracle_ekf"] = ProcessModel(oracle_dynamics, "oracle")
     for m in models.values():
@@ -147,6 +159,15 @@ class _TestRun:
     u_motor: np.ndarray | None
     x0: np.ndarray
     gnss: GnssSeries
+    t_in: np.ndarray  # (m,) the recorded input stamps
+    u_in: np.ndarray  # (m, 2) the recorded inputs
+
+    def inputs_for(self, dynamics) -> np.ndarray:
+        """Return the held inputs on the grid a model with ``dynamics.dead_time_s`` sees, ``u(t - d)``."""
+        d = getattr(dynamics, "dead_time_s", (0.0, 0.0))
+        if not np.any(d):
+            return self.u
+        return np.column_stack([_zoh(self.t_in + d[i], self.u_in[:, i], self.grid) for i in range(2)])
 
 
 def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float,
@@ -175,7 +196,8 @@ def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float
     if not np.all(np.isfinite(x0)):
         x0 = np.array([truth[0, 1], truth[0, 2], truth[0, 3], 0.0, 0.0, 0.0])
     x0[2] = yaw[0] + wrap_angle(x0[2] - yaw[0])
-    return _TestRun(run.name, t_pose, truth, grid, at_pose, u, u_motor, x0, gnss)
+    return _TestRun(run.name, t_pose, truth, grid, at_pose, u, u_motor, x0, gnss, np.asarray(inp.t, float),
+                    np.column_stack([inp.u1, inp.u2]))
 
 
 def _process_model(models: dict[str, ProcessModel], base: str, settings: EstimatorSettings) -> ProcessModel:
@@ -209,7 +231,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         (``sindy_ekf_lateral`` and ``sindy_graph_lateral``: sindy_ekf and sindy_graph with the
         ``v_y = 0`` pseudo-measurement of :func:`sindy_ekf.estimation.ekf.fit_lateral_constraint` on the train runs, every
         :data:`LATERAL_EVERY` steps by default).
-    train_campaign : where to fit Q and the unicycle gains (default ``campaign``'s train runs).
+    train_campaign : where to fit Q, the unicycle gains and the lag (default ``campaign``'s train runs).
     outage_warmup_s, outage_recovery_s, outage_durations_s : GNSS before the first outage and
         between outages, and the outage lengths taken in turn (:func:`simulation.gnss.schedule_outages`;
         default 5, 10, 30, 60 s).
@@ -241,7 +263,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
     if not train:
         raise InputError(f"{campaign.root}: no run marked train to fit process noise on")
     series = train_series(train, s)
-    models = fit_models(train, sindy_body, oracle_dynamics, s, series)
+    models = fit_models(train, sindy_body, oracle_dynamics, s, series, lag="lag_ekf" in estimators)
     recorded = load_recorded_gnss(campaign) if profile == RECORDED else None
     runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outages.warmup_s, outages.recovery_s,
                          outages.durations_s, recorded) for i, r in enumerate(test)]
@@ -277,8 +299,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         return r.gnss if settings.fuses_gnss else None
 
     # EKFs in the order of the scores; sindy_ekf_lateral runs the SINDy model
-    for name, base in (("cv_ekf", "cv_ekf"), ("unicycle_ekf", "unicycle_ekf"), ("sindy_ekf", "sindy_ekf"),
-                       ("oracle_ekf", "oracle_ekf"), ("sindy_ekf_lateral", "sindy_ekf")):
+    for name, base in [(n, n) for n in EKF_ESTIMATORS] + [("sindy_ekf_lateral", "sindy_ekf")]:
         if name not in estimators or base not in models:
             continue
         cfg = config.estimator(name)
@@ -286,8 +307,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         lateral = lateral_of(cfg)
         if lateral is not None:
             log.info("%s: v_y = 0 with std %.4f m/s every %d steps", name, lateral.vy_std_m_s, lateral.every)
-        batch = [EkfRun(f"{r.name} {name}", r.grid, r.u_motor if use_motor and r.u_motor is not None else r.u,
-                        r.x0, cfg.P0, gnss_of(cfg, r)) for r in runs]
+        batch = [EkfRun(f"{r.name} {name}", r.grid, r.u_motor if use_motor and r.u_motor is not None
+                        else r.inputs_for(models[base].dynamics), r.x0, cfg.P0, gnss_of(cfg, r)) for r in runs]
         start = time.perf_counter()
         keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
                                      gate_prob=cfg.gate_prob))
@@ -296,7 +317,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         cfg = config.estimator("dead_reckoning")
         start = time.perf_counter()
         keep("dead_reckoning", guarded_ekf_batch(_process_model(models, "sindy_ekf", cfg), [
-            EkfRun(f"{r.name} dead_reckoning", r.grid, r.u, r.x0, cfg.P0, None) for r in runs]))
+            EkfRun(f"{r.name} dead_reckoning", r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, None) for r in runs]))
         runtimes["dead_reckoning"] = time.perf_counter() - start
     # batch smoothing, each started from its filter's estimate on the full grid
     for name, init_name in (("sindy_graph", "sindy_ekf"), ("sindy_graph_lateral", "sindy_ekf_lateral")):
@@ -312,7 +333,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
             if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
                 x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
                                           for i in range(6)])
-            results.append(guarded(smooth_batch, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
+            results.append(guarded(smooth_batch, model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r),
                                    x_init=x_init, marginal_stride=10, lateral=constraint,
                                    name=f"{r.name} {name}"))
         keep(name, results)
@@ -321,7 +342,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         cfg = config.estimator("sindy_isam2")
         model = _process_model(models, "sindy_ekf", cfg)
         start = time.perf_counter()
-        keep("sindy_isam2", [guarded(smooth_isam2, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
+        keep("sindy_isam2", [guarded(smooth_isam2, model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r),
                                      name=f"{r.name} sindy_isam2") for r in runs])
         runtimes["sindy_isam2"] = time.perf_counter() - start
     truth = {r.name: r.truth for r in runs}

@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=None, help="seed of the GNSS errors (default: the config's, 0)")
     p.add_argument("--estimators", default=None, metavar="A,B,...",
                    help="comma-separated subset (default: those the config enables, all available: dead_reckoning, "
-                        "cv_ekf, unicycle_ekf, sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), "
+                        "cv_ekf, unicycle_ekf, lag_ekf, sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), "
                         "oracle_ekf on simulated campaigns, sindy_graph, sindy_graph_lateral, sindy_isam2)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",

@@ -1,4 +1,5 @@
-"""``sindy-ekf identify CAMPAIGN --out MODEL.json``: integral SINDy with the full hyperparameter search."""
+"""``sindy-ekf identify CAMPAIGN --out MODEL.json``: integral SINDy screened by grouped CV, refined by output
+error, checked, and compared with the lag baseline."""
 
 from __future__ import annotations
 
@@ -45,12 +46,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def format_ranking(ident: Identification) -> str:
-    """Return the selected model's equations and the ten best grid points (and the selected one)."""
+    """Return the selected model's equations, the ten best grid points of the screening (and the
+    selected one), the output-error candidates beside the lag baseline, and whether the model
+    beats the lag."""
     result, model = ident.search, ident.model
+    pipe = ident.pipeline
+    cv_note = pipe.folds.note if pipe is not None else f"{len(result.folds)}-fold CV by run"
     lines = [f"identified on {len(ident.plan.train)} train runs of {ident.plan.name}; grid of "
-             f"{ident.plan.grid.size} points, {len(result.folds)}-fold CV by run",
+             f"{ident.plan.grid.size} points; {cv_note}",
              model.equations(),
-             f"\nselected: rank {result.selected + 1}, the {model.training['selection']}",
+             f"dead time: u1 {1000 * model.dead_time_s[0]:.0f} ms, u2 {1000 * model.dead_time_s[1]:.0f} ms; "
+             f"well-posedness checks {'passed' if model.checks.get('passed') else 'NOT RECORDED'}",
+             "\nscreening (integral regression, scored on reference windows of held-out groups):",
              f"{'rank':>4} {'s':>7} {'tau':>4} {'alpha':>6} {'T':>5} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} "
              f"{'yaw 5s deg':>10}  note"]
     rows = list(range(min(10, len(result.table["s"]))))
@@ -60,10 +67,31 @@ def format_ranking(ident: Identification) -> str:
         note = "" if r["stable_at_rest"] else "unstable at rest"
         if r["diverged_frac"] > 0:
             note += ("; " if note else "") + f"diverged on {100 * r['diverged_frac']:.0f} % of windows"
-        note += ("; " if note else "") + "selected" if i == result.selected else ""
         lines.append(f"{i + 1:4d} {r['s']:7g} {r['tau']:4g} {r['alpha']:6g} {r['T']:5g} {r['complexity']:5.0f} "
                      f"{100 * r['pos_err_5s_m']:9.2f} {100 * r['pos_err_5s_se_m']:5.2f} {r['yaw_err_5s_deg']:10.2f}"
                      f"  {note}")
+    if pipe is None:
+        return "\n".join(lines)
+    lines += ["\ncandidates refined by output error, cross-validated on the same folds:",
+              f"{'candidate':14} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} {'yaw 5s deg':>10}  note"]
+    for i, c in enumerate(pipe.candidates):
+        note = "selected" if i == pipe.selected else ""
+        if not c.passed:
+            note += ("; " if note else "") + "fails " + ", ".join(c.failed)
+        lines.append(f"{c.label:14} {c.complexity:5.1f} {100 * c.cv_pos_err_5s_m:9.2f} {100 * c.cv_se_m:5.2f} "
+                     f"{c.cv_yaw_err_5s_deg:10.2f}  {note}")
+    lag = pipe.lag_cv
+    lines.append(f"{'lag baseline':14} {lag.complexity:5.1f} {100 * lag.cv_pos_err_5s_m:9.2f} {100 * lag.cv_se_m:5.2f} "
+                 f"{lag.cv_yaw_err_5s_deg:10.2f}  the hand-written model to beat")
+    chosen = pipe.candidates[pipe.selected]
+    if pipe.beats_lag:
+        lines.append(f"\nselected: {chosen.label}, the {model.training['selection']}; CV "
+                     f"{chosen.cv_pos_err_5s_m / lag.cv_pos_err_5s_m:.2f}x the lag baseline's error")
+    else:
+        lines.append(f"\nselected: {chosen.label}, the {model.training['selection']}; it does NOT beat the lag "
+                     f"baseline in cross-validation ({100 * chosen.cv_pos_err_5s_m:.2f} cm against "
+                     f"{100 * lag.cv_pos_err_5s_m:.2f} cm)")
+    lines += list(pipe.notes)
     return "\n".join(lines)
 
 

@@ -32,7 +32,9 @@ def format_headline(chain: ChainResult) -> str:
     lines = [f"campaign {chain.campaign_path} ({chain.kind}): {len(chain.trajectory.split('train'))} train, "
              f"{len(chain.trajectory.split('test'))} test runs"]
     if chain.model is not None:
-        hp = ", ".join(f"{k} {v:g}" for k, v in chain.model.hyperparameters.items())
+        # numbers as %g; the library name, the lag structure's name and the dead times as they are
+        hp = ", ".join(f"{k} {v:g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else f"{k} {v}"
+                       for k, v in chain.model.hyperparameters.items())
         lines.append(f"model: {chain.model.complexity} active terms ({hp})")
     errors = chain.prediction_errors()
     if errors:

@@ -131,11 +131,14 @@ def one_step_residuals(model: ProcessModel, series: list[StateSeries]) -> tuple[
                                                                                 np.ndarray]:
     """Return the one-step residuals ``x_{k+1} - step(x_k)`` ``(m, 6)`` and the step lengths ``(m,)``.
 
-    All steps of all runs are predicted in one vectorised call.
+    All steps of all runs are predicted in one vectorised call; a model with input dead time
+    sees each series' inputs that much later (interpolated at ``t - d``).
     """
     x0 = np.concatenate([s.x6[:-1] for s in series])
     x1 = np.concatenate([s.x6[1:] for s in series])
-    u0 = np.concatenate([s.u[:-1] for s in series])
+    d = getattr(model.dynamics, "dead_time_s", (0.0, 0.0))
+    u0 = np.concatenate([np.column_stack([np.interp(s.t - d[i], s.t, s.u[:, i]) for i in range(2)])[:-1]
+                         for s in series])
     t0 = np.concatenate([s.t[:-1] - s.t[0] for s in series])
     dt = np.concatenate([np.diff(s.t) for s in series])
     if np.any(dt <= 0):

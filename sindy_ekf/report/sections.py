@@ -223,7 +223,9 @@ def section_poses(sec: Section, chain: ChainResult) -> None:
 def section_identification(sec: Section, chain: ChainResult) -> None:
     """Write the identification: grid search, selected model's equations, term prevalence."""
     model = chain.model
-    hp = ", ".join(f"{k} = {v:g}" for k, v in model.hyperparameters.items())
+    # numbers as %g; the library name, the lag structure's name and the dead times as they are
+    hp = ", ".join(f"{k} = {v:g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else f"{k} = {v}"
+                   for k, v in model.hyperparameters.items())
     src = f"loaded from {chain.model_path}" if chain.search is None else f"selected by the grid search ({hp})"
     sec.note(f"Integral SINDy (eqs. 5.55 to 5.59), library {model.library.name}, {model.complexity} active "
              f"terms, {src}.")
@@ -245,6 +247,8 @@ def section_identification(sec: Section, chain: ChainResult) -> None:
                  "RMS error is infinite; such models are ranked after every model that never diverged, sparsest first.")
     sec.add(terms_html(["s", "tau", "alpha", "T", "CV", "diverged"]))
     s = float(model.hyperparameters["s"])
+    if s not in set(np.asarray(res.table["s"], float).tolist()):  # the lag structure: not a grid point
+        s = float(res.table["s"][0])
     items = [(lambda: plot_grid(res, s), f"grid over alpha and T at s = {s:g} (figs. 7.4-7.7)"),
              (lambda: plot_error_vs_complexity(res), "5 s errors against complexity, models with a finite error "
               "(fig. 7.10)")]
@@ -266,6 +270,12 @@ def section_evaluation(sec: Section, chain: ChainResult) -> None:
     sec.add(table_html(["model", "pos. error 5 s cm", "heading error 5 s deg"],
                        [[n, f"{100 * e.pos_err_5s_m:.2f}", f"{e.yaw_err_5s_deg:.2f}"] for n, e in errors.items()]))
     sec.add(terms_html(errors))
+    if "lag" in errors:  # the hand-written model to beat (first-order lag per axis with input dead time)
+        model_m, lag_m = errors["sindy"].pos_err_5s_m, errors["lag"].pos_err_5s_m
+        sec.note(f"The identified model beats the lag baseline ({model_m / lag_m:.2f}x its 5 s position error)."
+                 if model_m < lag_m else
+                 f"The identified model does NOT beat the lag baseline (first-order lag per axis with input dead "
+                 f"time, fitted on the train runs): {100 * model_m:.2f} cm against {100 * lag_m:.2f} cm.")
     sec.figures([(lambda: plot_error_curves([sindy]), "SINDy model: per-window errors (grey) and s_p(t), s_h(t)"),
                  (lambda: plot_error_curves(list(ev.values()), stacked=False), "all models: s_p(t), s_h(t)")])
 

@@ -62,7 +62,7 @@ STAGES = ("calibration", "synchronisation", "identification", "evaluation", "est
 QUICK = "quick"
 # Estimators in quick mode: all but the fixed-lag iSAM2 smoother, the slowest by far and the one
 # INTERFACES.md does not require.
-QUICK_ESTIMATORS = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "sindy_ekf", "oracle_ekf", "sindy_graph")
+QUICK_ESTIMATORS = ("dead_reckoning", "cv_ekf", "unicycle_ekf", "lag_ekf", "sindy_ekf", "oracle_ekf", "sindy_graph")
 NEEDS_MODEL = ("evaluation", "estimation", "diagnosis")
 
 

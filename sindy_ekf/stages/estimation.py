@@ -16,6 +16,7 @@ from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
 from groundfloor.types import TrajectoryCampaign
 from identification.preprocessing.campaigns import open_campaign
+from identification.sindy.checks import require_checks_passed
 from identification.sindy.model import SindyModel
 from simulation.truth import true_dynamics_of
 from sindy_ekf.benchmark.result import BenchmarkResult
@@ -78,6 +79,7 @@ def benchmark_files(campaign: str | Path, model_path: str | Path, profile: str |
     (the command line's) win over it when given.
     """
     model = SindyModel.load(model_path)
+    require_checks_passed(model, str(model_path))
     traj = open_campaign(campaign)
     return estimation_stage(traj, model, true_dynamics_of(campaign), profile, seed, estimators, campaign,
                             config=config)

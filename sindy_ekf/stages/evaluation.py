@@ -1,16 +1,26 @@
 """Evaluation stage: the 5 s prediction error of a model, the baselines and the oracle on the test runs.
 
 Thesis section 5.3.8: 5 s windows with 50 % overlap on the test runs, RMS over the windows at
-5 s (eqs. 5.76 to 5.78). Beside the identified model (``sindy``) the same windows score, from the
-same start states, the constant-velocity and unicycle baselines (the unicycle's gains fitted on
-the train runs) and, on a simulated campaign, the simulator's true dynamics (``oracle``: the
-best any model can do). ``sindy-ekf evaluate`` prints and writes :meth:`Evaluation.to_json`;
-the report's chain keeps the RK4 results for its figures.
+5 s (eqs. 5.76 to 5.78). Scoring does not depend on the candidate (``docs/identification.md``):
+every model starts from the same start states, the test runs' reference states
+(:mod:`identification.sindy.reference`, the discrepancy-principle smoothing chosen from the
+data's own noise, not the model's ``s``), and is compared with the measured poses. Beside the
+identified model (``sindy``) the same windows score the constant-velocity and kinematic unicycle
+baselines (gains fitted on the train runs), the ``lag`` baseline (first-order lag per axis with
+input dead time, output-error fit on the train runs: the hand-written model to beat) and, on a
+simulated campaign, the simulator's true dynamics (``oracle``: the best any model can do).
+
+Beside the test score: the model's cross-validation estimate from its file (with a warning when
+the two disagree by more than the spread of the CV folds) and the sensitivity of the score to the
+start-state smoothing (the same windows started from states at the reference smoothing x 0.1 and
+x 10). ``sindy-ekf evaluate`` prints and writes :meth:`Evaluation.to_json`; the report's chain
+keeps the RK4 results for its figures.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import logging
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -20,16 +30,25 @@ from groundfloor.errors import InputError
 from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates, InputSeries, TrajectoryCampaign, TrajectoryRun
 from identification.preprocessing.campaigns import open_campaign
-from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel
+from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel, fit_lag
+from identification.sindy.checks import require_checks_passed
 from identification.sindy.data import states_of_runs
-from identification.sindy.evaluate import EvaluationResult, evaluate_on_runs
+from identification.sindy.evaluate import EvaluationResult, evaluate_model
 from identification.sindy.model import SindyModel
+from identification.sindy.reference import REFERENCE_SMOOTHING, Reference, reference
 from simulation.robot import TrueDynamics
 from simulation.truth import true_dynamics_of
+
+log = logging.getLogger(__name__)
 
 MODEL = "sindy"
 ORACLE = "oracle"
 MOTOR_INPUT_DT_S = 0.005  # sampling of the motor inputs handed to the oracle (a tenth of the 50 Hz step)
+
+
+LAG = "lag"
+#: start-state smoothings of the sensitivity check, as multiples of the reference smoothing
+SENSITIVITY_FACTORS = (0.1, 10.0)
 
 
 def prediction_error(evaluation: EvaluationResult) -> PredictionError:
@@ -44,6 +63,41 @@ def model_smoothing(model: SindyModel) -> float:
 
 
 @dataclass(frozen=True)
+class CvComparison:
+    """The model's cross-validation estimate (from its file) beside its test score."""
+
+    cv_pos_err_5s_m: float
+    spread_m: float  # standard deviation of the fold errors (nan with fewer than two folds)
+    test_pos_err_5s_m: float
+    kind: str  # how the folds were made ("leave-one-group-out", ...)
+
+    @property
+    def disagree(self) -> bool:
+        """Return whether the test score lies further from the CV estimate than the folds' spread."""
+        return bool(np.isfinite(self.spread_m) and abs(self.test_pos_err_5s_m - self.cv_pos_err_5s_m) > self.spread_m)
+
+    def to_json(self) -> dict:
+        """Return ``{"pos_err_5s_m", "spread_m", "kind", "disagrees"}``."""
+        return {"pos_err_5s_m": self.cv_pos_err_5s_m, "spread_m": self.spread_m, "kind": self.kind,
+                "disagrees": self.disagree}
+
+
+def cv_comparison(model: SindyModel, test_pos_err_5s_m: float) -> CvComparison | None:
+    """Return the model file's CV estimate beside the test score (None when the file has none).
+
+    The spread is the standard deviation of the per-fold errors: the test runs are one more
+    held-out group, so their score should fall within the folds' scatter of the CV estimate.
+    """
+    cv = model.training.get("cv") or {}
+    if not isinstance(cv, dict) or cv.get("pos_err_5s_m") is None:
+        return None
+    folds = np.asarray([v for v in cv.get("fold_pos_err_5s_m") or () if v is not None], float)
+    folds = folds[np.isfinite(folds)]
+    spread = float(np.std(folds, ddof=1)) if len(folds) >= 2 else float("nan")
+    return CvComparison(float(cv["pos_err_5s_m"]), spread, float(test_pos_err_5s_m), str(cv.get("kind", "")))
+
+
+@dataclass(frozen=True)
 class Evaluation:
     """The evaluation of a model beside the baselines (and the oracle) on one campaign's test runs."""
 
@@ -51,11 +105,22 @@ class Evaluation:
     n_test_runs: int
     results: dict[str, dict[str, EvaluationResult]]  # model name -> integration method -> result
     train_states: list[BodyStates]  # the train runs' segments at the model's smoothing
+    reference_smoothing: float = REFERENCE_SMOOTHING
+    cv: CvComparison | None = None
+    # start-state smoothing -> model name -> 5 s position error on the same windows (sensitivity)
+    sensitivity: dict[float, dict[str, float]] = field(default_factory=dict)
 
     @property
     def model(self) -> EvaluationResult:
         """The identified model's RK4 evaluation."""
         return self.results[MODEL]["rk4"]
+
+    @property
+    def beats_lag(self) -> bool | None:
+        """Return whether the model's 5 s position error is below the lag baseline's (None without it)."""
+        if LAG not in self.results:
+            return None
+        return self.model.pos_err_5s_m < self.results[LAG]["rk4"].pos_err_5s_m
 
     def errors(self, method: str = "rk4") -> dict[str, PredictionError]:
         """Return each model's 5 s errors with ``method`` (the models evaluated with it)."""
@@ -63,7 +128,9 @@ class Evaluation:
 
     def to_json(self) -> dict:
         """Return the ``evaluate --json`` content: the model's triple, then ``euler2``, ``baselines``
-        and (simulated campaigns) ``oracle`` with the same keys (INTERFACES.md)."""
+        and (simulated campaigns) ``oracle`` with the same keys (INTERFACES.md); then the
+        reference smoothing of the start states, ``start_state_sensitivity`` and (model files
+        with a CV estimate) ``cv``."""
         rk4 = self.errors("rk4")
         out = rk4[MODEL].to_json()
         if "euler2" in self.results[MODEL]:
@@ -71,29 +138,71 @@ class Evaluation:
         out["baselines"] = {n: e.to_json() for n, e in rk4.items() if n not in (MODEL, ORACLE)}
         if ORACLE in rk4:
             out[ORACLE] = rk4[ORACLE].to_json()
+        out["reference_smoothing"] = self.reference_smoothing
+        out["start_state_sensitivity"] = {"smoothing": list(self.sensitivity),
+                                          "pos_err_5s_m": {n: [self.sensitivity[s][n] for s in self.sensitivity]
+                                                           for n in (MODEL, LAG) if n in rk4}}
+        if self.beats_lag is not None:
+            out["beats_lag"] = self.beats_lag
+        if self.cv is not None:
+            out["cv"] = self.cv.to_json()
         return out
+
+
+def _score(models: dict[str, Dynamics], windows, methods=("rk4",)) -> dict[str, dict[str, EvaluationResult]]:
+    """Return ``{name: {method: result}}`` of ``models`` on ``windows`` (every method for the
+    identified model, RK4 for the others)."""
+    return {name: {m: evaluate_model(model, windows, method=m, name=name)
+                   for m in (methods if name == MODEL else ("rk4",))} for name, model in models.items()}
 
 
 def evaluation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dynamics | None = None,
                      methods: tuple[str, ...] = ("rk4",)) -> Evaluation:
     """Return the model, the baselines and ``oracle`` (when given) evaluated on the test runs.
 
-    Every model sees the same windows of the test runs' body states at the model's smoothing
-    ``s``; the unicycle is fitted on the train runs' (left out without train runs). ``methods``
-    are integration methods of :func:`identification.sindy.evaluate.evaluate_on_runs`.
+    Every model sees the same windows of the test runs' reference states (start states) and
+    measured poses (truth); the unicycle and the lag are fitted on the train runs (left out
+    without train runs). ``methods`` are integration methods of
+    :func:`identification.sindy.evaluate.rollout` for the identified model (the others RK4).
     """
-    s = model_smoothing(model)
     models: dict[str, Dynamics] = {MODEL: model, "constant_velocity": ConstantVelocityModel()}
     train = campaign.split("train")
-    train_states = states_of_runs(train, s)[0] if train else []
-    if train_states:
-        models["unicycle"] = UnicycleModel().fit(train_states)
     test = campaign.split("test")
-    results = evaluate_on_runs(models, test, s, methods=methods)
-    if oracle is not None:  # same windows and start states (from the poses), its own inputs
+    train_states = states_of_runs(train, model_smoothing(model))[0] if train else []
+    if train:
+        train_ref = reference(train)
+        models["unicycle"] = UnicycleModel().fit(train_ref.states)
+        models[LAG] = fit_lag(train_ref)
+    test_ref = reference(test)
+    for name, m in models.items():
+        m.warn_outside_envelope(*_six_states(test_ref), name=f"test runs ({name})")
+    results = _score(models, test_ref.windows(), methods)
+    if oracle is not None:  # the same windows and start states (from the poses), its own inputs
         driven = [as_driven(run, oracle) for run in test] if isinstance(oracle, TrueDynamics) else test
-        results[ORACLE] = evaluate_on_runs({ORACLE: oracle}, driven, s, methods=methods)[ORACLE]
-    return Evaluation(campaign.name, len(campaign.split("test")), results, train_states)
+        results[ORACLE] = _score({ORACLE: oracle}, reference(driven).windows(), methods)[ORACLE]
+    sensitivity = {REFERENCE_SMOOTHING: {n: results[n]["rk4"].pos_err_5s_m for n in (MODEL, LAG) if n in results}}
+    for factor in SENSITIVITY_FACTORS:
+        s = REFERENCE_SMOOTHING * factor
+        windows = reference(test, s).windows()
+        sensitivity[s] = {n: evaluate_model(models[n], windows, name=n).pos_err_5s_m for n in (MODEL, LAG)
+                          if n in models}
+    sensitivity = dict(sorted(sensitivity.items()))
+    cv = cv_comparison(model, results[MODEL]["rk4"].pos_err_5s_m)
+    if cv is not None and cv.disagree:
+        log.warning("the test score (%.3f m) and the model's cross-validation estimate (%.3f m) disagree by more "
+                    "than the spread of the CV folds (%.3f m): the test runs are not like the train groups",
+                    cv.test_pos_err_5s_m, cv.cv_pos_err_5s_m, cv.spread_m)
+    ev = Evaluation(campaign.name, len(test), results, train_states, REFERENCE_SMOOTHING, cv, sensitivity)
+    if ev.beats_lag is False:
+        log.warning("the identified model (%.3f m) does not beat the lag baseline (%.3f m) on the test runs",
+                    ev.model.pos_err_5s_m, results[LAG]["rk4"].pos_err_5s_m)
+    return ev
+
+
+def _six_states(ref: Reference) -> tuple[np.ndarray, np.ndarray]:
+    """Return the six states ``(n, 6)`` and inputs ``(n, 2)`` of all samples of ``ref``."""
+    x6 = np.vstack([np.column_stack([st.x, st.y, st.yaw, st.vx, st.vy, st.omega]) for st in ref.states])
+    return x6, np.vstack([st.inputs for st in ref.states])
 
 
 def as_driven(run: TrajectoryRun, oracle: TrueDynamics) -> TrajectoryRun:
@@ -123,9 +232,11 @@ def evaluate_files(campaign: str | Path, model_path: str | Path,
     Raises
     ------
     InputError
-        Unreadable model, not a campaign, or no run marked ``test``.
+        Unreadable model, a model whose recorded well-posedness checks failed, not a campaign,
+        or no run marked ``test``.
     """
     model = SindyModel.load(model_path)
+    require_checks_passed(model, str(model_path))
     traj = open_campaign(campaign)
     if not traj.split("test"):
         raise InputError(f"{campaign}: campaign.yaml marks no run as test")

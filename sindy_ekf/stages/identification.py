@@ -1,10 +1,13 @@
-"""Identification stage: integral SINDy with the cross-validated grid search on the train runs.
+"""Identification stage: the pipeline of :mod:`identification.sindy.identify` on the train runs.
 
-Thesis 5.3.6: every grid point (spline smoothing ``s``, window ``tau``, ridge ``alpha``,
-threshold ``T``, library) scored by 5 s prediction error in cross-validation by run, the
-selected model refitted on all train runs. :func:`plan_identification` opens the campaign and
-chooses the grid (``sindy-ekf identify`` prints it before the search starts);
-:func:`identify` searches and returns the model with what the search found about it.
+Thesis 5.3.6 and issue 13: the integral-regression grid (spline smoothing ``s``, window ``tau``,
+ridge ``alpha``, threshold ``T``, library) screened on reference windows by grouped
+cross-validation, its best distinct structures and the first-order lag refined by output error
+and cross-validated again, the sparsest candidate passing the well-posedness checks within one
+standard error selected and refitted on all train runs (never a model failing the checks).
+:func:`plan_identification` opens the campaign and chooses the grid (``sindy-ekf identify``
+prints it before the search starts); :func:`identify` runs the pipeline and returns the model
+with what it found about it, including whether it beats the ``lag`` baseline.
 """
 
 from __future__ import annotations
@@ -19,10 +22,12 @@ from groundfloor.types import TrajectoryRun
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.adjust import Adjustment, adjust_coefficients
 from identification.sindy.data import states_of_runs
+from identification.sindy.identify import Identification as Pipeline
+from identification.sindy.identify import identify as identify_runs
 from identification.sindy.library import make_library
 from identification.sindy.model import SindyModel
 from identification.sindy.regression import integral_problem
-from identification.sindy.search import SearchGrid, SearchResult, grid_for_runs, search
+from identification.sindy.search import SearchGrid, SearchResult, grid_for_runs
 
 
 @dataclass(frozen=True)
@@ -38,26 +43,45 @@ class IdentificationPlan:
 
 @dataclass(frozen=True)
 class Identification:
-    """The grid search and the selected model, with its training facts (cross-validated errors, grid)."""
+    """The identification pipeline's selected model, with its screening, candidates and training facts."""
 
     plan: IdentificationPlan
-    search: SearchResult
+    search: SearchResult  # the screening of the integral-regression grid
     model: SindyModel
     model_path: Path | None = None
+    pipeline: Pipeline | None = None  # candidates, folds, the lag baseline and its CV score
 
     @property
     def best(self) -> dict:
-        """The selected row of the search table."""
-        return self.search.row(self.search.selected)
+        """The selected candidate's CV errors (``pos_err_5s_m``, ``yaw_err_5s_deg``, ``pos_err_5s_se_m``)."""
+        if self.pipeline is None:
+            row = self.search.row(self.search.selected)
+            return {k: row[k] for k in ("pos_err_5s_m", "yaw_err_5s_deg", "pos_err_5s_se_m") if k in row}
+        c = self.pipeline.candidates[self.pipeline.selected]
+        return {"pos_err_5s_m": c.cv_pos_err_5s_m, "yaw_err_5s_deg": c.cv_yaw_err_5s_deg, "pos_err_5s_se_m": c.cv_se_m}
+
+    @property
+    def beats_lag(self) -> bool | None:
+        """Return whether the selected model's CV error is below the lag baseline's (None without the pipeline)."""
+        return None if self.pipeline is None else self.pipeline.beats_lag
 
     def to_json(self) -> dict:
         """Return the ``identify --json`` summary."""
         m = self.model
-        return {"model": str(self.model_path), "hyperparameters": m.hyperparameters, "library": m.library.name,
-                "complexity": m.complexity, "equations": m.equations().splitlines(),
-                "cv_pos_err_5s_m": self.best["pos_err_5s_m"], "cv_yaw_err_5s_deg": self.best["yaw_err_5s_deg"],
-                "condition_number": m.training.get("condition_number"), "grid_size": self.plan.grid.size,
-                "selected_rank": self.search.selected + 1, "ranking": self.search.ranking(14)}
+        out = {"model": str(self.model_path), "hyperparameters": m.hyperparameters, "library": m.library.name,
+               "complexity": m.complexity, "equations": m.equations().splitlines(),
+               "cv_pos_err_5s_m": self.best["pos_err_5s_m"], "cv_yaw_err_5s_deg": self.best["yaw_err_5s_deg"],
+               "condition_number": m.training.get("condition_number"), "grid_size": self.plan.grid.size,
+               "selected_rank": self.search.selected + 1, "ranking": self.search.ranking(14),
+               "checks_passed": bool(m.checks.get("passed", False)), "dead_time_s": list(m.dead_time_s)}
+        if self.pipeline is not None:
+            p = self.pipeline
+            out |= {"cv_se_m": self.best["pos_err_5s_se_m"], "cv": m.training.get("cv"),
+                    "selected": p.candidates[p.selected].label, "candidates": [c.summary() for c in p.candidates],
+                    "lag": {"cv_pos_err_5s_m": p.lag_cv.cv_pos_err_5s_m, "cv_se_m": p.lag_cv.cv_se_m,
+                            "cv_yaw_err_5s_deg": p.lag_cv.cv_yaw_err_5s_deg, **p.lag.to_dict()},
+                    "beats_lag": p.beats_lag, "not_excited": list(p.not_excited), "notes": list(p.notes)}
+        return out
 
 
 def grid_overrides(library: Sequence[str] | None = None, smoothing: Sequence[float] | None = None,
@@ -104,18 +128,25 @@ def plan_identification(campaign: str | Path, quick: bool = False, kind: str = "
 
 
 def identify(plan: IdentificationPlan, n_jobs: int = 1, out: str | Path | None = None) -> Identification:
-    """Return the search of ``plan`` and its selected model, written to ``out`` when given.
+    """Return the identification of ``plan`` and its selected model, written to ``out`` when given.
 
-    The model's training facts gain the cross-validated 5 s errors of the selected row, the
-    grid's size and why it was chosen, the folds and the campaign.
+    The model's training facts gain the selected candidate's cross-validated 5 s errors, the
+    grid's size and why it was chosen and the campaign.
+
+    Raises
+    ------
+    InputError
+        No candidate passes the well-posedness checks (nothing is written), or the train runs
+        cannot be cross-validated (one run).
     """
-    result = search(runs=list(plan.train), grid=plan.grid, n_jobs=n_jobs)
-    best = result.row(result.selected)
-    model = dataclasses.replace(result.model, training={
-        **result.model.training, "cv_pos_err_5s_m": best["pos_err_5s_m"], "cv_yaw_err_5s_deg": best["yaw_err_5s_deg"],
-        "grid_size": plan.grid.size, "grid": plan.why, "folds": result.folds, "campaign": plan.campaign})
+    pipe = identify_runs(list(plan.train), grid=plan.grid, n_jobs=n_jobs)
+    c = pipe.candidates[pipe.selected]
+    model = dataclasses.replace(pipe.model, training={
+        **pipe.model.training, "cv_pos_err_5s_m": c.cv_pos_err_5s_m, "cv_yaw_err_5s_deg": c.cv_yaw_err_5s_deg,
+        "grid_size": plan.grid.size, "grid": plan.why, "folds": [list(h) for h in pipe.folds.held_out],
+        "campaign": plan.campaign})
     path = model.to_json(out) if out is not None else None
-    return Identification(plan, result, model, path)
+    return Identification(plan, pipe.search, model, path, pipe)
 
 
 def coefficient_adjustment(identification: Identification) -> Adjustment:
@@ -123,5 +154,6 @@ def coefficient_adjustment(identification: Identification) -> Adjustment:
     (eq. 5.79, their correlations are fig. 7.12)."""
     model = identification.model
     segs, names, _ = states_of_runs(list(identification.plan.train), model.hyperparameters["s"])
-    problem = integral_problem(segs, model.library, model.hyperparameters["tau"], names)
+    # the lag structure has no window of its own: the thesis's 1 s
+    problem = integral_problem(segs, model.library, model.hyperparameters.get("tau", 1.0), names)
     return adjust_coefficients(model, problem)

@@ -14,7 +14,8 @@ from identification.sindy.baselines import (
     UnicycleModel,
 )
 from identification.sindy.library import make_library
-from identification.sindy.model import SindyModel, StackedSindy, model_from_terms
+from identification.sindy.active_terms import StackedSindy
+from identification.sindy.model import SindyModel, model_from_terms
 from simulation.effects import EFFECTS, Effect
 from simulation.robot import TrueDynamics
 from sindy_ekf.diagnose.extend import ExtendedModel

@@ -89,7 +89,7 @@ def test_json_round_trip_keeps_dynamics_and_metadata(tmp_path):
     model.envelope = {v: [-1.0, 1.0] for v in ("vx", "vy", "omega", "u1", "u2")}
     path = model.to_json(tmp_path / "m.json")
     d = json.loads(path.read_text())
-    assert d["library"]["name"] == "poly3_absu" and d["format_version"] == 1
+    assert d["library"]["name"] == "poly3_absu" and d["format_version"] == 2
     assert len(d["feature_names"]) == len(d["coefficients"]["omega"]) == 60
     loaded = SindyModel.load(path)
     x, u = np.random.default_rng(7).normal(size=(2, 10, 3)), np.random.default_rng(8).normal(size=(10, 2))

@@ -105,18 +105,28 @@ def test_grid_plot_shows_the_table_values(result, tmp_path):
 
 
 @pytest.mark.slow
-def test_identify_and_evaluate_commands_end_to_end(small_trajectory, tmp_path):
+def test_identify_and_evaluate_commands_end_to_end(small_trajectory, tmp_path, capsys):
     from sindy_ekf.cli import main
 
     model_path, id_json, ev_json = tmp_path / "m.json", tmp_path / "id.json", tmp_path / "ev.json"
     assert main(["identify", str(small_trajectory), "--out", str(model_path), "--quick", "--quiet",
                  "--json", str(id_json)]) == 0
+    printed = capsys.readouterr().out
     model = SindyModel.load(model_path)
-    assert json.loads(id_json.read_text())["complexity"] == model.complexity > 0
+    summary = json.loads(id_json.read_text())
+    assert summary["complexity"] == model.complexity > 0
+    assert model.checks["passed"] and summary["checks_passed"]  # identify never selects a failing model
+    # the summary puts the lag baseline beside the candidates and says whether the model beats it
+    assert "lag baseline" in printed
+    assert ("does NOT beat the lag" in printed) == (not summary["beats_lag"])
     assert main(["evaluate", str(small_trajectory), "--model", str(model_path), "--quiet",
                  "--json", str(ev_json)]) == 0
+    printed = capsys.readouterr().out
     ev = json.loads(ev_json.read_text())
     assert ev["n_windows"] > 0 and 0 < ev["pos_err_5s_m"] < ev["baselines"]["constant_velocity"]["pos_err_5s_m"]
+    assert set(ev["baselines"]) == {"constant_velocity", "unicycle", "lag"}
+    assert ev["cv"]["pos_err_5s_m"] == pytest.approx(summary["cv_pos_err_5s_m"])  # the CV estimate beside the test
+    assert "cross-validation estimate" in printed and "start-state smoothing sensitivity" in printed
     assert main(["evaluate", str(small_trajectory), "--model", str(tmp_path / "none.json"), "--quiet"]) == 2
 
 

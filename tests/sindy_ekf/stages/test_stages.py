@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -34,12 +35,52 @@ def mini(tmp_path_factory):
 def test_evaluation_scores_every_model_on_the_same_windows(mini):
     root, path = mini
     out = evaluate_files(root, path, methods=("rk4", "euler2")).to_json()
-    assert set(out) == {"pos_err_5s_m", "yaw_err_5s_deg", "n_windows", "euler2", "baselines"}  # no truth: no oracle
-    assert set(out["baselines"]) == {"constant_velocity", "unicycle"}
+    assert set(out) == {"pos_err_5s_m", "yaw_err_5s_deg", "n_windows", "euler2", "baselines",  # no truth: no oracle
+                        "reference_smoothing", "start_state_sensitivity", "beats_lag"}  # no CV in a hand-made file
+    assert set(out["baselines"]) == {"constant_velocity", "unicycle", "lag"}
     assert out["n_windows"] > 0
     assert all(b["n_windows"] == out["n_windows"] for b in [out["euler2"], *out["baselines"].values()])
     # the simulator's own dynamics predict better than a model that ignores the inputs
     assert out["pos_err_5s_m"] < out["baselines"]["constant_velocity"]["pos_err_5s_m"]
+
+
+def test_scoring_does_not_depend_on_the_models_smoothing(mini):
+    root, _ = mini
+    campaign = read_trajectory_campaign(root)
+    a = evaluation_stage(campaign, perfect_model()).to_json()
+    b = evaluation_stage(campaign, replace(perfect_model(), hyperparameters={"s": 50.0, "tau": 1.0})).to_json()
+    assert a["pos_err_5s_m"] == b["pos_err_5s_m"] and a["baselines"]["lag"] == b["baselines"]["lag"]
+    sens = a["start_state_sensitivity"]
+    assert sens["smoothing"] == [0.1, 1.0, 10.0]
+    assert sens["pos_err_5s_m"]["sindy"][1] == a["pos_err_5s_m"]
+    assert len(sens["pos_err_5s_m"]["lag"]) == 3
+
+
+def test_the_cv_estimate_beside_the_test_score_and_a_warning_when_they_disagree(mini, caplog):
+    root, _ = mini
+    campaign = read_trajectory_campaign(root)
+    near = {"cv": {"pos_err_5s_m": 0.05, "fold_pos_err_5s_m": [0.04, 0.06], "kind": "leave-one-run-out"}}
+    far = {"cv": {"pos_err_5s_m": 5.0, "fold_pos_err_5s_m": [4.9, 5.1], "kind": "leave-one-run-out"}}
+    test_err = evaluation_stage(campaign, perfect_model()).model.pos_err_5s_m
+    near["cv"]["pos_err_5s_m"] = test_err
+    ev = evaluation_stage(campaign, replace(perfect_model(), training=near))
+    assert ev.to_json()["cv"] == {"pos_err_5s_m": test_err, "spread_m": pytest.approx(0.01414, rel=1e-3),
+                                  "kind": "leave-one-run-out", "disagrees": False}
+    caplog.clear()
+    ev = evaluation_stage(campaign, replace(perfect_model(), training=far))
+    assert ev.to_json()["cv"]["disagrees"] is True
+    assert "disagree by more than the spread" in caplog.text
+
+
+def test_a_model_file_failing_its_checks_is_refused(mini, tmp_path):
+    root, _ = mini
+    bad = replace(perfect_model(), checks={"dissipative": {"passed": False}, "passed": False}).to_json(
+        tmp_path / "bad.json")
+    with pytest.raises(InputError, match=r"bad.json: the model fails its well-posedness checks \(dissipative\)"):
+        evaluate_files(root, bad)
+    from sindy_ekf.stages.estimation import benchmark_files
+    with pytest.raises(InputError, match=r"fails its well-posedness checks"):
+        benchmark_files(root, bad)
 
 
 def test_the_oracle_of_a_simulated_campaign_is_its_truths_dynamics(mini, tmp_path):
@@ -96,3 +137,14 @@ def test_the_chain_benchmarks_with_the_settings_given(mini):
     np.testing.assert_allclose(quick.outages["run_c"] - t0, [[10, 14], [26, 30]], atol=1e-6)  # 45 s run
     full = run_chain(root, model=path, grid=None, stages=stages, config=config).benchmark
     assert set(full.scores) == {"sindy_ekf", "sindy_ekf_lateral"}
+
+
+def test_unicycle_means_the_kinematic_unicycle_and_lag_ekf_runs_the_lag(mini):
+    from identification.sindy.baselines import LagModel, UnicycleModel
+    from sindy_ekf.benchmark.run import fit_models
+
+    root, _ = mini
+    models = fit_models(read_trajectory_campaign(root).split("train"), perfect_model())
+    assert type(models["unicycle_ekf"].dynamics) is UnicycleModel
+    assert type(models["lag_ekf"].dynamics) is LagModel
+    assert "lag_ekf" in ESTIMATORS

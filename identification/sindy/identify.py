@@ -1,0 +1,354 @@
+"""Identification that holds on data it was not tuned on: the pipeline of ``sindy-ekf identify``.
+
+1. **Reference and folds** (:mod:`identification.sindy.reference`): reference states of the
+   train runs (the discrepancy-principle smoothing), windows from them with the measured poses
+   as truth, and cross-validation folds that leave one group (day, session) out, falling back
+   to runs when there is one group.
+2. **Excitation**: variables the train runs do not excite (:func:`identification.sindy.checks.not_excited`)
+   are named and every feature containing one is left out.
+3. **The lag** (:func:`identification.sindy.baselines.fit_lag`): first-order lag per axis with
+   input dead time, by output error; its dead times are the regression's starting dead time.
+4. **Screening** (:func:`identification.sindy.search.search`): the integral-regression grid,
+   every grid point scored on the held-out groups' reference windows.
+5. **Candidates refined by output error, cross-validated**: the best :data:`N_CANDIDATES`
+   distinct admissible structures of the screening, and the lag as a sparse SINDy model
+   (``vx' = a vx + b u1``, ``vy' = e vy``, ``omega' = c omega + d u2``). In every fold each is
+   refitted on the fold's train groups: the regression picks the terms (the lag's own always
+   among them), the terms that are not significant in the least-squares adjustment of thesis
+   5.3.9 are dropped one by one (:func:`identification.sindy.adjust.prune_insignificant`, over
+   non-overlapping windows), then output error fits the coefficients and the dead times
+   (:func:`refine`); each is checked (:func:`identification.sindy.checks.run_checks`) and scored
+   on the held-out group's reference windows. The one-standard-error rule over the folds picks the
+   sparsest candidate that passes the checks in every fold.
+6. **Final model**: the picked candidate refitted on all train runs the same way; if it fails
+   the checks, the next candidate by CV error is taken (never a failing model).
+"""
+
+from __future__ import annotations
+
+import logging
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from groundfloor.errors import InputError
+from groundfloor.progress import progress
+from groundfloor.types import TrajectoryRun
+from identification.sindy.adjust import Adjustment, prune_insignificant
+from identification.sindy.baselines import LagModel, fit_lag
+from identification.sindy.checks import (
+    MIN_T_STAT,
+    excitation,
+    lag_core,
+    measured_accel_max,
+    not_excited,
+    run_checks,
+    self_terms,
+)
+from identification.sindy.evaluate import Windows, errors_from_rollout, rollout
+from identification.sindy.library import LIBRARY_VARIABLE_NAMES
+from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
+from identification.sindy.output_error import (
+    OE_DT,
+    OE_MAX_WINDOWS,
+    OE_WINDOW_S,
+    OutputErrorFit,
+    SindyStructure,
+    fit_output_error,
+)
+from identification.sindy.reference import Folds, Reference, cv_folds, reference, select_windows, thin_windows
+from identification.sindy.search import DEFAULT_GRID, SearchGrid, SearchResult, admissible, refit, search
+
+log = logging.getLogger(__name__)
+
+#: distinct structures of the screening refined by output error and cross-validated (plus the lag)
+N_CANDIDATES = 4
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate of the output-error stage with its cross-validated score."""
+
+    label: str  # "lag" or "grid rank N"
+    hyperparameters: dict | None  # the screening's grid point, None for the lag
+    fold_rms_m: np.ndarray  # (folds,) RMS 5 s position error on each held-out fold
+    fold_n: np.ndarray  # (folds,) windows per held-out fold
+    fold_yaw_deg: np.ndarray  # (folds,) RMS 5 s heading error on each held-out fold
+    complexity: float  # mean number of active terms over the folds
+    passed: bool  # every fold's model passed the checks
+    failed: tuple[str, ...] = ()
+
+    @property
+    def cv_pos_err_5s_m(self) -> float:
+        """Return the RMS 5 s position error over all held-out windows."""
+        n = self.fold_n.sum()
+        return float(np.sqrt(np.sum(self.fold_n * self.fold_rms_m**2) / n)) if n else float("nan")
+
+    @property
+    def cv_yaw_err_5s_deg(self) -> float:
+        """Return the RMS 5 s heading error over all held-out windows."""
+        n = self.fold_n.sum()
+        return float(np.sqrt(np.sum(self.fold_n * self.fold_yaw_deg**2) / n)) if n else float("nan")
+
+    @property
+    def cv_se_m(self) -> float:
+        """Return the standard error of the CV error over the folds (std of the fold RMS / sqrt(folds))."""
+        scored = self.fold_n > 0
+        if scored.sum() < 2:
+            return float("nan")
+        return float(np.std(self.fold_rms_m[scored], ddof=1) / np.sqrt(scored.sum()))
+
+    def summary(self) -> dict:
+        """Return the JSON-ready description."""
+        return {"label": self.label, "hyperparameters": self.hyperparameters,
+                "cv_pos_err_5s_m": self.cv_pos_err_5s_m, "cv_se_m": self.cv_se_m,
+                "cv_yaw_err_5s_deg": self.cv_yaw_err_5s_deg,
+                "fold_pos_err_5s_m": [float(v) for v in self.fold_rms_m], "complexity": self.complexity,
+                "passed_checks": self.passed, "failed_checks": list(self.failed)}
+
+
+@dataclass(frozen=True)
+class Identification:
+    """The identified model with everything that went into choosing it."""
+
+    model: SindyModel
+    lag: LagModel  # the lag baseline fitted on all train runs
+    search: SearchResult
+    candidates: tuple[Candidate, ...]
+    selected: int  # index into candidates
+    folds: Folds
+    lag_cv: Candidate  # the lag baseline's own CV score on the same folds
+    not_excited: tuple[str, ...] = ()
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def beats_lag(self) -> bool:
+        """Return whether the selected model's CV error is below the lag baseline's."""
+        return self.candidates[self.selected].cv_pos_err_5s_m < self.lag_cv.cv_pos_err_5s_m
+
+
+def lag_as_sindy(lag: LagModel, envelope: dict) -> SindyModel:
+    """Return the lag as a sparse SINDy model of library ``poly1`` (its dead times, frozen extrapolation)."""
+    terms = {"vx": {"vx": -1.0 / lag.tau_v_, "u1": lag.k_v_ / lag.tau_v_}, "vy": {"vy": -1.0 / lag.tau_v_},
+             "omega": {"omega": -1.0 / lag.tau_w_, "u2": lag.k_w_ / lag.tau_w_}}
+    return model_from_terms(terms, "poly1", envelope=envelope, dead_time_s=lag.dead_time_s, extrapolation="frozen",
+                            hyperparameters={"structure": "lag"})
+
+
+def with_lag_core(model: SindyModel, lag: LagModel) -> SindyModel:
+    """Return ``model`` with the lag's terms active (:func:`~identification.sindy.checks.lag_core`),
+    seeded from the lag where the regression left them out."""
+    core = lag_as_sindy(lag, model.envelope)
+    coef = model.coef.copy()
+    for e, j in zip(*np.nonzero(lag_core(model))):
+        if coef[e, j] == 0.0:
+            coef[e, j] = core.coef[e, core.library.feature_names.index(model.library.feature_names[j])]
+    return model.with_coefficients(coef)
+
+
+def without_excluded(model: SindyModel, excluded) -> SindyModel:
+    """Return ``model`` without the terms of the ``excluded`` variables: no feature containing one,
+    and an excluded state's equation reduced to its own damping (its data are noise)."""
+    if not excluded:
+        return model
+    drop = np.array([any(v in excluded for v, _ in atoms) for atoms in model.library.atoms])[None, :] | \
+        np.array([e in excluded for e in range(3)])[:, None]
+    return model.with_coefficients(np.where(drop & ~self_terms(model), 0.0, model.coef))
+
+
+def _fixed(model: SindyModel, excluded) -> np.ndarray:
+    """Return the mask of the terms no fit may move: the damping of the states in ``excluded``."""
+    return self_terms(model) & np.array([e in excluded for e in range(3)])[:, None]
+
+
+def refine(model: SindyModel, windows: Windows, excluded=frozenset(),
+           fit_dead_time: bool = True) -> tuple[SindyModel, OutputErrorFit]:
+    """Return ``model``'s active coefficients and dead times refitted by output error on ``windows``.
+
+    The damping of a state the data do not excite (in ``excluded``) keeps its value.
+    """
+    spec = SindyStructure(model, _fixed(model, excluded))
+    fit = fit_output_error(spec, spec.theta0, windows, model.dead_time_s, fit_dead_time)
+    return spec.build(fit.theta, fit.dead_time_s), fit
+
+
+def _significance(adj: Adjustment | None) -> tuple[tuple[str, ...], np.ndarray | None]:
+    """Return the term names and t statistics of an adjustment (none for the lag)."""
+    if adj is None:
+        return (), None
+    return tuple(f"{e}: {f}" for e, f in adj.terms), np.abs(adj.coef) / adj.coef_std
+
+
+def _fold_score(model, windows: Windows | None) -> tuple[float, int, float]:
+    """Return the RMS 5 s position error of ``model`` on ``windows``, their number and the RMS
+    5 s heading error in degrees."""
+    if windows is None:
+        return float("nan"), 0, float("nan")
+    eps_p, eps_h = errors_from_rollout(rollout(model, windows)[..., -1:, :],
+                                       replace(windows, pose_truth=windows.pose_truth[:, -1:],
+                                               t_rel=windows.t_rel[-1:]))
+    with np.errstate(over="ignore"):
+        return (float(np.sqrt(np.mean(eps_p[:, 0] ** 2))), windows.n_windows,
+                float(np.degrees(np.sqrt(np.mean(eps_h[:, 0] ** 2)))))
+
+
+def select_candidate(candidates: Sequence[Candidate]) -> int:
+    """Return the index of the sparsest candidate that passed its checks and lies within one
+    standard error of the best such candidate's CV error (the one-standard-error rule over folds)."""
+    ok = [i for i, c in enumerate(candidates) if c.passed and np.isfinite(c.cv_pos_err_5s_m)]
+    if not ok:
+        raise InputError("identification: no candidate passed the well-posedness checks in every fold")
+    best = min(ok, key=lambda i: candidates[i].cv_pos_err_5s_m)
+    se = candidates[best].cv_se_m
+    limit = candidates[best].cv_pos_err_5s_m + (se if np.isfinite(se) else 0.0)
+    within = [i for i in ok if candidates[i].cv_pos_err_5s_m <= limit]
+    return min(within, key=lambda i: (candidates[i].complexity, candidates[i].cv_pos_err_5s_m))
+
+
+def _initial(label: str, hp: dict | None, search_result: SearchResult, cache: dict, excluded, runs, lag: LagModel,
+             states) -> tuple[SindyModel, Adjustment | None]:
+    """Return a candidate's starting model on the segments ``runs`` (all when None) and the
+    adjustment its non-significant terms were dropped by (None for the lag)."""
+    x = np.vstack([st.state for st in states])
+    u = np.vstack([st.inputs for st in states])
+    envelope = envelope_from_data(x, u)
+    if hp is None:
+        return without_excluded(lag_as_sindy(lag, envelope), excluded), None
+    model = refit(search_result.states_by_s, search_result.names, hp, cache, excluded, runs=runs)
+    model = replace(model, envelope=envelope, extrapolation="frozen", dead_time_s=lag.dead_time_s)
+    model = without_excluded(with_lag_core(model, lag), excluded)
+    problem = cache[(float(hp["s"]), float(hp["tau"]), str(hp["library"]))][0]
+    rows = None if runs is None else np.isin(problem.run_index, runs)
+    return prune_insignificant(model, problem, lag_core(model), MIN_T_STAT, rows, fixed=_fixed(model, excluded))
+
+
+def _candidates(result: SearchResult, n: int) -> list[tuple[str, dict]]:
+    """Return ``(label, hyperparameters)`` of the best ``n`` admissible rows with distinct structures."""
+    ok = admissible(result.table)
+    seen, out = set(), []
+    for i, m in enumerate(result.top_models):
+        key = (m.library.name, (m.coef != 0).tobytes())
+        if not ok[i] or key in seen:
+            continue
+        seen.add(key)
+        out.append((f"grid rank {i + 1}", {k: result.table[k][i].item() if hasattr(result.table[k][i], "item")
+                                           else result.table[k][i] for k in ("s", "tau", "alpha", "T", "library")}
+                    | {"normalize": bool(m.hyperparameters.get("normalize", False))}))
+        if len(out) == n:
+            break
+    return out
+
+
+def _fold_job(job) -> dict:
+    """Return the scores of every candidate (and of the lag baseline) on one fold."""
+    f, ref, fold, specs, result, excluded, oe_windows, score_windows, accel_max = job
+    train = np.flatnonzero(fold != f)
+    keep_held = ~np.isin(score_windows.run, train)
+    held = select_windows(score_windows, keep_held) if keep_held.any() else None
+    fold_oe = thin_windows(select_windows(oe_windows, np.isin(oe_windows.run, train)), OE_MAX_WINDOWS)
+    fold_ref = Reference(states=tuple(ref.states[i] for i in train), names=tuple(ref.names[i] for i in train),
+                         run_index=ref.run_index[train], runs=ref.runs, smoothing=ref.smoothing)
+    fold_lag = fit_lag(fold_ref)
+    out = {"lag baseline": _fold_score(fold_lag, held)}
+    cache: dict = {}
+    for label, hp in specs:
+        try:
+            start, adj = _initial(label, hp, result, cache, excluded, train, fold_lag, fold_ref.states)
+        except InputError as exc:  # more active terms than independent windows: significance unjudgeable
+            log.info("fold %d, %s: %s; not admissible", f, label, exc)
+            out[label] = (float("nan"), 0, float("nan"), float("nan"), ["significance"])
+            continue
+        model, fit = refine(start, fold_oe, excluded)
+        checks = run_checks(model, fold_ref.states, *_significance(adj), accel_max)
+        out[label] = _fold_score(model, held) + (model.complexity, [k for k, v in checks.items()
+                                                                    if isinstance(v, dict) and not v["passed"]])
+    return out
+
+
+def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_jobs: int = 1,
+             n_candidates: int = N_CANDIDATES) -> Identification:
+    """Return the identified model of ``runs`` (train runs) by the pipeline of the module docstring.
+
+    ``n_jobs`` worker processes share the screening's grid and the folds of the output-error stage.
+    """
+    ref = reference(runs)
+    folds = cv_folds(ref.groups, ref.run_index, grid.n_folds)
+    stds = excitation(ref.states)
+    quiet = not_excited(stds)
+    notes = [f"cross-validation: {folds.note}"]
+    if quiet:
+        msg = ("train runs do not excite " + ", ".join(f"{v} (std {stds[v]:.3g})" for v in quiet)
+               + ": every term containing them is left out")
+        log.warning(msg)
+        notes.append(msg)
+    excluded = frozenset(LIBRARY_VARIABLE_NAMES.index(v) for v in quiet)
+    lag = fit_lag(ref)
+    result = search(runs=runs, grid=grid, n_jobs=n_jobs, ref=ref, folds=folds, dead_time_s=lag.dead_time_s,
+                    excluded=excluded)
+    oe_windows = ref.windows(OE_WINDOW_S, 0.0, OE_DT)
+    score_windows = ref.windows(grid.window_s, grid.overlap, grid.dt_eval)
+    accel_max = measured_accel_max(ref.states)
+    specs = [("lag", None)] + _candidates(result, n_candidates)
+    n_f = folds.n_folds
+    slim = replace(result, top_models=[], model=result.model)  # what the folds need of the screening
+    jobs = [(f, ref, folds.fold, specs, slim, excluded, oe_windows, score_windows, accel_max) for f in range(n_f)]
+    if n_jobs > 1 and n_f > 1:
+        with ProcessPoolExecutor(max_workers=min(n_jobs, n_f)) as pool:
+            per_fold = list(progress(pool.map(_fold_job, jobs), "output-error candidates per fold", total=n_f))
+    else:
+        per_fold = [_fold_job(job) for job in progress(jobs, "output-error candidates per fold")]
+
+    def collect(label, complexity=None):
+        rms = np.array([p[label][0] for p in per_fold])
+        n = np.array([p[label][1] for p in per_fold], int)
+        yaw = np.array([p[label][2] for p in per_fold])
+        if complexity is not None:
+            return Candidate(label, None, rms, n, yaw, complexity, True)
+        failed = [k for p in per_fold for k in p[label][4]]
+        return rms, n, yaw, float(np.mean([p[label][3] for p in per_fold])), not failed, tuple(dict.fromkeys(failed))
+
+    candidates = tuple(Candidate(label, hp, *collect(label)) for label, hp in specs)
+    lag_cv = collect("lag baseline", complexity=6.0)
+    order = sorted(range(len(candidates)), key=lambda i: candidates[i].cv_pos_err_5s_m)
+    chosen = select_candidate(candidates)
+    all_oe = thin_windows(oe_windows, OE_MAX_WINDOWS)
+    cache: dict = {}
+    for i in [chosen] + [j for j in order if j != chosen and candidates[j].passed]:
+        c = candidates[i]
+        try:
+            start, adj = _initial(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states)
+        except InputError as exc:  # more active terms than independent windows: significance unjudgeable
+            log.warning("identification: candidate %s refitted on all train runs: %s; trying the next", c.label, exc)
+            continue
+        model, fit = refine(start, all_oe, excluded)
+        checks = run_checks(model, ref.states, *_significance(adj), accel_max)
+        if checks["passed"]:
+            chosen = i
+            break
+        log.warning("identification: candidate %s refitted on all train runs fails the checks (%s); trying the next",
+                    c.label, ", ".join(k for k, v in checks.items() if isinstance(v, dict) and not v["passed"]))
+    else:
+        raise InputError("identification: every candidate refitted on all train runs fails the well-posedness checks")
+    c = candidates[chosen]
+    training = {**model.training, "runs": list(ref.names), "reference_smoothing": ref.smoothing,
+                "cv": {"kind": folds.kind, "note": folds.note, "held_out": [list(h) for h in folds.held_out],
+                       "pos_err_5s_m": c.cv_pos_err_5s_m, "se_m": c.cv_se_m,
+                       "fold_pos_err_5s_m": [float(v) for v in c.fold_rms_m],
+                       "lag_pos_err_5s_m": lag_cv.cv_pos_err_5s_m, "lag_se_m": lag_cv.cv_se_m},
+                "candidates": [k.summary() for k in candidates], "selected": c.label,
+                "selection": "sparsest candidate passing the checks in every fold within one standard error "
+                             "(over folds) of the best CV error",
+                "excitation_std": stds, "not_excited": quiet, "lag_baseline": lag.to_dict(),
+                "output_error": {"names": list(fit.names), "std": [float(v) for v in fit.std],
+                                 "rms_pos_m": fit.rms_pos_m, "n_windows": fit.n_windows,
+                                 "window_s": OE_WINDOW_S}}
+    hyper = dict(c.hyperparameters or {"structure": "lag", "s": ref.smoothing}) | {"dead_time_s": list(model.dead_time_s)}
+    model = replace(model, checks=checks, training=training, hyperparameters=hyper)
+    ident = Identification(model=model, lag=lag, search=result, candidates=candidates, selected=chosen, folds=folds,
+                           lag_cv=lag_cv, not_excited=tuple(quiet), notes=tuple(notes))
+    if not ident.beats_lag:
+        log.warning("identification: the selected model (CV %.3f m) does not beat the lag baseline (CV %.3f m)",
+                    c.cv_pos_err_5s_m, lag_cv.cv_pos_err_5s_m)
+    return ident

@@ -1,0 +1,215 @@
+"""Identification that holds out of sample (issue 13): dead time and output error, the
+well-posedness checks, candidate-independent scoring, grouped cross-validation, excitation."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from identification.sindy import search as search_module
+from identification.sindy.baselines import LagModel, LagParameters, fit_lag
+from identification.sindy.checks import dissipativity, excitation, not_excited, run_checks
+from identification.sindy.evaluate import make_windows, rollout
+from identification.sindy.identify import identify, refine
+from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
+from identification.sindy.output_error import SindyStructure, rollout_with_sensitivities
+from identification.sindy.reference import cv_folds, reference, run_group
+from identification.sindy.search import SearchGrid, search
+from groundfloor.types import TrajectoryRun
+from simulation.robot_params import RobotParams
+from simulation.short_campaign import simulate_trajectory_runs as simulated_trajectory_runs
+from tests.support.sindy_synth import SPARSE_TERMS, lag_f, simulate_states, simulate_trajectory_runs, sparse_f
+
+DEAD_TIME = (0.15, 0.08)
+QUICK = SearchGrid(s=(1.0,), tau=(0.5,), alpha=(1e-3,), T=(0.05,), library=("poly1",), n_folds=3, normalize=True,
+                   dt_eval=0.05)
+
+
+@pytest.fixture(scope="module")
+def lag_runs():
+    """Three 40 s runs of a first-order lag whose inputs arrive 150 ms and 80 ms late."""
+    return simulate_trajectory_runs(40.0, [1, 2, 3], f=lag_f(), dead_time_s=DEAD_TIME)
+
+
+@pytest.fixture(scope="module")
+def sparse_runs():
+    """Three 40 s runs of the known sparse model (no dead time)."""
+    return simulate_trajectory_runs(40.0, [11, 12, 13], f=sparse_f)
+
+
+def test_lag_with_dead_time_is_identified_with_its_dead_time_within_20_ms(lag_runs):
+    lag = fit_lag(lag_runs)
+    np.testing.assert_allclose(lag.dead_time_s, DEAD_TIME, atol=0.02)
+    np.testing.assert_allclose([lag.k_v_, lag.tau_v_, lag.k_w_, lag.tau_w_], [1.8, 0.3, 1.2, 0.2], rtol=0.05)
+    assert lag.fit_.success and np.all(lag.fit_.std > 0)
+
+
+def test_identify_finds_the_dead_time_and_keeps_the_lag_when_nothing_beats_it(lag_runs):
+    ident = identify(lag_runs, QUICK)
+    np.testing.assert_allclose(ident.model.dead_time_s, DEAD_TIME, atol=0.02)
+    assert ident.model.checks["passed"]
+    terms = ident.model.active_terms()
+    assert set(terms["vx"]) == {"vx", "u1"} and set(terms["omega"]) == {"omega", "u2"}
+
+
+def test_output_error_recovers_a_sparse_known_model_within_10_percent(sparse_runs):
+    truth = model_from_terms(SPARSE_TERMS)
+    ref = reference(sparse_runs)
+    x = np.vstack([st.state for st in ref.states])
+    u = np.vstack([st.inputs for st in ref.states])
+    start = truth.with_coefficients(truth.coef * np.where(truth.coef != 0, 1.25, 0.0))  # 25 % off everywhere
+    start = SindyModel(start.library, start.coef, envelope=envelope_from_data(x, u), extrapolation="frozen")
+    model, fit = refine(start, ref.windows(3.0, 0.0, 0.05))
+    np.testing.assert_array_equal(model.coef != 0, truth.coef != 0)
+    active = truth.coef != 0
+    np.testing.assert_allclose(model.coef[active], truth.coef[active], rtol=0.1)
+    assert max(model.dead_time_s) < 0.01
+
+
+def test_sensitivities_equal_finite_differences(sparse_runs):
+    ref = reference(sparse_runs[:1])
+    windows = ref.windows(3.0, 0.0, 0.05)
+    for model, spec in ((model_from_terms(SPARSE_TERMS, dead_time_s=(0.1, 0.05)), None),
+                        (LagModel(1.7, 0.3, 0.7, 0.5, (0.1, 0.2)), LagParameters())):
+        spec = spec or SindyStructure(model)
+        theta = spec.theta0 if isinstance(spec, SindyStructure) else model.params
+        pred, sens = rollout_with_sensitivities(model, spec, windows, fit_dead_time=False)
+        np.testing.assert_allclose(pred, rollout(model, windows), atol=1e-12)
+        h = 1e-6
+        for q in range(len(theta)):
+            up, down = theta.copy(), theta.copy()
+            up[q] += h
+            down[q] -= h
+            fd = (rollout(spec.build(up, model.dead_time_s), windows)
+                  - rollout(spec.build(down, model.dead_time_s), windows)) / (2 * h)
+            assert np.linalg.norm(fd - sens[..., q]) <= 1e-5 * np.linalg.norm(fd), (type(model).__name__, q)
+
+
+def test_rollout_feeds_a_model_its_inputs_dead_time_late():
+    states = simulate_states(20.0, [5], noise_std=0.0)
+    late = model_from_terms(SPARSE_TERMS, dead_time_s=(0.1, 0.3))
+    windows = make_windows(states, window_s=3.0)
+    shifted = windows.inputs_for((0.1, 0.3))
+    t0 = windows.t0_run[3]
+    st = states[0]
+    expected = np.interp(t0 + windows.t_half - 0.3, st.t - st.t[0], st.u2)
+    np.testing.assert_allclose(shifted[3, :, 1], expected, atol=1e-12)
+    assert not np.allclose(rollout(late, windows), rollout(model_from_terms(SPARSE_TERMS), windows))
+
+
+def test_a_huge_coefficient_in_an_unexcited_direction_is_rejected_by_the_checks(sparse_runs):
+    ref = reference(sparse_runs)
+    x = np.vstack([st.state for st in ref.states])
+    u = np.vstack([st.inputs for st in ref.states])
+    env = envelope_from_data(x, u)
+    good = model_from_terms(SPARSE_TERMS, envelope=env, extrapolation="frozen")
+    assert run_checks(good, ref.states)["passed"]
+    junk = {**SPARSE_TERMS, "vx": {**SPARSE_TERMS["vx"], "vx vy^2": -52115.548, "vy^2 u1": 44629.081}}
+    bad = model_from_terms(junk, envelope=env, extrapolation="frozen")
+    checks = run_checks(bad, ref.states)
+    assert not checks["passed"] and not checks["contribution"]["passed"]
+    assert checks["contribution"]["worst_term"] in ("vx: vx vy^2", "vx: vy^2 u1")
+
+
+def test_the_simulators_true_model_passes_every_check_on_its_own_driving():
+    """The checks must not reject the truth: thesis model B (the simulator's dynamics, without its
+    speed guard) on a short simulated campaign's reference states, frozen outside their envelope."""
+    ref = reference(simulated_trajectory_runs(0))
+    x = np.vstack([st.state for st in ref.states])
+    u = np.vstack([st.inputs for st in ref.states])
+    model = model_from_terms(RobotParams().terms(), envelope=envelope_from_data(x, u), extrapolation="frozen")
+    checks = run_checks(model, ref.states)
+    assert checks["passed"], checks
+    assert dissipativity(model, ref.states)["n_points"] == 6 * 200
+    unbounded = model_from_terms(RobotParams().terms(), envelope=model.envelope)  # the bare polynomial runs away
+    fast = np.array([[2.0, 0.0, 0.0]])
+    assert unbounded.f(fast, [1.0, 0.0])[0, 0] > 0 > model.f(fast, [1.0, 0.0])[0, 0]
+
+
+def test_frozen_extrapolation_is_the_polynomial_inside_and_its_jacobians_are_exact():
+    env = {"vx": [-1.0, 1.0], "vy": [-0.1, 0.1], "omega": [-1.0, 1.0], "u1": [-1, 1], "u2": [-1, 1]}
+    frozen = model_from_terms(SPARSE_TERMS, envelope=env, extrapolation="frozen")
+    plain = model_from_terms(SPARSE_TERMS, envelope=env)
+    rng = np.random.default_rng(3)
+    inside = rng.uniform(-0.9, 0.9, (50, 3)) * [1, 0.1, 1]
+    u = rng.uniform(-1, 1, (50, 2))
+    np.testing.assert_allclose(frozen.f(inside, u), plain.f(inside, u), atol=1e-12)
+    x6 = np.column_stack([np.zeros((50, 3)), rng.uniform(-3, 3, (50, 3))])
+    a, J_x, J_u = frozen.accel_and_jacobians(x6, u)
+    np.testing.assert_allclose(a, frozen.f(x6[:, 3:], u), atol=1e-10)
+    h = 1e-6
+    for i in range(3, 6):
+        dx = np.zeros(6)
+        dx[i] = h
+        num = (frozen.accel(x6 + dx, u) - frozen.accel(x6 - dx, u)) / (2 * h)
+        np.testing.assert_allclose(J_x[..., i], num, atol=1e-5)
+
+
+def test_scoring_is_the_same_for_candidates_of_different_smoothing(sparse_runs, monkeypatch):
+    """Whatever smoothing a candidate was fitted at, it is scored on the same reference windows:
+    the same coefficients give the same CV score at every s."""
+    fixed = model_from_terms(SPARSE_TERMS).coef
+    monkeypatch.setattr(search_module, "fit_stlsq", lambda r, c, **kw: fixed.copy())
+    grid = SearchGrid(s=(0.5, 50.0), tau=(1.0,), alpha=(0.0,), T=(0.1,), n_folds=3, normalize=True)
+    result = search(runs=sparse_runs, grid=grid)
+    assert len(result.table["s"]) == 2 and set(result.table["s"]) == {0.5, 50.0}
+    assert result.table["pos_err_5s_m"][0] == result.table["pos_err_5s_m"][1] > 0
+
+
+def test_groups_come_from_the_yaml_then_a_date_in_the_name_then_the_run(sparse_runs):
+    run = sparse_runs[0]
+
+    def named(name, group=""):
+        return TrajectoryRun(name=name, split="train", poses=run.poses, inputs=run.inputs, group=group)
+
+    assert run_group(named("grass_2024_7_29_14h46s15_seg0")) == "2024-07-29"
+    assert run_group(named("field-2024-07-29-a")) == "2024-07-29"
+    assert run_group(named("log_20240808_1")) == "2024-08-08"
+    assert run_group(named("grass_2024_7_29", group="asphalt day")) == "asphalt day"
+    assert run_group(named("run_01")) == "run_01"
+
+
+def test_one_group_falls_back_to_leaving_out_runs_and_says_so(caplog):
+    with caplog.at_level(logging.WARNING):
+        folds = cv_folds(["2024-07-29"] * 4, [0, 0, 1, 2])
+    assert folds.kind == "leave-one-run-out" and folds.n_folds == 3
+    assert "one group only (2024-07-29)" in folds.note and "falls back" in caplog.text
+    two = cv_folds(["a", "a", "b", "b"], [0, 1, 2, 3])
+    assert two.kind == "leave-one-group-out" and list(two.fold) == [0, 0, 1, 1]
+
+
+def _no_turning(t, rng):
+    """Throttle changes, steering held at zero."""
+    u1 = np.clip(np.sin(0.7 * t) + 0.3 * np.sin(2.3 * t + rng.uniform(0, 6)), -1, 1)
+    return np.column_stack([u1, np.zeros_like(t)])
+
+
+def test_runs_without_turning_name_what_is_not_excited_and_leave_it_out(caplog):
+    runs = simulate_trajectory_runs(30.0, [21, 22, 23], f=lag_f(), inputs=_no_turning)
+    assert not_excited(excitation(reference(runs).states)) == ["vy", "omega", "u2"]  # the lag has no slip
+    with caplog.at_level(logging.WARNING):
+        ident = identify(runs, QUICK)
+    assert "do not excite" in caplog.text and "u2" in caplog.text and "omega" in caplog.text
+    assert ident.model.training["not_excited"] == ["vy", "omega", "u2"]
+    terms = ident.model.active_terms()
+    used = {name for eq in terms.values() for name in eq}
+    assert not any("u2" in name for name in used)
+    assert [n for n in used if "omega" in n] in ([], ["omega"])  # at most the omega equation's own damping
+    assert set(terms["vy"]) <= {"vy"} and not any("vy" in n for n in terms["vx"])
+    assert "vx" in terms["vx"] and "u1" in terms["vx"]
+
+
+def test_a_format_1_model_file_still_loads(tmp_path, caplog):
+    d = model_from_terms(SPARSE_TERMS).to_dict()
+    d["format_version"] = 1
+    for key in ("dead_time_s", "extrapolation", "checks"):
+        del d[key]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(d))
+    with caplog.at_level(logging.WARNING):
+        model = SindyModel.load(path)
+    assert model.dead_time_s == (0.0, 0.0) and model.extrapolation == "polynomial"
+    assert "re-identify" in caplog.text
