@@ -26,7 +26,7 @@ file records them (``checks`` in the model JSON, :func:`run_checks`):
   with whatever it starts from.
 
 The search ranks grid points by stability at rest; the diagnosis asks it of the models it
-extends. :func:`excitation` says which variables the training data do not excite.
+extends. :func:`not_excited` says which variables the training data do not excite beyond their noise.
 """
 
 from __future__ import annotations
@@ -53,9 +53,11 @@ DISSIPATIVE_WIDTHS = 1.0
 ACCEL_PERCENTILE = 99.0
 #: smallest |coefficient| / standard error of a kept term (about 95 % two-sided)
 MIN_T_STAT = 2.0
-#: below this standard deviation over the train runs an input (dimensionless, about [-1, 1]) or a
-#: body velocity (m/s, rad/s: what pose noise alone makes) is not excited
-MIN_EXCITATION = 0.01
+#: a body velocity is excited when, over this horizon, what it moves the robot stands out of what
+#: the pose noise alone makes (:func:`not_excited`)
+EXCITATION_HORIZON_S = 1.0
+#: the detection limit of :func:`not_excited`, in standard deviations of the noise-only signal
+EXCITATION_SIGMAS = 3.0
 
 
 def max_re_eig_at_rest(library: FeatureLibrary, coef: np.ndarray) -> np.ndarray:
@@ -185,9 +187,38 @@ def excitation(states: Sequence[BodyStates]) -> dict[str, float]:
     return {name: float(np.std(z[:, i])) for i, name in enumerate(LIBRARY_VARIABLE_NAMES)}
 
 
-def not_excited(stds: dict[str, float]) -> list[str]:
-    """Return the variables whose standard deviation is below :data:`MIN_EXCITATION`."""
-    return [name for name, sd in stds.items() if sd < MIN_EXCITATION]
+def not_excited(states: Sequence[BodyStates], pose_noise: Sequence[tuple[float, float]]) -> list[str]:
+    """Return the library variables the train segments ``states`` do not excite beyond their noise.
+
+    Relative to the data's own noise, no hand-set level: a body velocity is excited when the
+    displacement it makes over :data:`EXCITATION_HORIZON_S` (its integral over the horizon,
+    metres for ``vx``, ``vy``, radians for ``omega``) has a standard deviation above
+    :data:`EXCITATION_SIGMAS` times what pose noise alone gives, ``sqrt(2)`` times the pose
+    noise ``pose_noise[i] = (sigma_position_m, sigma_yaw_rad)`` of segment ``i`` (a smoothed
+    velocity integrates to the difference of two smoothed poses, whose noise is at most the
+    poses'). An input is excited when its standard deviation is above the same multiple of its
+    recorded resolution (the smallest step between its distinct values): a constant input, or one
+    jittering by a few counts, is not.
+    """
+    names = []
+    for i, v in enumerate(LIBRARY_STATE_NAMES):
+        moved, floor = [], []
+        for st, (sigma_xy, sigma_yaw) in zip(states, pose_noise):
+            t = np.asarray(st.t, float)
+            if t[-1] - t[0] <= EXCITATION_HORIZON_S:
+                continue
+            integral = np.concatenate([[0.0], np.cumsum(0.5 * (st.state[1:, i] + st.state[:-1, i]) * np.diff(t))])
+            ahead = np.interp(t + EXCITATION_HORIZON_S, t, integral)[t + EXCITATION_HORIZON_S <= t[-1]]
+            moved.append(ahead - integral[:len(ahead)])
+            floor.append(np.sqrt(2.0) * (sigma_yaw if v == "omega" else sigma_xy))
+        if not moved or np.std(np.concatenate(moved)) <= EXCITATION_SIGMAS * float(np.max(floor)):
+            names.append(v)
+    for i, v in enumerate(LIBRARY_VARIABLE_NAMES[len(LIBRARY_STATE_NAMES):], start=len(LIBRARY_STATE_NAMES)):
+        u = np.concatenate([st.inputs[:, i - len(LIBRARY_STATE_NAMES)] for st in states])
+        levels = np.unique(u[np.isfinite(u)])
+        if levels.size < 2 or np.std(u) <= EXCITATION_SIGMAS * float(np.min(np.diff(levels))):
+            names.append(v)
+    return names
 
 
 def run_checks(model: SindyModel, states: Sequence[BodyStates], names: Sequence[str] = (),

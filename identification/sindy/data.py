@@ -15,10 +15,11 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.types import BodyStates, TrajectoryRun
+from identification.preprocessing.smoothing_spline import noise_std_from_data
 from identification.preprocessing.states import MIN_SEGMENT, body_states_segments
 from identification.preprocessing.trajectory import gap_threshold_s
 
-__all__ = ["body_states", "states_of_runs", "gap_threshold_s"]
+__all__ = ["body_states", "states_of_runs", "gap_threshold_s", "pose_noise_std"]
 
 
 def body_states(run: TrajectoryRun, smoothing: float) -> list[BodyStates]:
@@ -40,3 +41,20 @@ def states_of_runs(runs: Sequence[TrajectoryRun], smoothing: float) -> tuple[lis
         names += [run.name] if len(parts) == 1 else [f"{run.name}[{k}]" for k in range(len(parts))]
         groups += [i] * len(parts)
     return segs, names, np.asarray(groups, dtype=int)
+
+
+def pose_noise_std(run: TrajectoryRun) -> tuple[float, float]:
+    """Return the noise standard deviations of ``run``'s measured positions (m) and yaw (rad).
+
+    The poses' own sigmas where the campaign gives them (their median), else the noise level
+    estimated from the data (:func:`identification.preprocessing.smoothing_spline.noise_std_from_data`,
+    fourth differences), the rule the reference smoothing uses.
+    """
+    p = run.poses
+
+    def sigma(values, stds) -> float:
+        given = np.asarray(stds, float)
+        given = given[np.isfinite(given)]
+        return float(np.median(given)) if given.size else noise_std_from_data(values)
+
+    return 0.5 * (sigma(p.x, p.x_std) + sigma(p.y, p.y_std)), sigma(p.yaw, p.yaw_std)

@@ -47,6 +47,7 @@ from identification.sindy.checks import (
     run_checks,
     self_terms,
 )
+from identification.sindy.data import pose_noise_std
 from identification.sindy.evaluate import Windows, errors_from_rollout, rollout
 from identification.sindy.library import LIBRARY_VARIABLE_NAMES
 from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
@@ -276,7 +277,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     ref = reference(runs)
     folds = cv_folds(ref.groups, ref.run_index, grid.n_folds)
     stds = excitation(ref.states)
-    quiet = not_excited(stds)
+    quiet = not_excited(ref.states, [pose_noise_std(ref.runs[i]) for i in ref.run_index])
     notes = [f"cross-validation: {folds.note}"]
     if quiet:
         msg = ("train runs do not excite " + ", ".join(f"{v} (std {stds[v]:.3g})" for v in quiet)

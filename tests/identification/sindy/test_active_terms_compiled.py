@@ -4,7 +4,9 @@
 against (1) the generic numpy step of the dynamics interface, ``Dynamics.rk4_step_and_jacobians``,
 which reaches the model through ``accel_and_jacobians``; (2) a classical RK4 step written here on
 ``SindyModel.f``, the library's own feature transform (``FeatureLibrary.transform``, not the
-active-terms table); (3) central finite differences of that step for ``F`` and ``G``.
+active-terms table); (3) central finite differences of that step for ``F`` and ``G``. Each also
+with frozen extrapolation and an envelope that most of the states leave, so the clamping of the
+nonlinear terms (``SindyModel.features``, written apart from the active terms) is exercised.
 """
 
 from __future__ import annotations
@@ -19,11 +21,17 @@ from identification.sindy.model import SindyModel
 LIBRARIES = ("poly1", "poly2", "poly3", "poly3_absu")
 
 
-def _model(library: str, seed: int) -> SindyModel:
-    """Return a model with about half of the library's terms active, coefficients of order 1."""
+FROZEN_ENVELOPE = {"vx": [-0.5, 0.6], "vy": [-0.2, 0.1], "omega": [-0.4, 0.5], "u1": [-1, 1], "u2": [-1, 1]}
+
+
+def _model(library: str, seed: int, frozen: bool = False) -> SindyModel:
+    """Return a model with about half of the library's terms active, coefficients of order 1
+    (frozen outside :data:`FROZEN_ENVELOPE` when ``frozen``, which most test states leave)."""
     lib = make_library(library)
     rng = np.random.default_rng(seed)
     coef = rng.normal(size=(3, lib.n_features)) * (rng.random((3, lib.n_features)) < 0.5)
+    if frozen:
+        return SindyModel(lib, coef, envelope=FROZEN_ENVELOPE, extrapolation="frozen")
     return SindyModel(lib, coef)
 
 
@@ -45,9 +53,10 @@ def _rk4_by_hand(model: SindyModel, x: np.ndarray, u: np.ndarray, h: float) -> n
     return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+@pytest.mark.parametrize("frozen", (False, True))
 @pytest.mark.parametrize("library", LIBRARIES)
-def test_compiled_step_equals_the_generic_numpy_step(library):
-    model = _model(library, 1)
+def test_compiled_step_equals_the_generic_numpy_step(library, frozen):
+    model = _model(library, 1, frozen)
     x, u, dt = _states(np.random.default_rng(2), 11)
     t = np.linspace(0, 3, 11)
     fast = model.rk4_step_and_jacobians(x, u, t, dt)
@@ -60,9 +69,10 @@ def test_compiled_step_equals_the_generic_numpy_step(library):
     np.testing.assert_array_equal(x_next, fast[0])
 
 
+@pytest.mark.parametrize("frozen", (False, True))
 @pytest.mark.parametrize("library", LIBRARIES)
-def test_compiled_step_and_jacobians_against_rk4_by_hand_and_finite_differences(library):
-    model = _model(library, 3)
+def test_compiled_step_and_jacobians_against_rk4_by_hand_and_finite_differences(library, frozen):
+    model = _model(library, 3, frozen)
     x_all, u_all, dt_all = _states(np.random.default_rng(4), 4)
     for x, u, h in zip(x_all, u_all, dt_all):
         x_next, F, G = model.rk4_step_and_jacobians(x, u, 0.0, h)
@@ -97,3 +107,16 @@ def test_changed_coefficients_are_seen_by_the_compiled_step():
     after = model.rk4_step_and_jacobians(x, u, 0.0, dt)[0]
     np.testing.assert_allclose(after, Dynamics.rk4_step_and_jacobians(model, x, u, 0.0, dt)[0], rtol=1e-12)
     assert np.max(np.abs(after - before)) > 1e-4
+
+
+def test_frozen_extrapolation_changes_the_step_outside_the_envelope_only():
+    """Inside the widened envelope frozen and polynomial models step alike; outside they differ
+    (so the frozen tests above are not the polynomial ones again)."""
+    plain, frozen = _model("poly3", 9), _model("poly3", 9, frozen=True)
+    x_in = np.array([0.0, 0.0, 0.3, 0.1, -0.05, 0.1])
+    x_out = np.array([0.0, 0.0, 0.3, 2.0, 0.8, -1.5])
+    u = np.array([0.2, -0.1])
+    np.testing.assert_allclose(frozen.rk4_step_and_jacobians(x_in, u, 0.0, 0.02)[0],
+                               plain.rk4_step_and_jacobians(x_in, u, 0.0, 0.02)[0], rtol=1e-12, atol=1e-14)
+    assert np.max(np.abs(frozen.rk4_step_and_jacobians(x_out, u, 0.0, 0.02)[0]
+                         - plain.rk4_step_and_jacobians(x_out, u, 0.0, 0.02)[0])) > 1e-3

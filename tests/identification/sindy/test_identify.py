@@ -11,7 +11,8 @@ import pytest
 
 from identification.sindy import search as search_module
 from identification.sindy.baselines import LagModel, LagParameters, fit_lag
-from identification.sindy.checks import dissipativity, excitation, not_excited, run_checks
+from identification.sindy.checks import dissipativity, not_excited, run_checks
+from identification.sindy.data import pose_noise_std
 from identification.sindy.evaluate import make_windows, rollout
 from identification.sindy.identify import identify, refine
 from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
@@ -189,7 +190,7 @@ def _no_turning(t, rng):
 
 def test_runs_without_turning_name_what_is_not_excited_and_leave_it_out(caplog):
     runs = simulate_trajectory_runs(30.0, [21, 22, 23], f=lag_f(), inputs=_no_turning)
-    assert not_excited(excitation(reference(runs).states)) == ["vy", "omega", "u2"]  # the lag has no slip
+    assert _not_excited(runs) == ["vy", "omega", "u2"]  # the lag has no slip
     with caplog.at_level(logging.WARNING):
         ident = identify(runs, QUICK)
     assert "do not excite" in caplog.text and "u2" in caplog.text and "omega" in caplog.text
@@ -213,3 +214,29 @@ def test_a_format_1_model_file_still_loads(tmp_path, caplog):
         model = SindyModel.load(path)
     assert model.dead_time_s == (0.0, 0.0) and model.extrapolation == "polynomial"
     assert "re-identify" in caplog.text
+
+
+def _not_excited(runs) -> list[str]:
+    ref = reference(runs)
+    return not_excited(ref.states, [pose_noise_std(ref.runs[i]) for i in ref.run_index])
+
+
+def _small_slip(c: float = 0.02):
+    """A lag with a small lateral slip ``vy' = (c vx omega - vy) / tau``: millimetres per second of ``vy``."""
+    lag = lag_f()
+
+    def f(x, u):
+        a = lag(x, u)
+        return np.stack([a[..., 0], (c * x[..., 0] * x[..., 2] - x[..., 1]) / 0.3, a[..., 2]], axis=-1)
+    return f
+
+
+def test_excitation_is_judged_against_the_datas_own_pose_noise():
+    """A lateral velocity of a few mm/s is excited under 0.1 mm pose noise and not under 3 cm:
+    no fixed level in m/s decides, the poses' noise does."""
+    quiet = simulate_trajectory_runs(30.0, [31, 32], f=_small_slip())
+    vy_std = np.std(np.concatenate([st.vy for st in reference(quiet).states]))
+    assert 0.001 < vy_std < 0.01  # below the 0.01 m/s a fixed threshold would have cut
+    assert _not_excited(quiet) == []
+    noisy = simulate_trajectory_runs(30.0, [31, 32], f=_small_slip(), pose_std_m=0.03, yaw_std_rad=1e-4)
+    assert _not_excited(noisy) == ["vy"]
