@@ -11,7 +11,9 @@
 4. **Screening** (:func:`identification.sindy.search.search`): the integral-regression grid,
    every grid point scored on the held-out groups' reference windows.
 5. **Candidates refined by output error, cross-validated**: the best :data:`N_CANDIDATES`
-   distinct admissible structures of the screening, and the lag as a sparse SINDy model
+   distinct admissible structures of the screening, each twice (refined by output error, and
+   with the regression's coefficients: refining a dense model can buy fit with terms that fail
+   the checks), and the lag as a sparse SINDy model
    (``vx' = a vx + b u1``, ``vy' = e vy``, ``omega' = c omega + d u2``). In every fold each is
    refitted on the fold's train groups: the regression picks the terms (the lag's own always
    among them), the terms that are not significant in the least-squares adjustment of thesis
@@ -234,12 +236,23 @@ def _candidates(result: SearchResult, n: int) -> list[tuple[str, dict]]:
         if not ok[i] or key in seen:
             continue
         seen.add(key)
-        out.append((f"grid rank {i + 1}", {k: result.table[k][i].item() if hasattr(result.table[k][i], "item")
-                                           else result.table[k][i] for k in ("s", "tau", "alpha", "T", "library")}
-                    | {"normalize": bool(m.hyperparameters.get("normalize", False))}))
-        if len(out) == n:
+        hp = {k: result.table[k][i].item() if hasattr(result.table[k][i], "item") else result.table[k][i]
+              for k in ("s", "tau", "alpha", "T", "library")} | {"normalize": bool(m.hyperparameters.get("normalize", False))}
+        # each structure twice: refined by output error, and as the regression fitted it (the
+        # refinement of a dense model can trade well-posedness for fit; CV and the checks decide)
+        out += [(f"grid rank {i + 1}", hp | {"output_error": True}),
+                (f"grid rank {i + 1}, regression", hp | {"output_error": False})]
+        if len(out) == 2 * n:
             break
     return out
+
+
+def _refined(start: SindyModel, hp: dict | None, windows: Windows, excluded) -> tuple[SindyModel, OutputErrorFit | None]:
+    """Return the candidate from its start: refined by output error (:func:`refine`) unless its
+    hyperparameters say ``output_error: False`` (the regression's coefficients kept)."""
+    if hp is not None and not hp.get("output_error", True):
+        return start, None
+    return refine(start, windows, excluded)
 
 
 def _fold_job(job) -> dict:
@@ -261,7 +274,7 @@ def _fold_job(job) -> dict:
             log.info("fold %d, %s: %s; not admissible", f, label, exc)
             out[label] = (float("nan"), 0, float("nan"), float("nan"), ["significance"])
             continue
-        model, fit = refine(start, fold_oe, excluded)
+        model, _ = _refined(start, hp, fold_oe, excluded)
         checks = run_checks(model, fold_ref.states, *_significance(adj), accel_max)
         out[label] = _fold_score(model, held) + (model.complexity, [k for k, v in checks.items()
                                                                     if isinstance(v, dict) and not v["passed"]])
@@ -323,7 +336,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
         except InputError as exc:  # more active terms than independent windows: significance unjudgeable
             log.warning("identification: candidate %s refitted on all train runs: %s; trying the next", c.label, exc)
             continue
-        model, fit = refine(start, all_oe, excluded)
+        model, fit = _refined(start, c.hyperparameters, all_oe, excluded)
         checks = run_checks(model, ref.states, *_significance(adj), accel_max)
         if checks["passed"]:
             chosen = i
@@ -342,9 +355,9 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
                 "selection": "sparsest candidate passing the checks in every fold within one standard error "
                              "(over folds) of the best CV error",
                 "excitation_std": stds, "not_excited": quiet, "lag_baseline": lag.to_dict(),
-                "output_error": {"names": list(fit.names), "std": [float(v) for v in fit.std],
-                                 "rms_pos_m": fit.rms_pos_m, "n_windows": fit.n_windows,
-                                 "window_s": OE_WINDOW_S}}
+                "output_error": None if fit is None else {
+                    "names": list(fit.names), "std": [float(v) for v in fit.std], "rms_pos_m": fit.rms_pos_m,
+                    "n_windows": fit.n_windows, "window_s": OE_WINDOW_S}}
     hyper = dict(c.hyperparameters or {"structure": "lag", "s": ref.smoothing}) | {"dead_time_s": list(model.dead_time_s)}
     model = replace(model, checks=checks, training=training, hyperparameters=hyper)
     ident = Identification(model=model, lag=lag, search=result, candidates=candidates, selected=chosen, folds=folds,

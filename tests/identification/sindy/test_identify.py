@@ -240,3 +240,27 @@ def test_excitation_is_judged_against_the_datas_own_pose_noise():
     assert _not_excited(quiet) == []
     noisy = simulate_trajectory_runs(30.0, [31, 32], f=_small_slip(), pose_std_m=0.03, yaw_std_rad=1e-4)
     assert _not_excited(noisy) == ["vy"]
+
+
+def _box_states() -> list:
+    """Body states filling the box vx, omega in [-1, 1], vy in [-0.1, 0.1], with u1 reaching 1."""
+    from groundfloor.types import BodyStates
+
+    t = np.linspace(0.0, 20.0, 1001)
+    s = np.sin(np.linspace(0.0, 40.0, t.size))
+    return [BodyStates(t=t, vx=s, vy=0.1 * np.cos(3 * t), omega=np.sin(2 * t), u1=np.abs(s), u2=0.0 * t,
+                       x=0 * t, y=0 * t, yaw=0 * t)]
+
+
+@pytest.mark.parametrize("gain, passes", [(2.9, True), (3.1, False)])
+def test_dissipativity_is_the_inward_pointing_field_on_the_widened_box(gain, passes):
+    """By hand: ``vx' = -vx + g u1`` with vx's envelope [-1, 1] (width 2). On the face one width
+    out, vx = 3, the field at u1 = 1 is g - 3: inward for g = 2.9, outward for g = 3.1, while the
+    linear part (-1) is stable in both cases."""
+    states = _box_states()
+    env = {"vx": [-1.0, 1.0], "vy": [-0.1, 0.1], "omega": [-1.0, 1.0], "u1": [0.0, 1.0], "u2": [0.0, 0.0]}
+    terms = {"vx": {"vx": -1.0, "u1": gain}, "vy": {"vy": -1.0}, "omega": {"omega": -1.0}}
+    check = dissipativity(model_from_terms(terms, "poly1", envelope=env, extrapolation="frozen"), states)
+    assert check["passed"] is passes
+    assert check["worst_state"]["vx"] == pytest.approx(3.0)
+    assert check["worst_rate"] == pytest.approx((gain * max(st.u1.max() for st in states) - 3.0) / 2.0, rel=1e-3)
