@@ -14,8 +14,8 @@ file records them (``checks`` in the model JSON, :func:`run_checks`):
   give) has large, cancelling, well-determined linear terms, and the linear part is what the
   stability and dissipativity checks judge;
 - **dissipative outside the envelope**: the linear part is stable, and from training states with
-  one body velocity pushed one envelope width beyond the envelope (inputs as they were), that
-  velocity's derivative points back toward the envelope (:func:`dissipativity`): the vector
+  one body velocity pushed one envelope width beyond the envelope on its own side (inputs as
+  they were), that velocity's derivative points back toward the envelope (:func:`dissipativity`): the vector
   field points inward on the faces of the widened box, so an estimator's wandering state
   cannot run away;
 - **significant terms**: every active coefficient beyond the first-order lag's is at least
@@ -112,11 +112,12 @@ def dissipativity(model: SindyModel, states: Sequence[BodyStates], n_samples: in
     plane). Near the envelope, the vector field must point inward on the faces of the box widened
     by :data:`DISSIPATIVE_WIDTHS` envelope widths ``w`` (the sub-tangential condition of Nagumo's
     theorem, which makes the box forward invariant): ``n_samples`` training samples (evenly
-    spread) are each pushed, one body velocity ``v_i`` at a time, onto either face with the other
-    velocities and the inputs as they were, and ``sign(push) f_i / w_i`` must be negative there.
-    The states are those an estimator reaches when one velocity wanders off, not the corners of
-    the envelope's box (a reversing robot at full forward throttle and full left steering), where
-    a polynomial fitted on the data means nothing. Returns ``{"passed", "worst_rate",
+    spread) are each pushed, one body velocity ``v_i`` at a time, onto the face on their own side
+    of the envelope's centre with the other velocities and the inputs as they were, and
+    ``sign(push) f_i / w_i`` must be negative there. The states are those an estimator reaches
+    when one velocity wanders off from where it was, not the opposite corners of the envelope's
+    box (a robot reversing at full reverse throttle carried to full forward speed), combinations
+    the data never hold and where a polynomial fitted on the data means nothing. Returns ``{"passed", "worst_rate",
     "worst_state", "n_points"}`` (``worst_rate`` the largest outward ``sign(push) f_i / w_i``,
     1/s); without an envelope it passes vacuously with ``n_points`` 0.
     """
@@ -134,11 +135,11 @@ def dissipativity(model: SindyModel, states: Sequence[BodyStates], n_samples: in
     z = z[np.round(np.linspace(0, len(z) - 1, min(n_samples, len(z)))).astype(int)]
     pushed, outward = [], []
     for i in range(3):
-        for sign, edge in ((-1.0, lo[i] - DISSIPATIVE_WIDTHS * w[i]), (1.0, hi[i] + DISSIPATIVE_WIDTHS * w[i])):
-            p = z.copy()
-            p[:, i] = edge
-            pushed.append(p)
-            outward.append(sign * model.f(p[:, :3], p[:, 3:])[:, i] / w[i])
+        side = np.where(z[:, i] >= 0.5 * (lo[i] + hi[i]), 1.0, -1.0)  # the face on the sample's own side
+        p = z.copy()
+        p[:, i] = np.where(side > 0, hi[i] + DISSIPATIVE_WIDTHS * w[i], lo[i] - DISSIPATIVE_WIDTHS * w[i])
+        pushed.append(p)
+        outward.append(side * model.f(p[:, :3], p[:, 3:])[:, i] / w[i])
     z, rate = np.vstack(pushed), np.concatenate(outward)
     rate = np.where(np.isfinite(rate), rate, np.inf)
     k = int(np.argmax(rate))
