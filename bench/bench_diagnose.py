@@ -3,6 +3,7 @@
 Usage::
 
     .venv/bin/python -m bench.bench_diagnose --calibrate 16   # effect-free study -> thresholds
+    .venv/bin/python -m bench.bench_diagnose --calibrate-cause  # null of the cause step's statistics
     .venv/bin/python -m bench.bench_diagnose [--jobs 2]       # suite, ladder, timing -> results
 
 Campaigns are the tests' shape (``simulation.short_campaign``: 4 x 45 s train and 2 x 45 s test runs of
@@ -71,7 +72,68 @@ def one_campaign(job: tuple) -> dict:
     return {"seed": seed, "family": family or "none", "value": value, "flow": flow, "verdict": d.verdict,
             "gains": {c.name: c.gain for c in d.ranked}, "estimate": d.ranked[0].score.estimate
             if d.verdict != "none" else {}, "before": d.before.pos_err_5s_m, "after": d.after.pos_err_5s_m,
-            "seconds": time.perf_counter() - t0}
+            "seconds": time.perf_counter() - t0,
+            "cause": {"delay_train_s": d.evidence["response_lag"]["train"]["delay_s"],
+                      "delay_test_s": d.evidence["response_lag"]["test"]["delay_s"],
+                      "eta2": d.evidence["residual_structure"]["eta2"]}}
+
+
+def cause_statistics(model, train, test, train_names, test_names) -> dict:
+    """Return the cause step's statistics (response lag on train and test runs, unexplained eta2)."""
+    from sindy_ekf.diagnose.cause import response_lag, unexplained_structure
+    from sindy_ekf.diagnose.data import split_from_states
+    from sindy_ekf.diagnose.pipeline import in_envelope
+
+    tau = float(model.hyperparameters.get("tau") or 2.0)
+    tr = in_envelope(model, split_from_states(train, train_names, tau))
+    te = in_envelope(model, split_from_states(test, test_names, tau))
+    eta2, eq, reg = unexplained_structure(model, tr, te)
+    return {"delay_train_s": response_lag(model, tr).delay_s, "delay_test_s": response_lag(model, te).delay_s,
+            "eta2": eta2, "eta2_where": f"{eq} vs {reg}"}
+
+
+def _cause_sim(job) -> dict:
+    seed, flow = job
+    train, test, a, b = simulate_states_campaign(seed, None, run_s=RUN_S, rate_hz=RATE_HZ)
+    model = _MODEL
+    if flow == "same":
+        from identification.sindy.regression import fit_sindy
+
+        model = fit_sindy(train, "poly3", tau=2.0, alpha=1.0, threshold=0.2, names=a)
+    return {"campaign": f"simulated seed {seed} ({flow} model)", "null": True, **cause_statistics(model, train, test, a, b)}
+
+
+def calibrate_cause(model, models: dict, n_sim: int, n_jobs: int) -> dict:
+    """Return the cause step's statistics on effect-free campaigns and their largest values.
+
+    ``models`` maps a campaign path to its model file (identified on its own clean train runs).
+    """
+    from identification.preprocessing.campaigns import open_campaign
+    from identification.sindy.data import states_of_runs
+    from sindy_ekf.diagnose.pipeline import load_model
+
+    rows = []
+    for camp, path in models.items():
+        path, _, role = path.partition("=")  # CAMPAIGN=MODEL=report: reported, not part of the null
+        m = load_model(path)
+        c = open_campaign(camp)
+        s = float(m.hyperparameters.get("s") or 0.0)
+        train, a, _ = states_of_runs(c.split("train"), s)
+        test, b, _ = states_of_runs(c.split("test"), s)
+        rows.append({"campaign": str(camp), "null": role != "report", **cause_statistics(m, train, test, a, b)})
+        print(rows[-1], flush=True)
+    rng = np.random.default_rng([MASTER_SEED, 3])
+    jobs = [(int(sd), "same" if i % 2 else "reference") for i, sd in enumerate(rng.integers(2**31, size=n_sim))]
+    if n_jobs <= 1:
+        _init(model)
+        rows += [_cause_sim(j) for j in jobs]
+    else:
+        with ProcessPoolExecutor(n_jobs, initializer=_init, initargs=(model,)) as ex:
+            rows += list(ex.map(_cause_sim, jobs))
+    null = [r for r in rows if r["null"]]
+    return {"rows": rows,
+            "max": {"delay_s": max(max(abs(r["delay_train_s"]), abs(r["delay_test_s"])) for r in null),
+                    "eta2": max(r["eta2"] for r in null)}}
 
 
 def run_jobs(jobs, model, n_jobs):
@@ -223,6 +285,8 @@ def summarise(suite, ladder, timing, calib) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--calibrate", type=int, default=0, metavar="N")
+    ap.add_argument("--calibrate-cause", nargs="*", metavar="CAMPAIGN=MODEL", default=None,
+                    help="null of the cause step on effect-free campaigns (and 8 simulated ones)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-ladder", action="store_true")
     ap.add_argument("--no-timing", action="store_true")
@@ -235,6 +299,12 @@ def main() -> int:
     if args.calibrate:
         raw["calibration"] = calibrate(model, args.calibrate, args.jobs)
         print(json.dumps(raw["calibration"], indent=1))
+        raw_path.write_text(json.dumps(raw, indent=1))
+        return 0
+    if args.calibrate_cause is not None:
+        models = dict(kv.split("=", 1) for kv in args.calibrate_cause)
+        raw["cause_calibration"] = calibrate_cause(model, models, 8, args.jobs)
+        print(json.dumps(raw["cause_calibration"]["max"]))
         raw_path.write_text(json.dumps(raw, indent=1))
         return 0
     if args.timing_only:

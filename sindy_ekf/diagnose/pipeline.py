@@ -27,6 +27,13 @@ from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import EvaluationResult
 from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
 from identification.sindy.model import SindyModel, read_model_json
+from sindy_ekf.diagnose.cause import (
+    NULL_PROVENANCE,
+    named_by_response_lag,
+    response_lag,
+    threshold,
+    unexplained_structure,
+)
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import (
     ExtendedModel,
@@ -89,6 +96,7 @@ class Diagnosis:
     others: dict[str, PredictionError] = field(default_factory=dict)  # other significant family -> 5 s errors
     residual_map: dict = field(default_factory=dict)  # window residuals over the floor (residuals.residual_map)
     n_diverged: dict[str, int] = field(default_factory=dict)  # "before"/"after" -> windows left out
+    evidence: dict = field(default_factory=dict)  # the cause step's statistics (sindy_ekf.diagnose.cause)
 
     def to_json(self) -> dict:
         """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
@@ -111,8 +119,9 @@ class Diagnosis:
                     entry["outage_pos_err_m"] = {"before": self.outage["before_m"], "after": self.outage["after_m"],
                                                  "outage_s": self.outage["outage_s"], "n": self.outage["n"]}
             causes.append(entry)
-        if self.verdict == "none":
-            causes.insert(0, {"name": "none", "estimate": {},
+        if self.verdict in ("none", "unexplained"):
+            est = self.evidence.get("unexplained", {}) if self.verdict == "unexplained" else {}
+            causes.insert(0, {"name": self.verdict, "estimate": est,
                               "pos_err_5s_m": {"before": self.before.pos_err_5s_m, "after": self.before.pos_err_5s_m},
                               "yaw_err_5s_deg": {"before": self.before.yaw_err_5s_deg,
                                                  "after": self.before.yaw_err_5s_deg}})
@@ -126,6 +135,7 @@ class Diagnosis:
                 "scores": {c.name: c.score.to_dict() for c in self.ranked},
                 "thresholds": {c.name: c.threshold for c in self.ranked},
                 "threshold_provenance": THRESHOLD_PROVENANCE,
+                "cause_evidence": self.evidence,
                 "measurement": [f.to_dict() for f in self.measurement],
                 "n_test_windows_5s": self.before.n_windows, "seconds": self.seconds}
 
@@ -231,6 +241,13 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
     that break multi-step prediction, it does not re-rank by a second, noisier score (a battery
     sag of 0.19 per 10 min in 45 s runs moves the median by +2 %, a wrong 0.56 s delay by
     +180 %). The rejected lose their significance, with a note saying what the check measured.
+
+    A family named by the cause step's evidence rather than by its fixed-model gain (its estimate
+    carries ``evidence``) is extended by re-identification; it is compared with the model
+    re-identified on the same runs *without* the mechanism, so that the check judges the
+    mechanism and not the refit (on the real Warthog campaign with 0.15 s injected, the refit
+    alone moves the train median 8.1 -> 9.1 cm and the refit with the delay 9.3 cm, while on the
+    test runs the delay brings the clean model's 8.92 cm back).
     """
     def median_5s(res) -> float:
         e = np.asarray(res.eps_p[:, -1], float)
@@ -243,14 +260,19 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
             continue
         ext = choose_extension(model, c.name, c.score, tr, weights, train, train_names)
         after = median_5s(multistep(ext, train, train_names))
+        reference = base
+        if c.score.estimate.get("evidence"):
+            refit = reidentify(model, c.name, np.zeros_like(np.asarray(c.score.theta, float)), tr, weights,
+                               {"mechanism": c.score.estimate.get("mechanism", "")})
+            reference = median_5s(multistep(refit, train, train_names))
         log.info("diagnose: %s extended, median 5 s position error on the train runs %.4f -> %.4f m",
                  c.name, base, after)
-        if after <= (1.0 + CONFIRM_TOLERANCE) * base:
+        if after <= (1.0 + CONFIRM_TOLERANCE) * reference:
             extended = ext
             continue
         out[i] = dataclasses.replace(c, significant=False, note=(
             f"window gain not confirmed over 5 s: the extended model predicts the train runs worse "
-            f"(median 5 s position error {100 * base:.1f} -> {100 * after:.1f} cm, more than "
+            f"(median 5 s position error {100 * reference:.1f} -> {100 * after:.1f} cm, more than "
             f"{100 * CONFIRM_TOLERANCE:.0f} % worse)"))
     return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
 
@@ -336,8 +358,13 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     scores = [score_mechanisms(f, model, tr, te, weights, base_pred, uncertainty=uncertainty)
               for f in progress(list(families), "diagnose: families")]
     ranked = rank_families(scores, thresholds)
-    name = verdict(ranked)
     seconds["families"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    # the cause step: evidence that assumes no mechanism form (sindy_ekf.diagnose.cause)
+    lags = {"train": response_lag(model, tr), "test": response_lag(model, te)}
+    ranked = named_by_response_lag(ranked, lags["train"], lags["test"])
+    name = verdict(ranked)
+    seconds["cause"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     res_before, windows = multistep_errors_by_window(model, test, test_names)  # end states kept for the structure
     extended, res_after = None, res_before
@@ -347,6 +374,15 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         if extended is not None:
             res_after = multistep(extended, test, test_names)
     before, after = errors_5s(res_before, res_after)
+    evidence = {"response_lag": {k: v.to_dict() for k, v in lags.items()},
+                "thresholds": {"delay_s": threshold("delay_s"), "eta2": threshold("eta2")},
+                "provenance": NULL_PROVENANCE}
+    eta2, equation, regressor = unexplained_structure(model, tr, te)
+    evidence["residual_structure"] = {"eta2": eta2, "equation": equation, "regressor": regressor}
+    if name == "none" and eta2 > threshold("eta2"):
+        # structure that holds out of sample and that no family explains: not "nothing to change"
+        name = "unexplained"
+        evidence["unexplained"] = {"equation": equation, "regressor": regressor, "eta2": eta2}
     others = {}
     for c in ranked[1:]:
         if c.significant:  # what each other significant mechanism alone would buy
@@ -374,7 +410,8 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         seconds["ekf"] = time.perf_counter() - t0
     return Diagnosis(name, ranked, before, after, extended, outage, seconds, structure, ms_structure, lag,
                      {"before": res_before, "after": res_after}, others=others, residual_map=rmap,
-                     n_diverged={"before": n_diverged(res_before), "after": n_diverged(res_after)})
+                     n_diverged={"before": n_diverged(res_before), "after": n_diverged(res_after)},
+                     evidence=evidence)
 
 
 def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:
