@@ -47,6 +47,7 @@ from sindy_ekf.diagnose.fitting import (
     design_for,
     equation_weights,
     null_prediction,
+    refit_grid,
     score_family,
     solve_design,
 )
@@ -295,14 +296,31 @@ def parabolic_min(grid: np.ndarray, sse: np.ndarray) -> float:
 
 def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:
     """Return family ``name`` scored with the one of its mechanisms (families.MECHANISMS) that fits
-    the *train* runs best on its search grid (the given model kept fixed), so that the choice of
-    form never looks at the test runs that score it."""
+    the *train* runs best, so that the choice of form never looks at the test runs that score it.
+
+    Each form is judged as the family's test scores it (:func:`score_family`): the model kept
+    fixed, and the model re-identified around the form against the model re-identified without
+    it; the form's train fit is the better of the two relative SSE drops on its search grid. A
+    model identified on runs with the effect has absorbed part of it: held fixed, a gain
+    imbalance it absorbed looks like a steering offset (0.7 % gain), re-identified the imbalance
+    gains 20 % (measured on the suite's asymmetry campaign of seed 1879697337).
+    """
     specs = MECHANISMS[name]
-    if len(specs) > 1:  # compared on their grids: the refinement and the refit only for the one kept
-        best_sse = [parabolic_min(s.grid(tr)[:, 0], solve_design(design_for(s, model, tr, s.grid(tr), weights,
-                                                                           base_pred["train"]))[1])
-                    for s in specs]
-        specs = (specs[int(np.nanargmin(np.where(np.isfinite(best_sse), best_sse, np.inf)))],)
+    if len(specs) > 1:  # compared on their grids: the refinement and the scoring only for the one kept
+        sse0_fixed = float(np.sum((tr.delta_v - base_pred["train"]) ** 2 * weights))
+        ratios = []
+        for s in specs:
+            grid = s.grid(tr)
+            fixed = parabolic_min(grid[:, 0], solve_design(design_for(s, model, tr, grid, weights,
+                                                                      base_pred["train"]))[1]) / sse0_fixed
+            refit = np.inf
+            if s.kind == "input":  # the null of a re-identified input form: the same form at 0 (no transform)
+                sse = refit_grid(s, model, tr, weights, grid)[2]
+                sse0 = refit_grid(s, model, tr, weights, np.zeros((1, grid.shape[1])))[2][0]
+                if np.isfinite(sse0) and sse0 > 0 and np.isfinite(sse).any():
+                    refit = parabolic_min(grid[:, 0], sse) / sse0
+            ratios.append(min(fixed, refit))
+        specs = (specs[int(np.nanargmin(np.where(np.isfinite(ratios), ratios, np.inf)))],)
     return score_family(specs[0], model, tr, te, weights, base_pred, uncertainty=uncertainty)
 
 
