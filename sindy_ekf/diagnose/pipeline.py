@@ -243,12 +243,9 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
     sag of 0.19 per 10 min in 45 s runs moves the median by +2 %, a wrong 0.56 s delay by
     +180 %). The rejected lose their significance, with a note saying what the check measured.
 
-    A family named by the cause step's evidence rather than by its fixed-model gain (its estimate
-    carries ``evidence``) is extended by re-identification; it is compared with the model
-    re-identified on the same runs *without* the mechanism, so that the check judges the
-    mechanism and not the refit (on the real Warthog campaign with 0.15 s injected, the refit
-    alone moves the train median 8.1 -> 9.1 cm and the refit with the delay 9.3 cm, while on the
-    test runs the delay brings the clean model's 8.92 cm back).
+    A family named by the cause step (estimate with ``evidence``) is re-identified and compared with
+    the model re-identified *without* the mechanism: the check judges the mechanism, not the refit
+    (real Warthog, 0.15 s injected: refit alone 8.1 -> 9.1 cm, refit with the delay 9.3 cm).
     """
     def median_5s(res) -> float:
         e = np.asarray(res.eps_p[:, -1], float)
