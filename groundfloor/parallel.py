@@ -117,6 +117,17 @@ def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], workers: Workers | in
     blas_threads : int or None
         BLAS threads inside each task (None: leave them alone).
     """
+    return list(parallel_iter(fn, tasks, workers, names=names, desc=desc, keep_going=keep_going,
+                              blas_threads=blas_threads))
+
+
+def parallel_iter(fn: Callable[[T], R], tasks: Sequence[T], workers: Workers | int | None = 1, *,
+                  names: Sequence[str] | None = None, desc: str = "tasks", keep_going: bool = False,
+                  blas_threads: int | None = 1) -> Iterator[R | TaskFailure]:
+    """Yield ``fn(task)`` for each task in task order, each as soon as it and those before it are done.
+
+    As :func:`parallel_map` (same parameters), for a caller that writes results as they come.
+    """
     workers = Workers.of(workers)
     tasks = list(tasks)
     names = [f"{desc} #{i}" for i in range(len(tasks))] if names is None else list(names)
@@ -125,7 +136,8 @@ def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], workers: Workers | in
     call = _Call(fn, blas_threads)
     if not workers.parallel or (workers.dask is None and len(tasks) < 2):
         results = (call(n, t) for n, t in zip(names, tasks))
-        return _collect(progress(results, desc, total=len(tasks)), keep_going)
+        yield from _checked(progress(results, desc, total=len(tasks)), keep_going)
+        return
     from joblib import Parallel, delayed
 
     with _backend(workers), warnings.catch_warnings():
@@ -136,20 +148,18 @@ def parallel_map(fn: Callable[[T], R], tasks: Sequence[T], workers: Workers | in
         # generator: results arrive in order as they finish, and the first failure stops the rest
         run = Parallel(n_jobs=n_jobs, return_as="generator")(delayed(call)(n, t) for n, t in zip(names, tasks))
         try:
-            return _collect(progress(run, desc, total=len(tasks)), keep_going)
+            yield from _checked(progress(run, desc, total=len(tasks)), keep_going)
         finally:
             run.close()
 
 
-def _collect(results: Iterator, keep_going: bool) -> list:
-    """Return the results as a list; raise the first failure unless ``keep_going``."""
-    out = []
+def _checked(results: Iterator, keep_going: bool) -> Iterator:
+    """Yield the results; raise the first failure unless ``keep_going``."""
     for r in results:
         if isinstance(r, TaskFailure) and not keep_going:
             r.error.add_note(f"in parallel task {r.name}")
             raise r.error
-        out.append(r)
-    return out
+        yield r
 
 
 @contextmanager

@@ -35,3 +35,32 @@ def test_identify_on_a_local_cluster_equals_the_local_run(cluster, small_traject
     assert any(any(row) for row in local["coefficients"].values())
     for label, model in models.items():
         assert model == local, label  # every key, coefficients exactly equal
+
+
+RUNS = (("run_a", 30.0, "train"), ("run_b", 30.0, "train"), ("run_c", 25.0, "test"), ("run_d", 25.0, "test"))
+
+
+def test_benchmark_runs_in_two_processes_and_on_the_cluster_equal_one_process(cluster, tmp_path):
+    """The smoothers' runs are the benchmark's parallel tasks: the estimates do not depend on where they ran."""
+    import numpy as np
+
+    from groundfloor.parallel import Workers
+    from identification.preprocessing.trajectory import read_trajectory_campaign
+    from identification.sindy.model import model_from_terms
+    from simulation.robot import RobotParams
+    from sindy_ekf.benchmark.run import benchmark_campaign
+    from tests.support.trajectory_synth import write_mini_campaign
+
+    campaign = read_trajectory_campaign(write_mini_campaign(tmp_path / "mini", seed=5, runs=RUNS))
+    model = model_from_terms(RobotParams().terms())
+    results = {str(w): benchmark_campaign(campaign, model, "dgnss", seed=3, estimators=("sindy_ekf", "sindy_graph"),
+                                          outage_warmup_s=10.0, outage_recovery_s=12.0, workers=w)
+               for w in (1, 2, Workers(dask=cluster))}
+    one = results.pop("1")
+    assert set(one.estimates["sindy_graph"]) == {"run_c", "run_d"}
+    for label, other in results.items():
+        for name, runs in one.estimates.items():
+            for run, est in runs.items():
+                np.testing.assert_array_equal(other.estimates[name][run].x, est.x, err_msg=f"{label} {name} {run}")
+                np.testing.assert_array_equal(other.estimates[name][run].P, est.P, err_msg=f"{label} {name} {run}")
+        assert {k: s.ate_pos_m for k, s in other.scores.items()} == {k: s.ate_pos_m for k, s in one.scores.items()}
