@@ -10,6 +10,8 @@ does not depend on how many workers ran it or where.
 
 from __future__ import annotations
 
+import logging
+import os
 import traceback
 import warnings
 from contextlib import contextmanager
@@ -79,8 +81,17 @@ class _Call:
     def __init__(self, fn: Callable, blas_threads: int | None):
         self.fn = fn
         self.blas_threads = blas_threads
+        # the command line's logging (level, format), for workers that start without it
+        root = logging.getLogger()
+        self.log_level = root.getEffectiveLevel()
+        fmt = root.handlers[0].formatter if root.handlers else None
+        self.log_format = getattr(fmt, "_fmt", None)
+        self.parent_pid = os.getpid()
 
     def __call__(self, name: str, task):
+        root = logging.getLogger()
+        if os.getpid() != self.parent_pid and not root.handlers:  # a fresh worker: log as the parent does
+            logging.basicConfig(level=self.log_level, format=self.log_format)
         try:
             if self.blas_threads is None:
                 return self.fn(task)
