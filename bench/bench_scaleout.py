@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     tb = np.array(sizes["task_bytes"])
     lines = [
         "# Scale-out: identify's grid search on 1, 2 local processes and a 2-worker Dask cluster (issue 16)", "",
-        f"Command: `.venv/bin/python -m bench.bench_scaleout {' '.join(sys.argv[1:] if argv is None else argv)}`"
+        f"Command: `.venv/bin/python -m bench.bench_scaleout{''.join(' ' + x for x in (sys.argv[1:] if argv is None else argv))}`"
         f" (Python {platform.python_version()}, {os.cpu_count()} cores shared with other engineers' jobs; "
         f"load average (1 min) {', '.join(f'{x:.1f}' for x in load)} at the start, after jobs=1, after jobs=2 and "
         "after the cluster: the speed-ups are what this shared machine gave, not what 2 free cores give).", "",

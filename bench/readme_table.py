@@ -178,7 +178,7 @@ def _scaleout(r: Source) -> str:
     serial = r.row(header, "jobs=1")
     same = r.find(r"equal exactly\): \*\*(\w+)\*\*").group(1)
     load = r.find(r"load average \(1 min\) ([\d.]+)").group(1)
-    return (f"{loky[2]} / {dask[2]} the one-process wall time ({serial[1]} s; warm workers, load average {load} "
+    return (f"{loky[2]} / {dask[2]} the one-process wall time ({serial[1]} s; workers started beforehand, load average {load} "
             f"on 2 shared cores); same model: {same}")
 
 
