@@ -12,7 +12,7 @@ from sindy_ekf.benchmark.figures import write_benchmark_figures
 from sindy_ekf.benchmark.files import write_benchmark
 from sindy_ekf.benchmark.gnss_source import RECORDED
 from sindy_ekf.benchmark.result import BenchmarkResult
-from sindy_ekf.commands.workers import add_worker_arguments, workers_of
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.config import load_config
 from sindy_ekf.stages.estimation import benchmark_files
 

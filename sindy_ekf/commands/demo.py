@@ -19,9 +19,9 @@ import sys
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.commands.report import format_headline, format_problems
 from sindy_ekf.commands.simulate import format_table
-from sindy_ekf.commands.workers import add_worker_arguments, workers_of
 from sindy_ekf.report.demo import (
     DEFAULT_OUT,
     DEMO_MINUTES,

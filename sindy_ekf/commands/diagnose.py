@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
-from sindy_ekf.commands.workers import add_worker_arguments, workers_of
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.diagnose import Diagnosis, diagnose_campaign
 from sindy_ekf.diagnose.figures import write_diagnosis_figures
 from sindy_ekf.diagnose.residuals import top_structure

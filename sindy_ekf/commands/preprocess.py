@@ -16,7 +16,7 @@ from identification.preprocessing.preprocess import (
     reading_json,
 )
 from identification.preprocessing.sync import SyncedRun
-from sindy_ekf.commands.workers import add_worker_arguments, workers_of
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.report.bag_facts import bag_notes
 
 

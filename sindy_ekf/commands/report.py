@@ -8,7 +8,7 @@ from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
 from identification.sindy.search import QUICK_GRID
-from sindy_ekf.commands.workers import add_worker_arguments, workers_of
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.config import load_config
 from sindy_ekf.report.html import build_report
 from sindy_ekf.stages.chain import ChainResult

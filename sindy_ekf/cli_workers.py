@@ -1,4 +1,4 @@
-"""``--jobs N`` and ``--dask ADDRESS``: where a command's parallel tasks run (:mod:`groundfloor.parallel`)."""
+"""``--jobs N`` and ``--dask ADDRESS`` of the commands: where their parallel tasks run (:mod:`groundfloor.parallel`)."""
 
 from __future__ import annotations
 
