@@ -4,7 +4,7 @@ Usage::
 
     .venv/bin/python -m bench.bench_diagnose --calibrate 16   # effect-free study -> thresholds
     .venv/bin/python -m bench.bench_diagnose --calibrate-cause  # null of the cause step's statistics
-    .venv/bin/python -m bench.bench_diagnose [--jobs 2]       # suite, ladder, timing -> results
+    .venv/bin/python -m bench.bench_diagnose [--jobs 2] [--dask ADDRESS]  # suite, ladder, timing -> results
 
 Campaigns are the tests' shape (``simulation.short_campaign``: 4 x 45 s train and 2 x 45 s test runs of
 the simulator, 25 Hz body states with measurement noise), diagnosed against the reference model
@@ -30,11 +30,11 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from groundfloor.parallel import Workers, parallel_map
 from simulation.effects import EFFECTS, Effect
 from simulation.short_campaign import simulate_states_campaign, states_from_true_run
 from tests.support.diagnose_synth import fit_reference_with_lateral_law
@@ -43,27 +43,21 @@ HERE = Path(__file__).resolve().parent
 
 RUN_S, RATE_HZ = 45.0, 25.0
 MASTER_SEED = 20261121
-_MODEL = None
 
 
-def _init(model):
-    global _MODEL
-    _MODEL = model
-
-
-def one_campaign(job: tuple) -> dict:
-    """Return the diagnosis outcome of one campaign ``(seed, family or None, value)``."""
+def one_campaign(task: tuple) -> dict:
+    """Return the diagnosis outcome of one campaign ``(model, (seed, family or None, value[, flow]))``."""
     import warnings
 
     from sindy_ekf.diagnose import diagnose_states
 
+    model, job = task
     seed, family, value, flow = job if len(job) == 4 else (*job, "reference")
     effect = Effect(family, value) if family else None
     train, test, a, b = simulate_states_campaign(seed, effect, run_s=RUN_S, rate_hz=RATE_HZ)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model = _MODEL
         if flow == "same":  # identify then diagnose the same campaign: the model holds the effect
             from identification.sindy.regression import fit_sindy
 
@@ -92,10 +86,9 @@ def cause_statistics(model, train, test, train_names, test_names) -> dict:
             "eta2": eta2, "eta2_where": f"{eq} vs {reg}"}
 
 
-def _cause_sim(job) -> dict:
-    seed, flow = job
+def _cause_sim(task) -> dict:
+    model, (seed, flow) = task
     train, test, a, b = simulate_states_campaign(seed, None, run_s=RUN_S, rate_hz=RATE_HZ)
-    model = _MODEL
     if flow == "same":
         from identification.sindy.regression import fit_sindy
 
@@ -103,7 +96,7 @@ def _cause_sim(job) -> dict:
     return {"campaign": f"simulated seed {seed} ({flow} model)", "null": True, **cause_statistics(model, train, test, a, b)}
 
 
-def calibrate_cause(model, models: dict, n_sim: int, n_jobs: int) -> dict:
+def calibrate_cause(model, models: dict, n_sim: int, workers) -> dict:
     """Return the cause step's statistics on effect-free campaigns and their largest values.
 
     ``models`` maps a campaign path to its model file (identified on its own clean train runs).
@@ -124,31 +117,25 @@ def calibrate_cause(model, models: dict, n_sim: int, n_jobs: int) -> dict:
         print(rows[-1], flush=True)
     rng = np.random.default_rng([MASTER_SEED, 3])
     jobs = [(int(sd), "same" if i % 2 else "reference") for i, sd in enumerate(rng.integers(2**31, size=n_sim))]
-    if n_jobs <= 1:
-        _init(model)
-        rows += [_cause_sim(j) for j in jobs]
-    else:
-        with ProcessPoolExecutor(n_jobs, initializer=_init, initargs=(model,)) as ex:
-            rows += list(ex.map(_cause_sim, jobs))
+    rows += parallel_map(_cause_sim, [(model, j) for j in jobs], workers, desc="effect-free campaigns",
+                         names=[f"cause null seed {j[0]} {j[1]}" for j in jobs])
     null = [r for r in rows if r["null"]]
     return {"rows": rows,
             "max": {"delay_s": max(max(abs(r["delay_train_s"]), abs(r["delay_test_s"])) for r in null),
                     "eta2": max(r["eta2"] for r in null)}}
 
 
-def run_jobs(jobs, model, n_jobs):
-    if n_jobs <= 1:
-        _init(model)
-        return [one_campaign(j) for j in jobs]
-    with ProcessPoolExecutor(n_jobs, initializer=_init, initargs=(model,)) as ex:
-        return list(ex.map(one_campaign, jobs))
+def run_jobs(jobs, model, workers: Workers | int):
+    """Return the outcomes of the campaigns ``jobs``, each a task with its own seed (groundfloor.parallel)."""
+    return parallel_map(one_campaign, [(model, j) for j in jobs], workers, desc="campaigns",
+                        names=[f"campaign seed {j[0]} {j[1] or 'none'} {j[2]:g}" for j in jobs])
 
 
-def calibrate(model, n: int, n_jobs: int) -> dict:
+def calibrate(model, n: int, workers) -> dict:
     """Return the largest null gain per family over ``n`` effect-free campaigns (and all gains)."""
     rng = np.random.default_rng([MASTER_SEED, 1])
     jobs = [(int(s), None, 0.0, "reference" if i % 3 else "same") for i, s in enumerate(rng.integers(2**31, size=n))]
-    res = run_jobs(jobs, model, n_jobs)
+    res = run_jobs(jobs, model, workers)
     fams = list(EFFECTS)
     gains = np.array([[r["gains"][f] for f in fams] for r in res])
     return {"n": n, "flows": [r["flow"] for r in res], "max": dict(zip(fams, gains.max(0).round(5).tolist())),
@@ -320,11 +307,13 @@ def main() -> int:
     ap.add_argument("--calibrate-cause", nargs="*", metavar="CAMPAIGN=MODEL", default=None,
                     help="null of the cause step on effect-free campaigns (and 8 simulated ones)")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--dask", default=None, metavar="SCHEDULER_ADDRESS", help="run the campaigns on this Dask cluster")
     ap.add_argument("--no-ladder", action="store_true")
     ap.add_argument("--no-timing", action="store_true")
     ap.add_argument("--timing-only", action="store_true", help="only the default-size timing (re-summarise)")
     ap.add_argument("--summarise-only", action="store_true", help="rewrite diagnose.md from diagnose_raw.json")
     args = ap.parse_args()
+    workers = Workers(args.jobs, args.dask)
     out_dir = HERE / "results"
     raw_path = out_dir / "diagnose_raw.json"
     raw = json.loads(raw_path.read_text()) if raw_path.exists() else {}
@@ -337,13 +326,13 @@ def main() -> int:
     import sindy_ekf.diagnose  # noqa: F401  # imported before the workers fork: they run the sources as they were at the start
     model = fit_reference_with_lateral_law(n_runs=4, run_s=RUN_S, rate_hz=RATE_HZ)
     if args.calibrate:
-        raw["calibration"] = calibrate(model, args.calibrate, args.jobs)
+        raw["calibration"] = calibrate(model, args.calibrate, workers)
         print(json.dumps(raw["calibration"], indent=1))
         raw_path.write_text(json.dumps(raw, indent=1))
         return 0
     if args.calibrate_cause is not None:
         models = dict(kv.split("=", 1) for kv in args.calibrate_cause)
-        raw["cause_calibration"] = calibrate_cause(model, models, 8, args.jobs)
+        raw["cause_calibration"] = calibrate_cause(model, models, 8, workers)
         print(json.dumps(raw["cause_calibration"]["max"]))
         raw_path.write_text(json.dumps(raw, indent=1))
         return 0
@@ -356,14 +345,14 @@ def main() -> int:
         print(text)
         return 0
     t0 = time.perf_counter()
-    raw["suite"] = run_jobs(suite_jobs(), model, args.jobs)
+    raw["suite"] = run_jobs(suite_jobs(), model, workers)
     raw_path.write_text(json.dumps(raw, indent=1))
     print(f"suite done after {time.perf_counter() - t0:.0f} s", flush=True)
     if not args.no_ladder:  # rung by rung, saved as it goes (a long bench may be cut short)
         jobs = ladder_jobs()
         raw["ladder"] = []
         for i in range(0, len(jobs), 10 * args.jobs):
-            raw["ladder"] += run_jobs(jobs[i:i + 10 * args.jobs], model, args.jobs)
+            raw["ladder"] += run_jobs(jobs[i:i + 10 * args.jobs], model, workers)
             raw_path.write_text(json.dumps(raw, indent=1))
             (out_dir / "diagnose.md").write_text(summarise(raw["suite"], raw["ladder"], raw.get("timing"),
                                                            raw.get("calibration"), raw.get("cause_calibration")))

@@ -6,7 +6,8 @@ the default simulated campaign at a random start, with its own dgnss noise and o
 :data:`simulation.gnss_faults.FAULT_MIXES` (the mixes in turn: none, outliers, multipath, jump,
 cov_small, outage, all), seeded by ``(seed, run index)``. ``sindy_ekf`` and ``sindy_ekf_lateral``
 run on every window (chunks of windows in lockstep, NIS monitor and re-initialisation on), the
-batch ``sindy_graph`` on a random subset (``--graph-runs``). Chunks go to ``--jobs`` processes.
+batch ``sindy_graph`` on a random subset (``--graph-runs``). Chunks go to ``--jobs`` processes
+(or to the Dask cluster of ``--dask ADDRESS``; groundfloor.parallel).
 
 Warthog: :func:`sindy_ekf.benchmark.run.benchmark_campaign` on ``warthog-drive-cmd`` (dgnss
 simulated from the ICP poses, seed 0, the model identified by ``sindy-ekf identify``), plain
@@ -16,7 +17,7 @@ velocity against the train runs' to show the mechanism.
 Usage::
 
     python -m bench.bench_monte_carlo [--campaign TRAJ] [--model MODEL.json] [--runs 1000]
-        [--graph-runs 100] [--jobs 2] [--real-model CMD.json]
+        [--graph-runs 100] [--jobs 2] [--dask ADDRESS] [--real-model CMD.json]
 
 Without ``--campaign``/``--model`` the default campaign is simulated, preprocessed and identified
 into ``bench/_work/monte_carlo`` as ``bench_ekf_speed`` does. Writes ``bench/results/monte_carlo.md``
@@ -37,7 +38,8 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from joblib import Parallel, delayed
+
+from groundfloor.parallel import Workers, parallel_iter
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "warthog-drive-cmd"
@@ -75,6 +77,11 @@ def run_chunk(campaign_dir: str, model_path: str, indices: list[int], seed: int,
         warnings.simplefilter("ignore", RuntimeWarning)
         out = run_windows(model, lateral, windows, np.diag(P0_STD ** 2), graph_on)
     return [asdict(o) for o in out], time.process_time() - cpu
+
+
+def run_chunk_task(task: tuple) -> tuple[list, float]:
+    """Return :func:`run_chunk` of one task ``(campaign_dir, model_path, indices, seed, profile, graph_on)``."""
+    return run_chunk(*task)
 
 
 def build_default(cache: Path) -> tuple[Path, Path]:
@@ -193,6 +200,7 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=1000)
     ap.add_argument("--graph-runs", type=int, default=100, help="random subset of runs that also get sindy_graph")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--dask", default=None, metavar="SCHEDULER_ADDRESS", help="run the chunks on this Dask cluster")
     ap.add_argument("--chunk", type=int, default=20, help="Monte-Carlo runs per lockstep batch")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--profile", default="dgnss")
@@ -201,6 +209,7 @@ def main() -> int:
     ap.add_argument("--cache", type=Path, default=ROOT / "bench" / "_work" / "monte_carlo")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "monte_carlo.md")
     args = ap.parse_args()
+    workers = Workers(args.jobs, args.dask)
 
     load0 = Path("/proc/loadavg").read_text().split()[:3]
     wall0, cpu0 = time.perf_counter(), time.process_time()
@@ -218,7 +227,7 @@ def main() -> int:
     graph_on = set(rng.choice(args.runs, size=min(args.graph_runs, args.runs), replace=False).tolist())
     chunks = [list(range(i, min(i + args.chunk, args.runs))) for i in range(0, args.runs, args.chunk)]
     # the workers import the chunk function from the module (a function of __main__ does not unpickle there)
-    from bench.bench_monte_carlo import run_chunk as chunk_fn
+    from bench.bench_monte_carlo import run_chunk_task as chunk_fn
 
     rows, cpu_workers = [], 0.0
 
@@ -233,7 +242,7 @@ def main() -> int:
         md = ["# Faults survived: Monte Carlo under GNSS faults (issue 14, item 3)", "",
               f"Command: `python -m bench.bench_monte_carlo {' '.join(sys.argv[1:])}`", "",
               f"Campaign `{campaign_dir}`, model `{model_path}`. {n_runs} of {args.runs} Monte-Carlo runs done "
-              f"({n_graph} of them also through `sindy_graph`, of {len(graph_on)} asked), {args.jobs} processes, "
+              f"({n_graph} of them also through `sindy_graph`, of {len(graph_on)} asked), {workers.describe()}, "
               f"chunks of {args.chunk} runs in lockstep.{state} Wall {wall:.0f} s, CPU {cpu:.0f} s over all "
               f"processes; load average {' '.join(load0)} at start, {' '.join(load1)} when written (2 cores, "
               "shared).", ""]
@@ -248,9 +257,11 @@ def main() -> int:
         return "\n".join(md)
 
     write(0)
-    jobs = Parallel(n_jobs=args.jobs, return_as="generator_unordered")(
-        delayed(chunk_fn)(str(campaign_dir), str(model_path), c, args.seed, args.profile, graph_on & set(c))
-        for c in chunks)
+    # in chunk order, each chunk's windows drawn from its own indices and the seed: the same runs
+    # whichever worker or cluster computes them
+    jobs = parallel_iter(chunk_fn, [(str(campaign_dir), str(model_path), c, args.seed, args.profile,
+                                     graph_on & set(c)) for c in chunks], workers, desc="Monte-Carlo chunks",
+                         names=[f"chunk of runs {c[0]}-{c[-1]}" for c in chunks])
     for n_done, (out, cpu_chunk) in enumerate(jobs, start=1):
         rows += out
         cpu_workers += cpu_chunk

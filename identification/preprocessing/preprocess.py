@@ -40,9 +40,7 @@ truth, see ``bench/results/preprocess.md``):
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -51,7 +49,7 @@ import numpy as np
 from groundfloor.adjustment import VarianceFactorTest
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json, check_output_dir
-from groundfloor.progress import progress
+from groundfloor.parallel import Workers, parallel_map
 from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun, check_poses_move
 from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
@@ -304,7 +302,7 @@ def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | Non
 
 def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                         smoothing: float = DEFAULT_SMOOTHING, force: bool = False,
-                        plots_dir: str | Path | None = None, jobs: int = 1,
+                        plots_dir: str | Path | None = None, jobs: Workers | int = 1,
                         hub_correction: bool = HUB_CORRECTION) -> PreprocessResult:
     """Return the preprocessing of a tracker campaign, written as a trajectory campaign.
 
@@ -322,8 +320,9 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     plots_dir : path, optional
         If given, the figures of each step (thesis figs. 5.1 to 5.7, 7.2, 7.3) are saved there,
         one folder per run.
-    jobs : int
-        Runs processed in parallel (processes); runs are independent after calibration.
+    jobs : int or groundfloor.parallel.Workers
+        Runs processed in parallel (local processes, or a Dask scheduler); runs are independent
+        after calibration.
     hub_correction : bool
         Refer the prisms to the hub axes with each run's eq. 5.25 model before the poses.
 
@@ -347,15 +346,9 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     jobs_args = [(root, n, split, calibration, smoothing, hub_correction, plots_dir)
                  for n, split in run_list]
     tic = time.perf_counter()
-    if jobs > 1 and len(jobs_args) > 1:
-        with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)),
-                                 mp_context=mp.get_context("fork")) as pool:
-            done = [part for parts in progress(pool.map(_read_and_process, jobs_args),
-                                               desc="preprocess", total=len(jobs_args))
-                    for part in parts]
-    else:
-        done = [part for a in progress(jobs_args, desc="preprocess", total=len(jobs_args))
-                for part in _read_and_process(a)]
+    done = [part for parts in parallel_map(_read_and_process, jobs_args, jobs, desc="preprocess",
+                                           names=[f"run {n}" for n, _ in run_list])
+            for part in parts]
     seconds["runs_wall"] = time.perf_counter() - tic
     runs: dict[str, RunResult] = {}
     skipped: dict[str, str] = {}

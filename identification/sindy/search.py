@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -26,6 +25,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from groundfloor.errors import InputError
+from groundfloor.parallel import Workers, parallel_map
 from groundfloor.progress import progress
 from groundfloor.types import BodyStates, TrajectoryRun
 from identification.sindy.checks import STABILITY_TOL, max_re_eig_at_rest
@@ -162,7 +162,7 @@ def fold_assignment(groups: np.ndarray, n_folds: int) -> np.ndarray:
 
 def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: SearchGrid = DEFAULT_GRID,
            runs: Sequence[TrajectoryRun] | None = None, names: Sequence[str] | None = None,
-           groups: Sequence[int] | None = None, n_top: int = 14, n_jobs: int = 1,
+           groups: Sequence[int] | None = None, n_top: int = 14, n_jobs: Workers | int = 1,
            rel_tol: float | None = None) -> SearchResult:
     """Return the cross-validated full grid search and the best model refitted on all runs.
 
@@ -180,8 +180,8 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         Run of each state (segments of one run share it and its fold); default one run each.
     n_top : int
         How many of the best grid points to refit on all runs (``top_models``, for fig. 7.11).
-    n_jobs : int
-        Worker processes (one ``(s, tau, library)`` combination each at a time).
+    n_jobs : int or groundfloor.parallel.Workers
+        Worker processes, or a Dask scheduler (one ``(s, tau, library)`` combination per task).
     rel_tol : float, optional
         None (default): the one-standard-error rule (:func:`select_one_se`). A number: the
         sparsest model within ``1 + rel_tol`` of the best CV error (:func:`select_parsimonious`);
@@ -205,11 +205,8 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     n_folds = int(fold.max()) + 1
     combos = list(itertools.product(states_by_s, grid.tau, grid.library))
     jobs = [(states_by_s[s_val], names, fold, s_val, tau, lib, grid) for s_val, tau, lib in combos]
-    if n_jobs > 1:
-        with ProcessPoolExecutor(max_workers=n_jobs) as pool:
-            parts = list(progress(pool.map(_score_combo, jobs), "grid (s, tau, library)", total=len(jobs)))
-    else:
-        parts = [_score_combo(job) for job in progress(jobs, "grid (s, tau, library)")]
+    parts = parallel_map(_score_combo, jobs, n_jobs, desc="grid (s, tau, library)",
+                         names=[f"grid point s={s_val:g} tau={tau:g} library={lib}" for s_val, tau, lib in combos])
     table = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     score = np.where(np.isfinite(table["pos_err_5s_m"]), table["pos_err_5s_m"], np.inf)
     # models unstable at rest or blowing up on a held-out window are ranked after all others

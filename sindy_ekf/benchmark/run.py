@@ -29,6 +29,7 @@ import numpy as np
 from groundfloor.angles import wrap_angle
 from groundfloor.errors import InputError
 from groundfloor.gnss import GnssSeries
+from groundfloor.parallel import Workers, parallel_map
 from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
 from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, LagModel
@@ -191,11 +192,17 @@ def _process_model(models: dict[str, ProcessModel], base: str, settings: Estimat
     return model
 
 
+def _guarded_task(task: tuple):
+    """Return :func:`guarded` of one task ``(fn, args, kwargs)``: one run of one smoother."""
+    fn, args, kwargs = task
+    return guarded(fn, *args, **kwargs)
+
+
 def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: int | None = None,
                        oracle_dynamics=None, estimators=None, smoothing: float | None = None,
                        train_campaign=None, outage_warmup_s: float | None = None,
                        outage_recovery_s: float | None = None, outage_durations_s=None,
-                       config: FilterConfig | None = None) -> BenchmarkResult:
+                       config: FilterConfig | None = None, workers: Workers | int = 1) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign``.
 
     Parameters
@@ -217,6 +224,9 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         defaults): GNSS profile, seed and outages, and per estimator whether it runs, its process
         noise, initial std, gate probability, ``v_y = 0`` constraint and sensors. ``profile``,
         ``seed``, ``estimators`` and the outage arguments win over it when given (not None).
+    workers : where the runs of the smoothers (``sindy_graph*``, ``sindy_isam2``) go, one task per run
+        (:mod:`groundfloor.parallel`); the EKFs run all runs in lockstep in this process. Their
+        runtimes are wall times either way.
     """
     known = ESTIMATORS + OPTIONAL_ESTIMATORS
     unknown = set(estimators or ()) - set(known)
@@ -306,23 +316,24 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         model, constraint = _process_model(models, "sindy_ekf", cfg), lateral_of(cfg)
         start = time.perf_counter()
         init = estimates.get(init_name)
-        results = []
+        tasks = []
         for r in runs:
             x_init = None
             if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
                 x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
                                           for i in range(6)])
-            results.append(guarded(smooth_batch, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
-                                   x_init=x_init, marginal_stride=10, lateral=constraint,
-                                   name=f"{r.name} {name}"))
-        keep(name, results)
+            tasks.append((smooth_batch, (model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r)),
+                          dict(x_init=x_init, marginal_stride=10, lateral=constraint, name=f"{r.name} {name}")))
+        keep(name, parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} {name}" for r in runs], desc=name))
         runtimes[name] = time.perf_counter() - start
     if "sindy_isam2" in estimators:
         cfg = config.estimator("sindy_isam2")
         model = _process_model(models, "sindy_ekf", cfg)
         start = time.perf_counter()
-        keep("sindy_isam2", [guarded(smooth_isam2, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
-                                     name=f"{r.name} sindy_isam2") for r in runs])
+        tasks = [(smooth_isam2, (model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r)), dict(name=f"{r.name} sindy_isam2"))
+                 for r in runs]
+        keep("sindy_isam2", parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} sindy_isam2" for r in runs],
+                                         desc="sindy_isam2"))
         runtimes["sindy_isam2"] = time.perf_counter() - start
     truth = {r.name: r.truth for r in runs}
     outages_of_runs = {r.name: r.gnss.outages for r in runs}

@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.errors import InputError
-from groundfloor.progress import progress
+from groundfloor.parallel import Workers, parallel_map
 from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates
 from identification.preprocessing.campaigns import open_campaign
@@ -321,6 +321,12 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
     return score_family(specs[0], model, tr, te, weights, base_pred, uncertainty=uncertainty)
 
 
+def _score_family_task(task) -> FamilyScore:
+    """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty)``."""
+    name, model, tr, te, weights, base_pred, uncertainty = task
+    return score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+
+
 def in_envelope(model, split, margin: float = 0.1):
     """Return ``split`` without the windows that leave the model's training envelope (widened by
     ``margin`` of its width): a model cannot be judged where it was never trained, and its
@@ -344,7 +350,7 @@ def in_envelope(model, split, margin: float = 0.1):
 def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequence[BodyStates],
                     train_names: Sequence[str], test_names: Sequence[str], families: Sequence[str] = FAMILIES,
                     ekf: bool = False, tau: float | None = None, thresholds: dict | None = None,
-                    uncertainty: bool = True) -> Diagnosis:
+                    uncertainty: bool = True, workers: Workers | int = 1) -> Diagnosis:
     """Return the diagnosis of ``model`` on the runs: every family scored, ranked, the winner extended.
 
     Parameters
@@ -353,6 +359,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     train, test : body states of the train runs (families fitted) and test runs (scored).
     ekf : also measure the EKF dead-reckoning error through 10 s GNSS outages before and after.
     tau : integration window, s; default the model's ``tau`` hyperparameter (else 2 s).
+    workers : where the families are scored (:mod:`groundfloor.parallel`; one task per family).
 
     Raises
     ------
@@ -370,8 +377,8 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     te = in_envelope(model, split_from_states(test, test_names, tau, what="test runs"))
     weights = equation_weights(model, tr)
     base_pred = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
-    scores = [score_mechanisms(f, model, tr, te, weights, base_pred, uncertainty=uncertainty)
-              for f in progress(list(families), "diagnose: families")]
+    scores = parallel_map(_score_family_task, [(f, model, tr, te, weights, base_pred, uncertainty) for f in families],
+                          workers, names=[f"family {f}" for f in families], desc="diagnose: families")
     ranked = rank_families(scores, thresholds)
     seconds["families"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -429,7 +436,8 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
                      evidence=evidence)
 
 
-def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES) -> Diagnosis:
+def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES,
+                      workers: Workers | int = 1) -> Diagnosis:
     """Return the diagnosis of the model in ``model_path`` on a campaign (trajectory or tracker).
 
     Body states come from the project's spline step (``identification.sindy.data.states_of_runs``,
@@ -446,5 +454,5 @@ def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence
         raise InputError(f"{campaign}: campaign.yaml marks no run as train, nothing to fit a mechanism on")
     train, train_names, _ = states_of_runs(train_runs, s)
     test, test_names, _ = states_of_runs(test_runs, s)
-    d = diagnose_states(model, train, test, train_names, test_names, families=families, ekf=ekf)
+    d = diagnose_states(model, train, test, train_names, test_names, families=families, ekf=ekf, workers=workers)
     return dataclasses.replace(d, measurement=tuple(measurement_findings(camp.root)))

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Sequence
 
 from groundfloor.errors import InputError
+from groundfloor.parallel import Workers
 from groundfloor.types import TrajectoryRun
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.adjust import Adjustment, adjust_coefficients
@@ -103,7 +104,7 @@ def plan_identification(campaign: str | Path, quick: bool = False, kind: str = "
                               why)
 
 
-def identify(plan: IdentificationPlan, n_jobs: int = 1, out: str | Path | None = None) -> Identification:
+def identify(plan: IdentificationPlan, n_jobs: Workers | int = 1, out: str | Path | None = None) -> Identification:
     """Return the search of ``plan`` and its selected model, written to ``out`` when given.
 
     The model's training facts gain the cross-validated 5 s errors of the selected row, the
