@@ -34,7 +34,7 @@ from sindy_ekf.diagnose.cause import (
     threshold,
     unexplained_structure,
 )
-from sindy_ekf.diagnose.data import split_from_states
+from sindy_ekf.diagnose.data import in_envelope, split_from_states
 from sindy_ekf.diagnose.extend import (
     ExtendedModel,
     multistep,
@@ -325,26 +325,6 @@ def _score_family_task(task) -> FamilyScore:
     """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty)``."""
     name, model, tr, te, weights, base_pred, uncertainty = task
     return score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
-
-
-def in_envelope(model, split, margin: float = 0.1):
-    """Return ``split`` without the windows that leave the model's training envelope (widened by
-    ``margin`` of its width): a model cannot be judged where it was never trained, and its
-    extrapolation there (cubic terms) would swamp every residual."""
-    env = getattr(model, "envelope", None)
-    if not env:
-        return split
-    z = np.concatenate([split.v_body, split.u], axis=-1)
-    names = LIBRARY_STATE_NAMES + LIBRARY_INPUT_NAMES
-    lo = np.array([env.get(v, [-np.inf, np.inf])[0] for v in names])
-    hi = np.array([env.get(v, [-np.inf, np.inf])[1] for v in names])
-    pad = margin * (hi - lo)
-    keep = split.windows_inside(np.all((z >= lo - pad) & (z <= hi + pad), axis=1))
-    if keep.sum() < 0.2 * len(keep):
-        log.warning("%s: only %d of %d windows inside the model's training envelope; using all",
-                    ", ".join(split.names), int(keep.sum()), len(keep))
-        return split
-    return split.select_windows(keep)
 
 
 def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequence[BodyStates],
