@@ -76,8 +76,13 @@ TARGETS = {
                                                    FROZEN],
     "sindy_ekf/diagnose/rank.py": ["tests/sindy_ekf/diagnose/test_rank_order.py", FROZEN],
     "sindy_ekf/benchmark/health.py": ["tests/sindy_ekf/benchmark/test_health.py",
-                                      "tests/sindy_ekf/benchmark/test_nis_alarm_by_hand.py", FROZEN],
+                                      "tests/sindy_ekf/benchmark/test_nis_alarm_by_hand.py",
+                                      "tests/sindy_ekf/benchmark/test_health_recovery_diverges.py",
+                                      "tests/sindy_ekf/benchmark/test_split_short_runs.py", FROZEN],
 }
+# seeds whose surviving mutants tests were written against (the report says so: their score is
+# not an unbiased measure of the tests; a fresh seed is)
+WRITTEN_AGAINST = (14,)
 SWAP_BIN = {ast.Add: ast.Sub, ast.Sub: ast.Add, ast.Mult: ast.Div, ast.Div: ast.Mult, ast.Pow: ast.Mult}
 SWAP_CMP = {ast.Lt: ast.GtE, ast.GtE: ast.Lt, ast.Gt: ast.LtE, ast.LtE: ast.Gt, ast.Eq: ast.NotEq,
             ast.NotEq: ast.Eq}
@@ -316,6 +321,9 @@ class Outcome:
     secs: float = 0.0
 
 
+_CONTROL: dict[str, tuple[bool, float, dict]] = {}  # module -> (passed, seconds, lines run per test)
+
+
 def run_module(module: str, tests: list[str], seed: int, per_module: int, works: "queue.Queue[Path]",
                jobs: int) -> tuple[int, list[Outcome], str]:
     """Return ``(n_sites, outcomes, note)`` of the draw of ``module`` for ``seed``."""
@@ -337,15 +345,17 @@ def run_module(module: str, tests: list[str], seed: int, per_module: int, works:
     pending = [i for i in drawn if i not in outcomes]
     if not pending:
         return len(all_sites), [outcomes[i] for i in drawn], "all drawn equivalent"
-    work = works.get()
-    lines_out = work / "mutation_lines.json"
-    try:
-        (work / module).write_text(control)
-        ok, clean_s = run_tests(work, tests, 1800, lines_out, module)
-        hits = json.loads(lines_out.read_text()) if ok else {}
-    finally:
-        (work / module).write_text(source)
-        works.put(work)
+    if module not in _CONTROL:  # one traced clean run per module, whichever seeds follow
+        work = works.get()
+        lines_out = work / "mutation_lines.json"
+        try:
+            (work / module).write_text(control)
+            ok, clean_s = run_tests(work, tests, 1800, lines_out, module)
+            _CONTROL[module] = ok, clean_s, json.loads(lines_out.read_text()) if ok else {}
+        finally:
+            (work / module).write_text(source)
+            works.put(work)
+    ok, clean_s, hits = _CONTROL[module]
     if not ok:
         return len(all_sites), [], f"control run failed ({clean_s:.0f} s): skipped"
 
@@ -389,7 +399,9 @@ def report(seed_runs, args, minutes: float, targets: dict[str, list[str]]) -> li
         killed = sum(o.status == "killed" for o in outs)
         equiv = sum(o.status == "equivalent" for o in outs)
         scored = len(outs) - equiv
-        lines += [f"### seed {seed}: **{killed} of {scored} mutants killed: {100 * killed / max(scored, 1):.0f} %** "
+        how = ("the draw whose survivors the tests were written against" if seed in WRITTEN_AGAINST
+               else "a fresh draw: no test was written against it")
+        lines += [f"### seed {seed} ({how}): **{killed} of {scored} mutants killed: {100 * killed / max(scored, 1):.0f} %** "
                   f"(target >= 90 %; {equiv} drawn equivalent, excluded)", "",
                   "| module | mutation sites | drawn | equivalent, excluded | killed | survived (not reached) | tests |",
                   "|---|---|---|---|---|---|---|"]
