@@ -461,9 +461,9 @@ def main(argv=None) -> int:
                 n_sites, outcomes, note = run_module(module, tests, seed, args.per_module, works, args.jobs)
                 rows.append((module, n_sites, outcomes, note))
             seed_runs.append((seed, rows))
-    minutes = (time.perf_counter() - t_start) / 60
-    lines = report(seed_runs, args, minutes, targets)
-    OUT.write_text("\n".join(lines) + "\n")
+            # written after each seed: a run stopped later still leaves the seeds it finished
+            lines = report(seed_runs, args, (time.perf_counter() - t_start) / 60, targets)
+            OUT.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 
