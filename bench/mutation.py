@@ -46,6 +46,7 @@ import queue
 import random
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -139,6 +140,9 @@ EQUIVALENT: list[Equivalent] = [
                "the number of BLAS threads: changes the speed of a factorisation, not its result"),
     Equivalent("*", r"progress\.(total|desc|disable)", r".*",
                "the progress bar's display (its length, label): no result depends on it"),
+    Equivalent("sindy_ekf/estimation/ekf.py", r"step_and_jac\.input_jacobian", r"False -> True",
+               "the input Jacobian computed as well: this caller discards it (``x, F, _ = ...``)",
+               source=r"x, F, _ = "),
     Equivalent("identification/sindy/regression.py", r"", r"1\.0 -> 2\.0",
                "the stand-in norm of an all-zero column or target (any positive value): a zero column "
                "divided by it stays zero and its coefficient zero, so the fit is the same",
@@ -464,6 +468,7 @@ def main(argv=None) -> int:
                     s = all_sites[i]
                     print(f"{seed} {module}:{s.line} {s.what}: {source.splitlines()[s.line - 1].strip()}")
         return 0
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # stopped: the copies are removed all the same
     t_start = time.perf_counter()
     seed_runs = []
     with tempfile.TemporaryDirectory(prefix="mutation_") as tmp:

@@ -5,8 +5,10 @@ against hand computations: window starts and grids of a run whose signals are li
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from groundfloor.dynamics import Dynamics
+from groundfloor.errors import InputError
 from groundfloor.types import BodyStates
 from identification.sindy.evaluate import make_windows, rollout
 
@@ -75,3 +77,15 @@ def test_two_step_method_is_rk4_on_the_velocities_then_euler_on_the_pose():
             pose = s[:3] + h * np.array([vx * c - vy * sn, vx * sn + vy * c, om])  # the step's start velocities
             s = np.concatenate([pose, s[3:] * g])
         np.testing.assert_allclose(pred[k, -1], s, atol=1e-12)
+
+
+def test_overlap_must_be_below_one_and_two_samples_spanning_a_window_make_one():
+    for overlap in (1.0, 1.5, -0.1):
+        with pytest.raises(InputError, match="overlap"):
+            make_windows([_linear_run()], window_s=5.0, overlap=overlap)
+    t = np.array([T_START, T_START + 5.0])
+    two = BodyStates(t=t, vx=np.ones(2), vy=np.zeros(2), omega=np.zeros(2), u1=np.ones(2), u2=np.zeros(2),
+                     x=np.array([0.0, 5.0]), y=np.zeros(2), yaw=np.zeros(2))
+    w = make_windows([two], window_s=5.0, overlap=0.5, dt=0.02)
+    np.testing.assert_allclose(w.t0_run, [0.0])
+    np.testing.assert_allclose(w.pose_truth[0, :, 0], w.t_rel, atol=1e-12)  # x = t between the two samples
