@@ -143,6 +143,9 @@ EQUIVALENT: list[Equivalent] = [
     Equivalent("sindy_ekf/estimation/ekf.py", r"step_and_jac\.input_jacobian", r"False -> True",
                "the input Jacobian computed as well: this caller discards it (``x, F, _ = ...``)",
                source=r"x, F, _ = "),
+    Equivalent("sindy_ekf/estimation/graph.py", r"", r".*",
+               "counters of vectorised and single factor evaluations: only logged, no result reads them",
+               source=r"self\.n_(batch|single) (=|\+=) "),
     Equivalent("identification/sindy/regression.py", r"", r"1\.0 -> 2\.0",
                "the stand-in norm of an all-zero column or target (any positive value): a zero column "
                "divided by it stays zero and its coefficient zero, so the fit is the same",
