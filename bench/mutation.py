@@ -324,8 +324,8 @@ def select_tests(site: Site, hits: dict[str, list[int]], tests: list[str]) -> li
     """
     lines = {site.line, site.stmt_line}
     keys = [k for k, v in hits.items() if lines & set(v)]
-    if site.at_import or "*" in keys:
-        return list(tests) if (site.at_import or keys) else []
+    if site.at_import or "*" in keys:  # run at import or by a session-scoped fixture: every test may see it
+        return list(tests)
     files = [k for k in keys if "::" not in k]
     rest = [k for k in keys if "::" in k and not any(k.startswith(f + "::") for f in files)]
     classes = [k for k in rest if k.count("::") == 1 and "[" not in k and k.split("::")[1][:1].isupper()]
