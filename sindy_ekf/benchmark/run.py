@@ -44,9 +44,15 @@ from sindy_ekf.benchmark.health import (
     score_partial,
     split_short_runs,
 )
+from sindy_ekf.benchmark.motion_source import run_motion_ekfs
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
-from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
+from sindy_ekf.config import (
+    EstimatorSettings,
+    FilterConfig,
+    OutageSchedule,
+    load_config,
+)
 from sindy_ekf.estimation.ekf import (
     GRID_TOL_S,
     EkfRun,
@@ -289,8 +295,12 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         batch = [EkfRun(f"{r.name} {name}", r.grid, r.u_motor if use_motor and r.u_motor is not None else r.u,
                         r.x0, cfg.P0, gnss_of(cfg, r)) for r in runs]
         start = time.perf_counter()
-        keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
-                                     gate_prob=cfg.gate_prob))
+        if cfg.motion_sensors:  # gyro / wheel odometry: the seven-state EKF of ekf_motion (issue 16)
+            keep(name, run_motion_ekfs(_process_model(models, base, cfg), runs, campaign, cfg.motion_sensors,
+                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r: gnss_of(cfg, r), use_motor))
+        else:
+            keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
+                                         gate_prob=cfg.gate_prob))
         runtimes[name] = time.perf_counter() - start
     if "dead_reckoning" in estimators:
         cfg = config.estimator("dead_reckoning")
