@@ -22,7 +22,7 @@ import logging
 import os
 import shutil
 from dataclasses import asdict
-from datetime import UTC, datetime
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -35,13 +35,7 @@ from simulation import bags
 from simulation import truth as truth_io
 from simulation.clocks import NS, simulate_tracker_clock
 from simulation.effects import Effect, parse_effect
-from simulation.gnss_topic import (
-    check_gnss_spec,
-    gnss_truth,
-    record_fixes,
-    write_gnss_bag,
-    write_gnss_truth,
-)
+from simulation.gnss_topic import check_gnss_spec, gnss_truth, record_fixes, write_gnss_bag, write_gnss_truth
 from simulation.hubs import baseline_geometry
 from simulation.motion_sensors import (
     ImuSpec,
@@ -81,7 +75,7 @@ LEVER_ARMS_TABLE_7_1_M = {"front": (0.4671355, 0.0655364, 0.5167336), "rear": (-
 # thesis table 7.5 (means): eccentricity radii as eq. 5.25 sees them (m)
 HUB_RADIUS_TABLE_7_5_M = {"front": 0.21e-3, "rear": 0.12e-3}
 BODY_ORIGIN_Z_LOCAL_M = -1.2505  # table 6.3 hub screw heads through table 7.2 (module docstring)
-CAMPAIGN_START = datetime(2022, 12, 21, 9, 30, tzinfo=UTC)  # thesis 6: 21.12.2022
+CAMPAIGN_START = datetime(2022, 12, 21, 9, 30, tzinfo=timezone.utc)  # thesis 6: 21.12.2022
 CALIBRATION_YAML = Path(__file__).resolve().parent / "data" / "calibration.yaml"
 # independently generated campaigns: every message its own receive latency (issue 14)
 DEFAULT_RECEIVE_JITTER_S = (2e-3, 12e-3)
@@ -207,7 +201,7 @@ def _umask() -> int:
 
 
 def _bag_stamp(t_ns: int) -> str:
-    return datetime.fromtimestamp(t_ns // NS, tz=UTC).strftime("%Y-%m-%d-%H-%M-%S")
+    return datetime.fromtimestamp(t_ns // NS, tz=timezone.utc).strftime("%Y-%m-%d-%H-%M-%S")
 
 
 def _run_setup(r: int, duration_s: float, t0_ns: int, t_boot_ns: dict, rng: np.random.Generator,

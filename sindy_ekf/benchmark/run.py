@@ -47,12 +47,7 @@ from sindy_ekf.benchmark.health import (
 from sindy_ekf.benchmark.motion_source import run_motion_ekfs
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
-from sindy_ekf.config import (
-    EstimatorSettings,
-    FilterConfig,
-    OutageSchedule,
-    load_config,
-)
+from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
 from sindy_ekf.estimation.ekf import (
     GRID_TOL_S,
     EkfRun,
@@ -297,7 +292,7 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         start = time.perf_counter()
         if cfg.motion_sensors:  # gyro / wheel odometry: the seven-state EKF of ekf_motion (issue 16)
             keep(name, run_motion_ekfs(_process_model(models, base, cfg), runs, campaign, cfg.motion_sensors,
-                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r: gnss_of(cfg, r), use_motor))
+                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r, c=cfg: gnss_of(c, r), use_motor))
         else:
             keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
                                          gate_prob=cfg.gate_prob))
