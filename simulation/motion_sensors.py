@@ -48,6 +48,7 @@ class ImuSpec:
     rate_hz: float = 100.0
     noise_std_rad_s: float = 0.005  # white gyro noise per sample
     bias_std_rad_s: float = 0.01  # the constant bias of a run is drawn with this std (0.57 deg/s)
+    bias_rad_s: float | None = None  # a given constant bias instead of a drawn one
     bias_walk_rad_s_sqrt_s: float = 2e-4  # random-walk density of the bias
     accel_noise_std_m_s2: float = 0.05
     ros2: bool = False
@@ -123,7 +124,8 @@ def record_imu(t_utc_ns, vx, vy, omega, spec: ImuSpec, rng: np.random.Generator)
     om, v_x, v_y = (np.interp(t, t_true, np.asarray(a, float)) for a in (omega, vx, vy))
     dt = 1.0 / spec.rate_hz
     walk = np.cumsum(rng.normal(0.0, spec.bias_walk_rad_s_sqrt_s * np.sqrt(dt), t.size))
-    bias = rng.normal(0.0, spec.bias_std_rad_s) + walk
+    b0 = rng.normal(0.0, spec.bias_std_rad_s)
+    bias = (b0 if spec.bias_rad_s is None else spec.bias_rad_s) + walk
     wz = om + bias + rng.normal(0.0, spec.noise_std_rad_s, t.size)
     a_body = np.column_stack([np.gradient(v_x, t) - v_y * om, np.gradient(v_y, t) + v_x * om])
     a_xy = a_body + rng.normal(0.0, spec.accel_noise_std_m_s2, a_body.shape)

@@ -50,7 +50,10 @@ N_Z = N_X + 1  # six model states and the gyro bias
 I_BIAS = N_X
 GYRO_STD_RAD_S = 0.01  # a sample's std when the IMU states none
 BIAS_STD_RAD_S = 0.02  # prior std of the gyro bias (MEMS gyros: ~1 deg/s turn-on bias)
-BIAS_WALK_RAD_S_SQRT_S = 1e-3  # random-walk density of the bias the filter assumes
+# random-walk density of the bias the filter assumes: a datasheet's figure, here twice the
+# simulator's 2e-4 (simulation.motion_sensors.ImuSpec); 5x (1e-3) let the bias learnt while GNSS
+# was there run off within a 30 s outage
+BIAS_WALK_RAD_S_SQRT_S = 4e-4
 ODOMETRY_STD = (0.05, 0.05)  # v m/s, omega rad/s when the odometry states none
 ODOMETRY_SCALE_STD = 0.05  # relative error of odometry from slip and track width (not in its stated std)
 
