@@ -44,7 +44,7 @@ from sindy_ekf.benchmark.health import (
     score_partial,
     split_short_runs,
 )
-from sindy_ekf.benchmark.motion_source import run_motion_ekfs
+from sindy_ekf.benchmark.motion_source import run_motion_ekfs, run_motion_graphs
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
 from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
@@ -311,15 +311,20 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         model, constraint = _process_model(models, "sindy_ekf", cfg), lateral_of(cfg)
         start = time.perf_counter()
         init = estimates.get(init_name)
-        results = []
+        results, x_inits = [], {}
         for r in runs:
             x_init = None
             if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
                 x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
                                           for i in range(6)])
-            results.append(guarded(smooth_batch, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
-                                   x_init=x_init, marginal_stride=10, lateral=constraint,
-                                   name=f"{r.name} {name}"))
+            x_inits[r.name] = x_init
+            if not cfg.motion_sensors:
+                results.append(guarded(smooth_batch, model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r),
+                                       x_init=x_init, marginal_stride=10, lateral=constraint,
+                                       name=f"{r.name} {name}"))
+        if cfg.motion_sensors:  # gyro / wheel odometry factors (graph_motion, issue 16)
+            results = run_motion_graphs(model, runs, campaign, cfg.motion_sensors, constraint, name, cfg.P0,
+                                        lambda r, c=cfg: gnss_of(c, r), lambda r, s=x_inits: s[r.name])
         keep(name, results)
         runtimes[name] = time.perf_counter() - start
     if "sindy_isam2" in estimators:

@@ -1,7 +1,7 @@
 """The command line end to end with a recorded IMU and wheel odometry (ROS1 bags): simulate --gnss
 --imu --odometry, preprocess (imu.csv / odometry.csv and their counts in its JSON), benchmark --gnss
-recorded --config with sensors [gnss, imu, odometry] for sindy_ekf (scored against truth), and the
-one-line errors: --sensors-ros2 alone, a factor graph asked for imu, imu asked for without imu.csv."""
+recorded --config with sensors [gnss, imu, odometry] for sindy_ekf and sindy_graph (scored against
+truth), and the one-line errors: --sensors-ros2 alone, iSAM2 asked for imu, imu asked for without imu.csv."""
 
 from __future__ import annotations
 
@@ -27,13 +27,16 @@ def test_imu_and_odometry_through_simulate_preprocess_and_benchmark(tmp_path, ca
         assert sensors["odometry"][run]["samples"] == t["odometry"]["n_samples"]
         assert (traj / "runs" / run / "imu.csv").is_file() and (traj / "runs" / run / "odometry.csv").is_file()
     model_from_terms(RobotParams().terms()).to_json(model)
-    cfg.write_text("estimators:\n  sindy_ekf:\n    sensors: [gnss, imu, odometry]\n")
+    cfg.write_text("estimators:\n  sindy_ekf:\n    sensors: [gnss, imu, odometry]\n"
+                   "  sindy_graph:\n    sensors: [gnss, imu, odometry]\n")
     capsys.readouterr()
     assert cli.main(["benchmark", str(traj), "--model", str(model), "--gnss", "recorded", "--estimators",
-                     "sindy_ekf", "--config", str(cfg), "--json", str(tmp_path / "b.json")]) == 0
+                     "sindy_ekf,sindy_graph", "--config", str(cfg), "--json", str(tmp_path / "b.json")]) == 0
     doc = json.loads((tmp_path / "b.json").read_text())
-    assert doc["config"]["estimators"]["sindy_ekf"]["sensors"] == ["gnss", "imu", "odometry"]
-    assert doc["estimators"]["sindy_ekf"]["ate_pos_m"] < 0.05  # rtk: 2 cm fixes
+    for name in ("sindy_ekf", "sindy_graph"):
+        assert doc["config"]["estimators"][name]["sensors"] == ["gnss", "imu", "odometry"]
+        assert doc["estimators"][name]["ate_pos_m"] < 0.05  # rtk: 2 cm fixes
+        assert doc["estimators"][name]["status"] == "ok"
     # the same campaign without imu.csv: an error naming the file
     for p in traj.glob("runs/*/imu.csv"):
         p.unlink()
@@ -49,7 +52,7 @@ def test_bad_flags_and_settings_are_one_line_errors(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--sensors-ros2: needs --imu or --odometry" in err[0]
     cfg = tmp_path / "f.yaml"
-    cfg.write_text("estimators:\n  sindy_graph:\n    sensors: [gnss, imu]\n")
+    cfg.write_text("estimators:\n  sindy_isam2:\n    sensors: [gnss, imu]\n")
     assert cli.main(["config", str(cfg)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "estimators.sindy_graph.sensors: imu is fused by the EKFs only" in err[0]
+    assert len(err) == 1 and "estimators.sindy_isam2.sensors: imu is fused by the EKFs and the batch graphs" in err[0]
