@@ -4,7 +4,8 @@
 ``{name, topic, type[, lever_arm_body_m]}`` or as a mapping ``{name: topic}`` (the type then
 follows from the name, data contract part 1). A type outside :data:`SENSOR_TYPES` is a one-line
 :class:`InputError` naming it; a known type this version does not read yet (IMU, wheels) is
-ignored with a log line, as are keys and topics readers do not know.
+ignored with a log line, as are keys and topics readers do not know. IMU and wheel odometry
+(``nav_msgs/Odometry``) are read by :mod:`identification.preprocessing.io_motion`.
 
 GNSS (``sensor_msgs/NavSatFix``) is read from the run's bags (ROS1 and ROS2, rosbags' AnyReader)
 or from a trajectory campaign's ``runs/<run>/gnss.csv``; fixes with status ``NO_FIX`` (< 0) or
@@ -33,7 +34,7 @@ from identification.preprocessing.io_tracker import find_bags
 log = logging.getLogger(__name__)
 
 GNSS = "gnss"
-# sensor type -> kind; the kinds beside gnss are declared by the data contract, not read yet
+# sensor type -> kind; gnss read here, imu and odometry by io_motion, wheels (JointState) not read yet
 SENSOR_TYPES = {"sensor_msgs/NavSatFix": GNSS, "sensor_msgs/Imu": "imu",
                 "sensor_msgs/JointState": "wheels", "nav_msgs/Odometry": "odometry"}
 DEFAULT_TYPES = {"gnss": "sensor_msgs/NavSatFix", "imu": "sensor_msgs/Imu",
@@ -130,7 +131,7 @@ def read_sensors_config(root: str | Path) -> SensorsConfig:
         raise InputError(f"{file}: key 'sensors' must be a list or a mapping")
     sensors = tuple(_spec(e, i, str(file)) for i, e in enumerate(raw))
     for s in sensors:
-        if s.kind != GNSS:
+        if s.kind == "wheels":  # GNSS here, IMU and odometry in io_motion
             log.info("%s: sensor %s (%s) declared; not read by this version", file, s.name, s.type)
     origin = None if doc.get("geodetic_origin") is None else GeodeticOrigin.from_yaml(doc["geodetic_origin"], str(file))
     yaw = doc.get("enu_to_local_yaw_deg")

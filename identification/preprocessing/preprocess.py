@@ -54,6 +54,7 @@ from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, Trajec
 from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
 from identification.preprocessing.hub import HubModel, fit_hub_model
+from identification.preprocessing.io_motion import write_run_motion
 from identification.preprocessing.io_sensors import read_sensors_config, write_run_gnss
 from identification.preprocessing.io_survey import read_survey
 from identification.preprocessing.io_tracker import (
@@ -372,11 +373,12 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                               ground_truth="laser trackers AT960 + LTD800 (thesis 5.2)",
                               skipped_runs=dict(skipped), **sensors_config.to_yaml())
     gnss = write_run_gnss(root, Path(out_dir), {n: r.poses.t for n, r in runs.items()})
+    motion = write_run_motion(root, Path(out_dir), {n: r.poses.t for n, r in runs.items()})
     seconds["write"] = time.perf_counter() - tic
     result = PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
                               runs=runs, skipped=skipped, smoothing=smoothing,
                               hub_correction=hub_correction, seconds=seconds,
-                              sensors={"gnss": gnss} if gnss else {})
+                              sensors={**({"gnss": gnss} if gnss else {}), **motion})
     # the report beside the data (readers ignore unknown files); the data folder is complete
     # before it, so a crash in between loses only the report, never half the data
     atomic_write_json(Path(out_dir) / REPORT_FILE, result.to_json_dict())

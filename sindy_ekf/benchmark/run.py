@@ -45,6 +45,7 @@ from sindy_ekf.benchmark.health import (
     score_partial,
     split_short_runs,
 )
+from sindy_ekf.benchmark.motion_source import run_motion_ekfs, run_motion_graphs
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
 from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
@@ -299,8 +300,12 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         batch = [EkfRun(f"{r.name} {name}", r.grid, r.u_motor if use_motor and r.u_motor is not None else r.u,
                         r.x0, cfg.P0, gnss_of(cfg, r)) for r in runs]
         start = time.perf_counter()
-        keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
-                                     gate_prob=cfg.gate_prob))
+        if cfg.motion_sensors:  # gyro / wheel odometry: the seven-state EKF of ekf_motion (issue 16)
+            keep(name, run_motion_ekfs(_process_model(models, base, cfg), runs, campaign, cfg.motion_sensors,
+                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r, c=cfg: gnss_of(c, r), use_motor))
+        else:
+            keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
+                                         gate_prob=cfg.gate_prob))
         runtimes[name] = time.perf_counter() - start
     if "dead_reckoning" in estimators:
         cfg = config.estimator("dead_reckoning")
@@ -316,15 +321,21 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         model, constraint = _process_model(models, "sindy_ekf", cfg), lateral_of(cfg)
         start = time.perf_counter()
         init = estimates.get(init_name)
-        tasks = []
+        tasks, x_inits = [], {}
         for r in runs:
             x_init = None
             if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
                 x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
                                           for i in range(6)])
+            x_inits[r.name] = x_init
             tasks.append((smooth_batch, (model, r.grid, r.u, r.x0, cfg.P0, gnss_of(cfg, r)),
                           dict(x_init=x_init, marginal_stride=10, lateral=constraint, name=f"{r.name} {name}")))
-        keep(name, parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} {name}" for r in runs], desc=name))
+        if cfg.motion_sensors:  # gyro / wheel odometry factors (graph_motion, issue 16)
+            keep(name, run_motion_graphs(model, runs, campaign, cfg.motion_sensors, constraint, name, cfg.P0,
+                                         lambda r, c=cfg: gnss_of(c, r), lambda r, s=x_inits: s[r.name]))
+        else:
+            keep(name, parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} {name}" for r in runs],
+                                    desc=name))
         runtimes[name] = time.perf_counter() - start
     if "sindy_isam2" in estimators:
         cfg = config.estimator("sindy_isam2")
