@@ -97,8 +97,10 @@ def summarise(rows: list[dict]) -> list[str]:
 
     mixes = list(dict.fromkeys(r["mix"] for r in sorted(rows, key=lambda r: r["index"] % 7)))
     md = ["| estimator | fault mix | runs | diverged | failed | runs re-initialised (total) | NEES in band | "
-          "median NEES mean | median per-sample share in 95 % | ATE median m | ATE p95 m | ATE max m |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "median NEES mean | median per-sample share in 95 % | ATE median m | ATE p95 m | ATE max m | "
+          "re-initialisations per hour | alarms explained by a step of the fixes (not reset) | runs with "
+          "saturated model steps |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for est in MC_ESTIMATORS:
         for mix in mixes + ["all mixes"]:
             rs = [r for r in rows if r["estimator"] == est and (mix == "all mixes" or r["mix"] == mix)]
@@ -113,7 +115,10 @@ def summarise(rows: list[dict]) -> list[str]:
             md.append(f"| {est} | {label} | {len(rs)} | {st.count('diverged')} | {st.count('failed')} | "
                       f"{sum(1 for x in rec if x)} ({sum(rec)}) | {np.mean([r['nees_in_band'] for r in rs]):.2f} | "
                       f"{np.nanmedian(nm):.2f} | {np.nanmedian(sh):.2f} | {np.nanmedian(ate):.3f} | "
-                      f"{np.nanpercentile(ate, 95):.3f} | {np.nanmax(ate):.2f} |")
+                      f"{np.nanpercentile(ate, 95):.3f} | {np.nanmax(ate):.2f} | "
+                      f"{3600.0 * sum(rec) / max(np.nansum([r.get('window_s', np.nan) for r in rs]), 1e-9):.2f} | "
+                      f"{sum(r.get('fix_steps', 0) for r in rs)} | "
+                      f"{sum(1 for r in rs if r.get('saturated_steps', 0))} |")
     md += ["", "Position error at the end of the outage, by outage length (windows of the `outage` and `all` mixes; "
            "n = outages reached):", "",
            "| estimator | fault mix | outage s | n | median m | p95 m | max m |", "|---|---|---|---|---|---|---|"]
