@@ -221,18 +221,20 @@ def one_step_residuals(model: ProcessModel, series: list[StateSeries]) -> tuple[
 
 
 def unmodelled_states(model: ProcessModel, series: list[StateSeries]) -> list[int]:
-    """Return the velocity states whose equation is zero on every train sample while another
-    equation depends on them (the random walks of the module docstring)."""
+    """Return the velocity states whose equation is zero on every train sample, with a zero
+    Jacobian (identically zero, not zero by chance), while another equation depends on them (the
+    random walks of the module docstring)."""
     x = np.concatenate([s.x6 for s in series])
     u = np.concatenate([s.u for s in series])
     ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(u), axis=1)
     if not ok.any():
         return []
-    a, J_a_x, _ = model.dynamics.accel_and_jacobians(x[ok], u[ok])
+    a, J_a_x, J_a_u = model.dynamics.accel_and_jacobians(x[ok], u[ok])
     out = []
     for j in range(3):
         others = [e for e in range(3) if e != j]
-        if np.all(a[:, j] == 0.0) and np.any(J_a_x[:, others, 3 + j] != 0.0):
+        zero = np.all(a[:, j] == 0.0) and np.all(J_a_x[:, j] == 0.0) and np.all(J_a_u[:, j] == 0.0)
+        if zero and np.any(J_a_x[:, others, 3 + j] != 0.0):
             out.append(3 + j)
     return out
 
