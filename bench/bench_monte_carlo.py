@@ -261,7 +261,7 @@ def main() -> int:
                                                              "chunks": len(chunks)}, default=float) + "\n")
         return "\n".join(md)
 
-    write(0)
+    text = write(0)
     jobs = Parallel(n_jobs=args.jobs, return_as="generator_unordered")(
         delayed(chunk_fn)(str(campaign_dir), str(model_path), c, args.seed, args.profile, graph_on & set(c))
         for c in chunks)
