@@ -62,7 +62,7 @@ def _context(campaign_dir: str, model_path: str):
 
 
 def run_chunk(campaign_dir: str, model_path: str, indices: list[int], seed: int, profile: str,
-              graph_on: set[int]) -> tuple[list, float]:
+              graph_on: set[int], window_s: float | None = None) -> tuple[list, float]:
     """Return the outcomes of Monte-Carlo runs ``indices`` and this process's CPU seconds for them."""
     from sindy_ekf.benchmark.monte_carlo import draw_window, run_windows
     from sindy_ekf.benchmark.run import P0_STD
@@ -70,7 +70,8 @@ def run_chunk(campaign_dir: str, model_path: str, indices: list[int], seed: int,
     logging.disable(logging.WARNING)  # re-initialisations are counted in the outcomes, not logged
     cpu = time.process_time()
     model, lateral, sources = _context(campaign_dir, model_path)
-    windows = [draw_window(sources, i, seed, profile) for i in indices]
+    windows = [draw_window(sources, i, seed, profile, **({} if window_s is None else {"window_s": window_s}))
+               for i in indices]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         out = run_windows(model, lateral, windows, np.diag(P0_STD ** 2), graph_on)
@@ -210,6 +211,7 @@ def main() -> int:
     ap.add_argument("--chunk", type=int, default=20, help="Monte-Carlo runs per lockstep batch")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--profile", default="dgnss")
+    ap.add_argument("--window-s", type=float, default=None, help="window length (default: monte_carlo.WINDOW_S, 150 s)")
     ap.add_argument("--real-model", type=Path, default=None, help="model of warthog-drive-cmd (default: identified)")
     ap.add_argument("--no-real", action="store_true")
     ap.add_argument("--cache", type=Path, default=ROOT / "bench" / "_work" / "monte_carlo")
@@ -263,7 +265,8 @@ def main() -> int:
 
     text = write(0)
     jobs = Parallel(n_jobs=args.jobs, return_as="generator_unordered")(
-        delayed(chunk_fn)(str(campaign_dir), str(model_path), c, args.seed, args.profile, graph_on & set(c))
+        delayed(chunk_fn)(str(campaign_dir), str(model_path), c, args.seed, args.profile, graph_on & set(c),
+                          args.window_s)
         for c in chunks)
     for n_done, (out, cpu_chunk) in enumerate(jobs, start=1):
         rows += out
