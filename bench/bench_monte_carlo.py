@@ -64,7 +64,7 @@ def _context(campaign_dir: str, model_path: str):
 
 
 def run_chunk(campaign_dir: str, model_path: str, indices: list[int], seed: int, profile: str,
-              graph_on: set[int]) -> tuple[list, float]:
+              graph_on: set[int], window_s: float | None = None) -> tuple[list, float]:
     """Return the outcomes of Monte-Carlo runs ``indices`` and this process's CPU seconds for them."""
     from sindy_ekf.benchmark.monte_carlo import draw_window, run_windows
     from sindy_ekf.benchmark.run import P0_STD
@@ -72,7 +72,8 @@ def run_chunk(campaign_dir: str, model_path: str, indices: list[int], seed: int,
     logging.disable(logging.WARNING)  # re-initialisations are counted in the outcomes, not logged
     cpu = time.process_time()
     model, lateral, sources = _context(campaign_dir, model_path)
-    windows = [draw_window(sources, i, seed, profile) for i in indices]
+    windows = [draw_window(sources, i, seed, profile, **({} if window_s is None else {"window_s": window_s}))
+               for i in indices]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         out = run_windows(model, lateral, windows, np.diag(P0_STD ** 2), graph_on)
@@ -80,7 +81,7 @@ def run_chunk(campaign_dir: str, model_path: str, indices: list[int], seed: int,
 
 
 def run_chunk_task(task: tuple) -> tuple[list, float]:
-    """Return :func:`run_chunk` of one task ``(campaign_dir, model_path, indices, seed, profile, graph_on)``."""
+    """Return :func:`run_chunk` of one task ``(campaign_dir, model_path, indices, seed, profile, graph_on, window_s)``."""
     return run_chunk(*task)
 
 
@@ -104,8 +105,10 @@ def summarise(rows: list[dict]) -> list[str]:
 
     mixes = list(dict.fromkeys(r["mix"] for r in sorted(rows, key=lambda r: r["index"] % 7)))
     md = ["| estimator | fault mix | runs | diverged | failed | runs re-initialised (total) | NEES in band | "
-          "median NEES mean | median per-sample share in 95 % | ATE median m | ATE p95 m | ATE max m |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "median NEES mean | median per-sample share in 95 % | ATE median m | ATE p95 m | ATE max m | "
+          "re-initialisations per hour | alarms explained by a step of the fixes (not reset) | runs with "
+          "saturated model steps |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for est in MC_ESTIMATORS:
         for mix in mixes + ["all mixes"]:
             rs = [r for r in rows if r["estimator"] == est and (mix == "all mixes" or r["mix"] == mix)]
@@ -120,7 +123,10 @@ def summarise(rows: list[dict]) -> list[str]:
             md.append(f"| {est} | {label} | {len(rs)} | {st.count('diverged')} | {st.count('failed')} | "
                       f"{sum(1 for x in rec if x)} ({sum(rec)}) | {np.mean([r['nees_in_band'] for r in rs]):.2f} | "
                       f"{np.nanmedian(nm):.2f} | {np.nanmedian(sh):.2f} | {np.nanmedian(ate):.3f} | "
-                      f"{np.nanpercentile(ate, 95):.3f} | {np.nanmax(ate):.2f} |")
+                      f"{np.nanpercentile(ate, 95):.3f} | {np.nanmax(ate):.2f} | "
+                      f"{3600.0 * sum(rec) / max(np.nansum([r.get('window_s', np.nan) for r in rs]), 1e-9):.2f} | "
+                      f"{sum(r.get('fix_steps', 0) for r in rs)} | "
+                      f"{sum(1 for r in rs if r.get('saturated_steps', 0))} |")
     md += ["", "Position error at the end of the outage, by outage length (windows of the `outage` and `all` mixes; "
            "n = outages reached):", "",
            "| estimator | fault mix | outage s | n | median m | p95 m | max m |", "|---|---|---|---|---|---|---|"]
@@ -169,20 +175,29 @@ def real_cmd(model_path: Path) -> tuple[list[str], dict]:
                   f"{sc.ate_yaw_deg:.2f} | {f['vy_max_m_s']:.3f} | {f['vy_rms_m_s']:.3f} |")
     md += ["", f"RMS of v_y on the train runs' smoothed states: {figures['vy_train_rms_m_s']:.3f} m/s.", "",
            "The same plain `sindy_ekf` without the monitor's re-initialisation (`guarded_ekf_batch(..., "
-           "recover=False)`, same GNSS), and with the yaw equation's `vy` coefficient set to 0 (mechanism check):",
+           "recover=False)`, same GNSS); with `v_y` left a random walk (`fit_process_noise(..., mean_reverting=False)`, "
+           "the mechanism of issue 14 item 3 switched off), without the step test, and with the yaw equation's `vy` "
+           "coefficient set to 0 (mechanism checks):",
            "", "| model | run | status | reason | max abs v_y m/s | final position error m |", "|---|---|---|---|---|---|"]
     names = list(model.library.feature_names)
     coef = model.coef.copy()
     coef[2, names.index("vy")] = 0.0
     figures["no_recovery"] = {}
-    for label, m in (("as identified", model), ("yaw's vy term 0", replace(model, coef=coef))):
+    from sindy_ekf.estimation.process_models import fit_process_noise
+
+    series = train_series(campaign.split("train"), s)
+    cases = (("as identified", model, True, True), ("as identified, vy a random walk", model, False, True),
+             ("as identified, no step test", model, True, False), ("yaw's vy term 0", replace(model, coef=coef), True, True))
+    for label, m, mean_reverting, step_test in cases:
         models = fit_models(campaign.split("train"), m, None, s)
+        if not mean_reverting:
+            fit_process_noise(models["sindy_ekf"], series, mean_reverting=False)
         test = campaign.split("test")
         runs = [_prepare_run(r, "dgnss", i, None, s, 30.0, 30.0) for i, r in enumerate(test)]
         batch = [EkfRun(r.name, r.grid, r.u, r.x0, np.diag(P0_STD ** 2), r.gnss) for r in runs]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            results = guarded_ekf_batch(models["sindy_ekf"], batch, recover=False)
+            results = guarded_ekf_batch(models["sindy_ekf"], batch, recover=False, step_test=step_test)
         for r, (ekf, st) in zip(runs, results):
             n = 0 if ekf is None else int(np.searchsorted(r.at_pose, len(ekf.t)))
             err = float(np.hypot(*(ekf.x[r.at_pose[n - 1], :2] - r.truth[n - 1, 1:3]))) if n else float("nan")
@@ -204,6 +219,7 @@ def main() -> int:
     ap.add_argument("--chunk", type=int, default=20, help="Monte-Carlo runs per lockstep batch")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--profile", default="dgnss")
+    ap.add_argument("--window-s", type=float, default=None, help="window length (default: monte_carlo.WINDOW_S, 150 s)")
     ap.add_argument("--real-model", type=Path, default=None, help="model of warthog-drive-cmd (default: identified)")
     ap.add_argument("--no-real", action="store_true")
     ap.add_argument("--cache", type=Path, default=ROOT / "bench" / "_work" / "monte_carlo")
@@ -256,12 +272,12 @@ def main() -> int:
                                                              "chunks": len(chunks)}, default=float) + "\n")
         return "\n".join(md)
 
-    write(0)
+    text = write(0)
     # in chunk order, each chunk's windows drawn from its own indices and the seed: the same runs
     # whichever worker or cluster computes them
     jobs = parallel_iter(chunk_fn, [(str(campaign_dir), str(model_path), c, args.seed, args.profile,
-                                     graph_on & set(c)) for c in chunks], workers, desc="Monte-Carlo chunks",
-                         names=[f"chunk of runs {c[0]}-{c[-1]}" for c in chunks])
+                                     graph_on & set(c), args.window_s) for c in chunks], workers,
+                         desc="Monte-Carlo chunks", names=[f"chunk of runs {c[0]}-{c[-1]}" for c in chunks])
     for n_done, (out, cpu_chunk) in enumerate(jobs, start=1):
         rows += out
         cpu_workers += cpu_chunk
