@@ -265,5 +265,5 @@ def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gat
              len(accepted) - int(np.sum(accepted)), len(accepted))
     return MotionEkfResult(run.name, t, Z[:, :N_X].copy(), P[:, :N_X, :N_X].copy(), np.array(nis),
                            np.array(nis_t), np.array(accepted, bool), gate_nis, pd_repairs, outside,
-                           time.perf_counter() - start, repairs, Z[:, I_BIAS].copy(),
-                           np.sqrt(P[:, I_BIAS, I_BIAS]), n_gyro, n_odo)
+                           time.perf_counter() - start, repairs, gyro_bias=Z[:, I_BIAS].copy(),
+                           gyro_bias_std=np.sqrt(P[:, I_BIAS, I_BIAS]), n_gyro=n_gyro, n_odometry=n_odo)
