@@ -20,11 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from rosbags.highlevel import AnyReader
-from rosbags.typesys import Stores, get_typestore
 
 from groundfloor.errors import InputError
-from identification.preprocessing.io_sensors import read_sensors_config
+from identification.preprocessing.io_sensors import read_sensors_config, topic_messages
 from identification.preprocessing.io_tracker import find_bags
 
 log = logging.getLogger(__name__)
@@ -101,19 +99,8 @@ def read_motion_topic(bags: list[Path], topic: str, kind: str, run: str) -> Moti
         The topic recorded with another message type (names run, topic and type).
     """
     msgtype, names = KINDS[kind][1], KINDS[kind][2] + KINDS[kind][3]
-    rows = []
-    ros1 = [b for b in bags if b.suffix == ".bag"]
-    for group in [ros1] + [[b] for b in bags if b.suffix != ".bag"]:
-        if not group:
-            continue
-        with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
-            conns = [c for c in reader.connections if c.topic == topic]
-            for c in conns:
-                if c.msgtype != msgtype:
-                    raise InputError(f"run {run}: topic {topic} is {c.msgtype}, expected {msgtype}")
-            for conn, _, raw in reader.messages(connections=conns) if conns else ():
-                m = reader.deserialize(raw, conn.msgtype)
-                rows.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, *_row(kind, m)))
+    rows = [(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, *_row(kind, m))
+            for _, m in topic_messages(bags, topic, msgtype, run)]
     if not rows:
         return None
     a = np.array(rows, float)

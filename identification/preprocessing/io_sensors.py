@@ -174,6 +174,28 @@ def clean_fixes(fixes: GnssFixes, source: str) -> tuple[GnssFixes, dict[str, int
     return kept.select(~dup), counts
 
 
+def topic_messages(bags: list[Path], topic: str, msgtype: str, run: str):
+    """Yield ``(t_bag_ns, message)`` of ``topic`` across a run's bags (ROS1 bags read together,
+    each ROS2 bag alone), in each reader's order; nothing when the topic is absent.
+
+    Raises
+    ------
+    InputError
+        The topic recorded with another message type (names run, topic and type).
+    """
+    ros1 = [b for b in bags if b.suffix == ".bag"]
+    for group in [ros1] + [[b] for b in bags if b.suffix != ".bag"]:
+        if not group:
+            continue
+        with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
+            conns = [c for c in reader.connections if c.topic == topic]
+            for c in conns:
+                if c.msgtype != msgtype:
+                    raise InputError(f"run {run}: topic {topic} is {c.msgtype}, expected {msgtype}")
+            for conn, t_bag, raw in reader.messages(connections=conns) if conns else ():  # none: all
+                yield t_bag, reader.deserialize(raw, conn.msgtype)
+
+
 def read_navsat(bags: list[Path], topic: str, run: str) -> GnssFixes | None:
     """Return the ``sensor_msgs/NavSatFix`` messages of ``topic`` across a run's bags, or None if absent.
 
@@ -183,19 +205,9 @@ def read_navsat(bags: list[Path], topic: str, run: str) -> GnssFixes | None:
         The topic recorded with another message type (names run, topic and type).
     """
     parts = []
-    ros1 = [b for b in bags if b.suffix == ".bag"]
-    for group in [ros1] + [[b] for b in bags if b.suffix != ".bag"]:
-        if not group:
-            continue
-        with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
-            conns = [c for c in reader.connections if c.topic == topic]
-            for c in conns:
-                if c.msgtype != "sensor_msgs/msg/NavSatFix":
-                    raise InputError(f"run {run}: topic {topic} is {c.msgtype}, expected sensor_msgs/msg/NavSatFix")
-            for conn, t_bag, raw in reader.messages(connections=conns) if conns else ():  # none: all
-                m = reader.deserialize(raw, conn.msgtype)
-                parts.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, t_bag * 1e-9, m.latitude,
-                              m.longitude, m.altitude, *np.asarray(m.position_covariance, float), m.status.status))
+    for t_bag, m in topic_messages(bags, topic, "sensor_msgs/msg/NavSatFix", run):
+        parts.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, t_bag * 1e-9, m.latitude,
+                      m.longitude, m.altitude, *np.asarray(m.position_covariance, float), m.status.status))
     if not parts:
         return None
     a = np.array(parts, dtype=float)
