@@ -166,6 +166,22 @@ def _identify(r: Source) -> str:
             f"unicycle {lead(uni[1]):.1f} cm / {lead(uni[2]):.1f} deg; full grid {wall:.0f} s")
 
 
+def _scaleout_q(r: Source) -> str:
+    tasks = r.number(r"\*\*(\d+) tasks\*\*")
+    return f"identify's grid search ({tasks:.0f} tasks) on 2 local processes / a 2-worker Dask LocalCluster"
+
+
+def _scaleout(r: Source) -> str:
+    header = "where the"
+    loky = r.row(header, "jobs=2 (loky)")
+    dask = r.row(header, "Dask LocalCluster, 2 workers")
+    serial = r.row(header, "jobs=1")
+    same = r.find(r"equal exactly\): \*\*(\w+)\*\*").group(1)
+    load = r.find(r"load average \(1 min\) ([\d.]+)").group(1)
+    return (f"{loky[2]} / {dask[2]} the one-process wall time ({serial[1]} s; workers started beforehand, load average {load} "
+            f"on 2 shared cores); same model: {same}")
+
+
 def _identify_thesis(r: Source) -> str:
     row = r.row("model", "thesis model B, real data (table 7.6, model 1)")
     return f"table 7.6, model 1: {row[1]} cm / {row[2]} deg"
@@ -277,6 +293,7 @@ ROWS = (
     Row("preprocess", _preprocess_q, _preprocess, "-"),
     Row("identify", _identify_q, _identify, _identify_thesis),
     Row("demo", _demo_q, _demo, "-"),
+    Row("scaleout", _scaleout_q, _scaleout, "-"),
     Row("identify", "batched 5 s evaluation vs one solve_ivp per window (thesis 5.3.7)", _batched, "-"),
     Row("estimation", _estimation_q, _estimation, "outlook only"),
     Row("ekf_speed", "SINDy EKF speed, default campaign (45 min, 9 runs in lockstep), full-grid model", _ekf_speed,

@@ -37,6 +37,15 @@ from simulation.clocks import NS, simulate_tracker_clock
 from simulation.effects import Effect, parse_effect
 from simulation.gnss_topic import check_gnss_spec, gnss_truth, record_fixes, write_gnss_bag, write_gnss_truth
 from simulation.hubs import baseline_geometry
+from simulation.motion_sensors import (
+    ImuSpec,
+    OdometrySpec,
+    motion_truth,
+    record_imu,
+    record_odometry,
+    write_motion_bag,
+    write_motion_truth,
+)
 from simulation.tracker_run import RunSetup, simulate_tracker_run
 from simulation.variant import Variant
 from simulation.variants import check_variant
@@ -240,7 +249,7 @@ def _campaign_truth(seed, minutes, effects, runs, variant: Variant) -> truth_io.
 
 
 def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=None,
-                   variant: Variant | None = None, gnss=None) -> str:
+                   variant: Variant | None = None, gnss=None, motion=()) -> str:
     what = "table 6.4 durations" if minutes is None else f"{minutes:g} min"
     effect = f", simulator variant {variant.index}" if variant is not None and not variant.is_default else ""
     effect += "".join(f", effect {e.label()}" for e in effects)
@@ -256,12 +265,15 @@ def _campaign_yaml(seed, minutes, effects, receive_jitter_s=None, clock_resets=N
     if gnss is not None:  # recorded GNSS (issue 16): declared, origin given, ENU -> local left to estimate
         doc["sensors"] = [gnss.campaign_entry()]
         doc["geodetic_origin"] = gnss.origin.to_yaml()
+    if any(m is not None for m in motion):  # recorded IMU / wheel odometry (issue 16)
+        doc.setdefault("sensors", []).extend(m.campaign_entry() for m in motion if m is not None)
     return yaml.safe_dump(doc, sort_keys=False, width=100)
 
 
 def simulate_campaign(
     out: str | Path, seed: int = 0, minutes: float | None = None, effects=(), force: bool = False,
     receive_jitter_s=None, clock_resets=None, variant: int | Variant | None = None, gnss=None,
+    imu: ImuSpec | bool | None = None, odometry: OdometrySpec | bool | None = None,
 ) -> truth_io.CampaignTruth:
     """Return the truth of a simulated tracker campaign written to ``out``.
 
@@ -299,6 +311,12 @@ def simulate_campaign(
         ``sensor_msgs/NavSatFix`` fixes, declared under ``sensors:`` in ``campaign.yaml``, the
         true origin and ENU -> local transform in ``truth/gnss.yaml``. The other files keep
         their bytes (the fixes draw from their own random stream).
+    imu, odometry
+        ``None``/False (not recorded), True (the default spec) or a
+        :class:`simulation.motion_sensors.ImuSpec` / ``OdometrySpec``: each run also gets a bag
+        ``motion_<stamp>`` of ``sensor_msgs/Imu`` (gyro with bias and noise) and/or
+        ``nav_msgs/Odometry`` (wheel odometry with slip), declared under ``sensors:``, the true
+        bias and slip in ``truth/motion_sensors.yaml``; own random streams, other files unchanged.
 
     Raises
     ------
@@ -312,6 +330,8 @@ def simulate_campaign(
     receive_jitter_s = check_receive_jitter(receive_jitter_s)
     clock_resets = check_clock_resets(clock_resets)
     gnss = check_gnss_spec(gnss)
+    imu = ImuSpec() if imu is True else (imu or None)
+    odometry = OdometrySpec() if odometry is True else (odometry or None)
     durations = run_durations(minutes)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"seed={seed!r}: must be a non-negative integer")
@@ -327,7 +347,7 @@ def simulate_campaign(
     t_boot_ns = {k: start_ns - int(rng_campaign.uniform(2, 8) * 3600 * NS) for k in ("at960", "ltd800")}
     effect = effects[0] if effects else None
 
-    t0_ns, runs, fixes = start_ns, [], {}
+    t0_ns, runs, fixes, motion = start_ns, [], {}, {}
     try:
         with atomic_output_dir(out, force=force) as tmp:
             tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; a campaign is a normal folder
@@ -348,14 +368,26 @@ def simulate_campaign(
                                                      gnss, seed=int(seed) * 100 + r)
                     bag = run_dir / (f"gnss_{stamp}" + ("" if gnss.ros2 else ".bag"))
                     write_gnss_bag(bag, fixes[setup.name], gnss.topic, gnss.ros2)
+                if imu is not None or odometry is not None:
+                    st = run_truth.states  # own streams per sensor: one does not move the other
+                    rng_imu, rng_odo = (np.random.default_rng([int(seed), r, 16, k]) for k in (2, 3))
+                    motion[setup.name] = (
+                        None if imu is None else record_imu(st.t_utc_ns, st.vx, st.vy, st.omega, imu, rng_imu),
+                        None if odometry is None else record_odometry(st.t_utc_ns, st.vx, st.omega, odometry,
+                                                                      rng_odo))
+                    ros2 = (imu or odometry).ros2
+                    write_motion_bag(run_dir / (f"motion_{stamp}" + ("" if ros2 else ".bag")), *motion[setup.name],
+                                     (imu or ImuSpec()).topic, (odometry or OdometrySpec()).topic, ros2)
                 t0_ns += int((run_truth.duration_s + 3.0 + rng.uniform(120.0, 480.0)) * NS)
             (tmp / "campaign.yaml").write_text(_campaign_yaml(seed, minutes, effects, receive_jitter_s,
-                                                              clock_resets, variant, gnss))
+                                                              clock_resets, variant, gnss, (imu, odometry)))
             shutil.copyfile(CALIBRATION_YAML, tmp / "calibration.yaml")
             truth = _campaign_truth(seed, minutes, effects, runs, variant)
             truth_io.write_truth(tmp, truth)
             if gnss is not None:
                 write_gnss_truth(tmp, gnss_truth(gnss, fixes))
+            if motion:
+                write_motion_truth(tmp, motion_truth(imu, odometry, motion))
     except OSError as exc:  # unwritable or vanished output, full disk: one line, nothing left
         raise InputError(f"{out}: cannot write the campaign there ({exc.strerror or exc})") from None
     log.info("simulated campaign %s: %d runs, %.1f min", out, len(runs), durations.sum() / 60)

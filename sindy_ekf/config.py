@@ -26,8 +26,8 @@ from groundfloor.errors import InputError
 from simulation.gnss import OUTAGE_DURATIONS_S, PROFILES, GnssProfile
 from sindy_ekf.benchmark.gnss_source import RECORDED
 
-SENSORS = ("gnss",)  # what the filters fuse today
-RESERVED_SENSORS = ("imu", "odometry")  # issue 16 item 2: accepted names, not fused yet
+SENSORS = ("gnss", "imu", "odometry")  # what the filters fuse (imu, odometry: not sindy_isam2)
+MOTION_SENSORS = ("imu", "odometry")  # fused by sindy_ekf.estimation.ekf_motion and graph_motion
 N_STATE = 6  # x, y, psi, vx, vy, omega
 FIT = "fit"
 
@@ -85,6 +85,11 @@ class EstimatorSettings:
     def fuses_gnss(self) -> bool:
         """Return True when the estimator fuses the GNSS fixes."""
         return self.sensors is not None and "gnss" in self.sensors
+
+    @property
+    def motion_sensors(self) -> tuple[str, ...]:
+        """Return the IMU / wheel-odometry sensors the estimator fuses (none: the six-state EKF)."""
+        return tuple(s for s in self.sensors or () if s in MOTION_SENSORS)
 
 
 @dataclass(frozen=True)
@@ -318,17 +323,15 @@ def _process_noise(v: Any, source: str, key: str) -> str | tuple:
     return _numbers(v, N_STATE, source, key, expected, lambda x: x > 0)
 
 
-def _sensors(v: Any, source: str, key: str) -> tuple[str, ...]:
-    """Return the sensor names; a reserved one (not fused yet) or an unknown one is an error."""
+def _sensors(v: Any, source: str, key: str, gnss_only: bool = False) -> tuple[str, ...]:
+    """Return the sensor names; an unknown one, or imu / odometry for an estimator without them, is an error."""
     if not (isinstance(v, list) and all(isinstance(s, str) for s in v)):
         raise _fail(source, key, f"a list of sensor names ({', '.join(SENSORS)})", v)
     for s in v:
-        if s in RESERVED_SENSORS:
-            raise InputError(f"{source}: {key}: {s} is not fused by the filters yet (issue 16 item 2); "
-                             f"fused today: {', '.join(SENSORS)}")
         if s not in SENSORS:
-            raise InputError(f"{source}: {key}: unknown sensor {s!r} (fused: {', '.join(SENSORS)}; "
-                             f"reserved: {', '.join(RESERVED_SENSORS)})")
+            raise InputError(f"{source}: {key}: unknown sensor {s!r} (known: {', '.join(SENSORS)})")
+        if gnss_only and s in MOTION_SENSORS:
+            raise InputError(f"{source}: {key}: {s} is fused by the EKFs and the batch graphs, not by iSAM2 yet")
     if len(set(v)) != len(v):
         raise InputError(f"{source}: {key}: a sensor is listed twice: {v!r}")
     return tuple(v)
@@ -351,7 +354,8 @@ def _estimator(name: str, v: dict, source: str) -> EstimatorSettings:
         gate_prob=(_number(v["gate_prob"], source, f"{key}.gate_prob", "a number in (0, 1]", lambda x: 0 < x <= 1)
                    if "gate_prob" in v else None),
         lateral=_lateral(v["lateral"], source, f"{key}.lateral") if "lateral" in v else None,
-        sensors=_sensors(v["sensors"], source, f"{key}.sensors") if "sensors" in v else None)
+        # iSAM2 takes no gyro / odometry factors yet (the batch graphs do: graph_motion)
+        sensors=_sensors(v["sensors"], source, f"{key}.sensors", name == "sindy_isam2") if "sensors" in v else None)
 
 
 _PROFILE_CHECKS = {  # GnssProfile field -> (expected, test); name and outlier_m apart

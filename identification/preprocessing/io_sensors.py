@@ -4,7 +4,8 @@
 ``{name, topic, type[, lever_arm_body_m]}`` or as a mapping ``{name: topic}`` (the type then
 follows from the name, data contract part 1). A type outside :data:`SENSOR_TYPES` is a one-line
 :class:`InputError` naming it; a known type this version does not read yet (IMU, wheels) is
-ignored with a log line, as are keys and topics readers do not know.
+ignored with a log line, as are keys and topics readers do not know. IMU and wheel odometry
+(``nav_msgs/Odometry``) are read by :mod:`identification.preprocessing.io_motion`.
 
 GNSS (``sensor_msgs/NavSatFix``) is read from the run's bags (ROS1 and ROS2, rosbags' AnyReader)
 or from a trajectory campaign's ``runs/<run>/gnss.csv``; fixes with status ``NO_FIX`` (< 0) or
@@ -33,7 +34,7 @@ from identification.preprocessing.io_tracker import find_bags
 log = logging.getLogger(__name__)
 
 GNSS = "gnss"
-# sensor type -> kind; the kinds beside gnss are declared by the data contract, not read yet
+# sensor type -> kind; gnss read here, imu and odometry by io_motion, wheels (JointState) not read yet
 SENSOR_TYPES = {"sensor_msgs/NavSatFix": GNSS, "sensor_msgs/Imu": "imu",
                 "sensor_msgs/JointState": "wheels", "nav_msgs/Odometry": "odometry"}
 DEFAULT_TYPES = {"gnss": "sensor_msgs/NavSatFix", "imu": "sensor_msgs/Imu",
@@ -130,7 +131,7 @@ def read_sensors_config(root: str | Path) -> SensorsConfig:
         raise InputError(f"{file}: key 'sensors' must be a list or a mapping")
     sensors = tuple(_spec(e, i, str(file)) for i, e in enumerate(raw))
     for s in sensors:
-        if s.kind != GNSS:
+        if s.kind == "wheels":  # GNSS here, IMU and odometry in io_motion
             log.info("%s: sensor %s (%s) declared; not read by this version", file, s.name, s.type)
     origin = None if doc.get("geodetic_origin") is None else GeodeticOrigin.from_yaml(doc["geodetic_origin"], str(file))
     yaw = doc.get("enu_to_local_yaw_deg")
@@ -173,6 +174,28 @@ def clean_fixes(fixes: GnssFixes, source: str) -> tuple[GnssFixes, dict[str, int
     return kept.select(~dup), counts
 
 
+def topic_messages(bags: list[Path], topic: str, msgtype: str, run: str):
+    """Yield ``(t_bag_ns, message)`` of ``topic`` across a run's bags (ROS1 bags read together,
+    each ROS2 bag alone), in each reader's order; nothing when the topic is absent.
+
+    Raises
+    ------
+    InputError
+        The topic recorded with another message type (names run, topic and type).
+    """
+    ros1 = [b for b in bags if b.suffix == ".bag"]
+    for group in [ros1] + [[b] for b in bags if b.suffix != ".bag"]:
+        if not group:
+            continue
+        with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
+            conns = [c for c in reader.connections if c.topic == topic]
+            for c in conns:
+                if c.msgtype != msgtype:
+                    raise InputError(f"run {run}: topic {topic} is {c.msgtype}, expected {msgtype}")
+            for conn, t_bag, raw in reader.messages(connections=conns) if conns else ():  # none: all
+                yield t_bag, reader.deserialize(raw, conn.msgtype)
+
+
 def read_navsat(bags: list[Path], topic: str, run: str) -> GnssFixes | None:
     """Return the ``sensor_msgs/NavSatFix`` messages of ``topic`` across a run's bags, or None if absent.
 
@@ -182,19 +205,9 @@ def read_navsat(bags: list[Path], topic: str, run: str) -> GnssFixes | None:
         The topic recorded with another message type (names run, topic and type).
     """
     parts = []
-    ros1 = [b for b in bags if b.suffix == ".bag"]
-    for group in [ros1] + [[b] for b in bags if b.suffix != ".bag"]:
-        if not group:
-            continue
-        with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
-            conns = [c for c in reader.connections if c.topic == topic]
-            for c in conns:
-                if c.msgtype != "sensor_msgs/msg/NavSatFix":
-                    raise InputError(f"run {run}: topic {topic} is {c.msgtype}, expected sensor_msgs/msg/NavSatFix")
-            for conn, t_bag, raw in reader.messages(connections=conns) if conns else ():  # none: all
-                m = reader.deserialize(raw, conn.msgtype)
-                parts.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, t_bag * 1e-9, m.latitude,
-                              m.longitude, m.altitude, *np.asarray(m.position_covariance, float), m.status.status))
+    for t_bag, m in topic_messages(bags, topic, "sensor_msgs/msg/NavSatFix", run):
+        parts.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, t_bag * 1e-9, m.latitude,
+                      m.longitude, m.altitude, *np.asarray(m.position_covariance, float), m.status.status))
     if not parts:
         return None
     a = np.array(parts, dtype=float)

@@ -40,9 +40,7 @@ truth, see ``bench/results/preprocess.md``):
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -51,11 +49,12 @@ import numpy as np
 from groundfloor.adjustment import VarianceFactorTest
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json, check_output_dir
-from groundfloor.progress import progress
+from groundfloor.parallel import Workers, parallel_map
 from groundfloor.types import BodyStates, InputSeries, PoseTrack, RawRun, TrajectoryRun, check_poses_move
 from identification.preprocessing.calibration import Calibration, calibrate
 from identification.preprocessing.extra_offset import azimuth_at
 from identification.preprocessing.hub import HubModel, fit_hub_model
+from identification.preprocessing.io_motion import write_run_motion
 from identification.preprocessing.io_sensors import read_sensors_config, write_run_gnss
 from identification.preprocessing.io_survey import read_survey
 from identification.preprocessing.io_tracker import (
@@ -304,7 +303,7 @@ def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | Non
 
 def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                         smoothing: float = DEFAULT_SMOOTHING, force: bool = False,
-                        plots_dir: str | Path | None = None, jobs: int = 1,
+                        plots_dir: str | Path | None = None, jobs: Workers | int = 1,
                         hub_correction: bool = HUB_CORRECTION) -> PreprocessResult:
     """Return the preprocessing of a tracker campaign, written as a trajectory campaign.
 
@@ -322,8 +321,9 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     plots_dir : path, optional
         If given, the figures of each step (thesis figs. 5.1 to 5.7, 7.2, 7.3) are saved there,
         one folder per run.
-    jobs : int
-        Runs processed in parallel (processes); runs are independent after calibration.
+    jobs : int or groundfloor.parallel.Workers
+        Runs processed in parallel (local processes, or a Dask scheduler); runs are independent
+        after calibration.
     hub_correction : bool
         Refer the prisms to the hub axes with each run's eq. 5.25 model before the poses.
 
@@ -347,15 +347,9 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     jobs_args = [(root, n, split, calibration, smoothing, hub_correction, plots_dir)
                  for n, split in run_list]
     tic = time.perf_counter()
-    if jobs > 1 and len(jobs_args) > 1:
-        with ProcessPoolExecutor(max_workers=min(jobs, len(jobs_args)),
-                                 mp_context=mp.get_context("fork")) as pool:
-            done = [part for parts in progress(pool.map(_read_and_process, jobs_args),
-                                               desc="preprocess", total=len(jobs_args))
-                    for part in parts]
-    else:
-        done = [part for a in progress(jobs_args, desc="preprocess", total=len(jobs_args))
-                for part in _read_and_process(a)]
+    done = [part for parts in parallel_map(_read_and_process, jobs_args, jobs, desc="preprocess",
+                                           names=[f"run {n}" for n, _ in run_list])
+            for part in parts]
     seconds["runs_wall"] = time.perf_counter() - tic
     runs: dict[str, RunResult] = {}
     skipped: dict[str, str] = {}
@@ -379,11 +373,12 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                               ground_truth="laser trackers AT960 + LTD800 (thesis 5.2)",
                               skipped_runs=dict(skipped), **sensors_config.to_yaml())
     gnss = write_run_gnss(root, Path(out_dir), {n: r.poses.t for n, r in runs.items()})
+    motion = write_run_motion(root, Path(out_dir), {n: r.poses.t for n, r in runs.items()})
     seconds["write"] = time.perf_counter() - tic
     result = PreprocessResult(out_dir=Path(out_dir), name=name, calibration=calibration,
                               runs=runs, skipped=skipped, smoothing=smoothing,
                               hub_correction=hub_correction, seconds=seconds,
-                              sensors={"gnss": gnss} if gnss else {})
+                              sensors={**({"gnss": gnss} if gnss else {}), **motion})
     # the report beside the data (readers ignore unknown files); the data folder is complete
     # before it, so a crash in between loses only the report, never half the data
     atomic_write_json(Path(out_dir) / REPORT_FILE, result.to_json_dict())

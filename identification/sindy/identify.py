@@ -29,14 +29,13 @@
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
 from groundfloor.errors import InputError
-from groundfloor.progress import progress
+from groundfloor.parallel import Workers, parallel_map
 from groundfloor.types import TrajectoryRun
 from identification.sindy.adjust import Adjustment, prune_insignificant
 from identification.sindy.baselines import LagModel, fit_lag
@@ -281,11 +280,12 @@ def _fold_job(job) -> dict:
     return out
 
 
-def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_jobs: int = 1,
+def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_jobs: Workers | int = 1,
              n_candidates: int = N_CANDIDATES) -> Identification:
     """Return the identified model of ``runs`` (train runs) by the pipeline of the module docstring.
 
-    ``n_jobs`` worker processes share the screening's grid and the folds of the output-error stage.
+    ``n_jobs`` (a number of local processes or :class:`groundfloor.parallel.Workers`) share the
+    screening's grid and the folds of the output-error stage.
     """
     ref = reference(runs)
     folds = cv_folds(ref.groups, ref.run_index, grid.n_folds)
@@ -308,11 +308,8 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     n_f = folds.n_folds
     slim = replace(result, top_models=[], model=result.model)  # what the folds need of the screening
     jobs = [(f, ref, folds.fold, specs, slim, excluded, oe_windows, score_windows, accel_max) for f in range(n_f)]
-    if n_jobs > 1 and n_f > 1:
-        with ProcessPoolExecutor(max_workers=min(n_jobs, n_f)) as pool:
-            per_fold = list(progress(pool.map(_fold_job, jobs), "output-error candidates per fold", total=n_f))
-    else:
-        per_fold = [_fold_job(job) for job in progress(jobs, "output-error candidates per fold")]
+    per_fold = parallel_map(_fold_job, jobs, n_jobs, desc="output-error candidates per fold",
+                            names=[f"output-error fold {f}" for f in range(n_f)])
 
     def collect(label, complexity=None):
         rms = np.array([p[label][0] for p in per_fold])

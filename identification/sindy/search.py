@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -26,6 +25,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from groundfloor.errors import InputError
+from groundfloor.parallel import Workers, parallel_map
 from groundfloor.progress import progress
 from groundfloor.types import BodyStates, TrajectoryRun
 from identification.sindy.checks import STABILITY_TOL, max_re_eig_at_rest
@@ -168,7 +168,7 @@ def fold_assignment(groups: np.ndarray, n_folds: int) -> np.ndarray:
 
 def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: SearchGrid = DEFAULT_GRID,
            runs: Sequence[TrajectoryRun] | None = None, names: Sequence[str] | None = None,
-           groups: Sequence | None = None, n_top: int = 14, n_jobs: int = 1,
+           groups: Sequence | None = None, n_top: int = 14, n_jobs: Workers | int = 1,
            rel_tol: float | None = None, ref: Reference | None = None, folds: Folds | None = None,
            dead_time_s=(0.0, 0.0), excluded: frozenset = frozenset()) -> SearchResult:
     """Return the cross-validated full grid search and the best model refitted on all runs.
@@ -187,8 +187,8 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         Group of each state (segments of one run share it and its fold); default one group each.
     n_top : int
         How many of the best grid points to refit on all runs (``top_models``, for fig. 7.11).
-    n_jobs : int
-        Worker processes (one ``(s, tau, library)`` combination each at a time).
+    n_jobs : int or groundfloor.parallel.Workers
+        Worker processes, or a Dask scheduler (one ``(s, tau, library)`` combination per task).
     rel_tol : float, optional
         None (default): the one-standard-error rule (:func:`select_one_se`). A number: the
         sparsest model within ``1 + rel_tol`` of the best CV error (:func:`select_parsimonious`);
@@ -245,11 +245,8 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
     combos = list(itertools.product(states_by_s, grid.tau, grid.library))
     jobs = [(states_by_s[s_val], names, fold, s_val, tau, lib, grid, held_windows, tuple(dead_time_s), frozenset(excluded))
             for s_val, tau, lib in combos]
-    if n_jobs > 1:
-        with ProcessPoolExecutor(max_workers=n_jobs) as pool:
-            parts = list(progress(pool.map(_score_combo, jobs), "grid (s, tau, library)", total=len(jobs)))
-    else:
-        parts = [_score_combo(job) for job in progress(jobs, "grid (s, tau, library)")]
+    parts = parallel_map(_score_combo, jobs, n_jobs, desc="grid (s, tau, library)",
+                         names=[f"grid point s={s_val:g} tau={tau:g} library={lib}" for s_val, tau, lib in combos])
     table = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     score = np.where(np.isfinite(table["pos_err_5s_m"]), table["pos_err_5s_m"], np.inf)
     # models unstable at rest or blowing up on a held-out window are ranked after all others

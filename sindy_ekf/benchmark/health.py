@@ -18,6 +18,20 @@ follows the fixes. The bound is :data:`NIS_TOLERANCE` times the quantile of ``ch
 :data:`NIS_FALSE_ALARM`; clipping only lowers the sum, so the false-alarm rate of a consistent
 filter stays below it, and the tolerance leaves room for time-correlated GNSS errors.
 
+Step versus drift (:func:`fixes_stepped`): an alarm is not yet a lost filter. When the GNSS fixes
+jump (a multipath burst, a wrong ambiguity fix) the gate rejects them and the window alarms while
+the state is fine. Before any reset the innovations of the alarm window and of the window before
+it are fitted by a piecewise-constant offset with at most two change points (a step of the fixes
+and its end), the change-point model of Basseville and Nikiforov 1993 (ch. 2) with the change
+times found by exhaustive least squares; if that explains them within the chi-square bound of
+their covariances, the fixes agree with each other and with the filter's own dead reckoning over
+8 s, only offset: the fixes stepped, the filter is not reset (counted as ``fix_steps``) and the
+gate keeps rejecting them until they return or the state's growing covariance accepts them. A
+lost filter drifts or scatters; only then is it re-initialised. A step that lasts longer than
+:data:`MAX_COAST_S` (the longest GNSS outage the filters are specified to bridge on the model
+alone) is taken as the fixes' new level (a wrong ambiguity fix cannot be told from a moved
+antenna for ever): the filter is then re-initialised onto it, counted as a recovery.
+
 Recovery (:func:`guarded_ekf_batch`): at the start of the alarming window the filter is
 re-initialised from its last consistent state with the position of the next fix (lever arm
 removed) and the covariance reset (:func:`reset_state`), then runs on; at most
@@ -65,6 +79,7 @@ class RunStatus:
     t_s: float = float("nan")  # seconds since the run's start where it diverged or failed
     reason: str = ""  # one line, empty when ok
     recoveries: int = 0
+    fix_steps: int = 0  # alarms explained by a step of the fixes (no reset)
 
 
 def nis_alarm(nis: np.ndarray, gate_nis: float, window: int = NIS_WINDOW, dof: int = 2,
@@ -88,6 +103,56 @@ def nis_alarm(nis: np.ndarray, gate_nis: float, window: int = NIS_WINDOW, dof: i
     return int(hit[0]), float(sums[hit[0]]), bound
 
 
+MAX_COAST_S = 60.0  # longest outage of simulation.gnss_faults, bridged on the model alone
+STEP_FALSE_ALARM = 1e-3  # of the step model's residual test
+_OUTLIER_NIS = float(chi2.ppf(0.999, 2))  # a fix this far from its neighbours' median is an outlier
+
+
+def _segment_rss(w: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Return ``rss[a, b]``, the weighted residual sum of squares of ``y[a:b]`` about its weighted
+    mean (``w (n,)`` weights, ``y (n, 2)``), for all ``0 <= a <= b <= n`` (0 where empty)."""
+    c_w = np.concatenate([[0.0], np.cumsum(w)])
+    c_wy = np.concatenate([np.zeros((1, 2)), np.cumsum(w[:, None] * y, axis=0)])
+    c_wyy = np.concatenate([[0.0], np.cumsum(w * np.sum(y * y, axis=1))])
+    sw = c_w[None, :] - c_w[:, None]
+    swy = c_wy[None, :, :] - c_wy[:, None, :]
+    swyy = c_wyy[None, :] - c_wyy[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rss = swyy - np.sum(swy * swy, axis=-1) / sw
+    return np.where(sw > 0, rss, 0.0)
+
+
+def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray,
+                  false_alarm: float = STEP_FALSE_ALARM) -> bool:
+    """Return whether the innovations ``(n, 2)`` are a piecewise-constant offset plus noise.
+
+    At most two change points (module docstring), weights ``2 / trace S`` per fix; isolated
+    outliers (farther than the chi2(2) 0.999 quantile from the median of their five neighbours)
+    are left out first. The minimum residual sum over all change points is tested against the
+    ``1 - false_alarm`` quantile of chi-square with ``2 n - 6`` degrees of freedom.
+    """
+    y = np.asarray(innovation, float)
+    S = np.asarray(innovation_cov, float)
+    ok = np.all(np.isfinite(y), axis=1) & np.all(np.isfinite(S), axis=(1, 2))
+    y, S = y[ok], S[ok]
+    n = len(y)
+    if n < 8:
+        return False
+    var = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
+    pad = np.concatenate([y[:1].repeat(2, 0), y, y[-1:].repeat(2, 0)])
+    local = np.median(np.stack([pad[k:k + n] for k in range(5)]), axis=0)
+    keep = np.sum((y - local) ** 2, axis=1) / var <= _OUTLIER_NIS
+    y, var = y[keep], var[keep]
+    n = len(y)
+    if n < 8:
+        return False
+    rss = _segment_rss(1.0 / var, y)
+    c1, c2 = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    total = rss[0][c1] + rss[c1, c2] + rss[c2, n]
+    best = float(np.min(np.where(c1 <= c2, total, np.inf)))
+    return best <= float(chi2.ppf(1.0 - false_alarm, 2 * n - 6))
+
+
 def reset_state(x: np.ndarray, P0: np.ndarray, gnss, t_from: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Return ``(x, P)`` re-initialised from the first fix valid after ``t_from``, or None if none.
 
@@ -109,12 +174,16 @@ def reset_state(x: np.ndarray, P0: np.ndarray, gnss, t_from: float) -> tuple[np.
     return x, np.diag(var)
 
 
+_PER_FIX = ("innovation", "innovation_cov", "r_scale")  # EkfResult's arrays with one row per fix
+
+
 def _cut(res: EkfResult, t_end: float) -> EkfResult:
     """Return ``res`` up to (excluding) ``t_end`` on its grid."""
     n = int(np.searchsorted(res.t, t_end - GRID_TOL_S))
     keep = res.nis_t < t_end - GRID_TOL_S
     return replace(res, t=res.t[:n], x=res.x[:n], P=res.P[:n], nis=res.nis[keep], nis_t=res.nis_t[keep],
-                   accepted=res.accepted[keep], outside_envelope=res.outside_envelope[:n])
+                   accepted=res.accepted[keep], outside_envelope=res.outside_envelope[:n],
+                   **{f: getattr(res, f)[keep] for f in _PER_FIX if len(getattr(res, f)) == len(keep)})
 
 
 def _splice(head: EkfResult, tail: EkfResult) -> EkfResult:
@@ -124,7 +193,9 @@ def _splice(head: EkfResult, tail: EkfResult) -> EkfResult:
                    P=np.concatenate([h.P, tail.P]), nis=np.concatenate([h.nis, tail.nis]),
                    nis_t=np.concatenate([h.nis_t, tail.nis_t]), accepted=np.concatenate([h.accepted, tail.accepted]),
                    outside_envelope=np.concatenate([h.outside_envelope, tail.outside_envelope]),
-                   pd_repairs=h.pd_repairs + tail.pd_repairs, runtime_s=h.runtime_s + tail.runtime_s)
+                   pd_repairs=h.pd_repairs + tail.pd_repairs, runtime_s=h.runtime_s + tail.runtime_s,
+                   saturated_steps=h.saturated_steps + tail.saturated_steps,
+                   **{f: np.concatenate([getattr(h, f), getattr(tail, f)]) for f in _PER_FIX})
 
 
 def _one_line(exc: BaseException) -> str:
@@ -161,28 +232,46 @@ def _run_alone_raw(model: ProcessModel, run: EkfRun, gate_prob: float,
 
 
 def _recover(model: ProcessModel, run: EkfRun, res: EkfResult, gate_prob: float,
-             lateral: LateralConstraint | None, recover: bool) -> tuple[EkfResult | None, RunStatus]:
+             lateral: LateralConstraint | None, recover: bool, step_test: bool = True
+             ) -> tuple[EkfResult | None, RunStatus]:
     """Return the run's result after NIS monitoring (and re-initialisations), with its status."""
-    recoveries, checked_from = 0, 0
+    recoveries, checked_from, steps, step_since = 0, 0, 0, None
     while True:
         i, total, bound = nis_alarm(res.nis[checked_from:], res.gate_nis)
         if i is None:
-            return res, RunStatus(recoveries=recoveries)
-        # divergence began at the window's first fix outside the gate (its start if none is)
+            return res, RunStatus(recoveries=recoveries, fix_steps=steps)
         j = checked_from + i
+        if i > 0 or step_since is None:  # not the window right after a step's: a new episode
+            step_since = float(res.nis_t[j])
+        coasting_s = float(res.nis_t[j]) - step_since
+        if step_test and coasting_s <= MAX_COAST_S and len(res.innovation) == len(res.nis) and fixes_stepped(
+                res.innovation[max(0, j - NIS_WINDOW):j + NIS_WINDOW],
+                res.innovation_cov[max(0, j - NIS_WINDOW):j + NIS_WINDOW]):
+            steps += 1  # the fixes stepped, the filter is not lost: no reset (module docstring)
+            log.info("%s: NIS alarm at t=%.2f s explained by a step of the fixes; not reset", run.name,
+                     res.nis_t[j] - run.t[0])
+            checked_from = j + NIS_WINDOW
+            continue
+        step_since = None
+        # divergence began at the window's first fix outside the gate (its start if none is)
         gated = np.flatnonzero(~np.isfinite(res.nis[j:j + NIS_WINDOW]) | (res.nis[j:j + NIS_WINDOW] > res.gate_nis))
         t_alarm = float(res.nis_t[j + (gated[0] if gated.size else 0)])
         k = int(np.searchsorted(res.t, t_alarm - GRID_TOL_S))
         reason = (f"NIS over {NIS_WINDOW} fixes {total:.0f} above its chi-square bound {bound:.0f} "
                   f"from t={t_alarm - run.t[0]:.2f} s")
-        reset = reset_state(res.x[k], run.P0, run.gnss, t_alarm) if recover else None
+        lam = float(res.r_scale[j - 1]) if 0 < j <= len(res.r_scale) else 1.0
+        reset = reset_state(res.x[k], run.P0, replace(run.gnss, std=run.gnss.std * math.sqrt(lam)),
+                            t_alarm) if recover else None
         if reset is None or recoveries >= MAX_RECOVERIES or k >= len(res.t) - 2:
             why = reason if recoveries == 0 else f"{reason} after {recoveries} re-initialisation(s)"
-            return _cut(res, t_alarm), RunStatus("diverged", t_alarm - run.t[0], why, recoveries)
+            return _cut(res, t_alarm), RunStatus("diverged", t_alarm - run.t[0], why, recoveries, steps)
         log.warning("%s: %s; re-initialised from the next fix", run.name, reason)
         gnss = run.gnss
         after = gnss.t_valid > t_alarm + GRID_TOL_S
         gnss = replace(gnss, **{f: getattr(gnss, f)[after] for f in ("t_valid", "t_arrival", "p_local", "std", "flags")})
+        # the variance factor learnt so far carries over (the tail's own NoiseScaler starts at 1)
+        lam = float(res.r_scale[j - 1]) if 0 < j <= len(res.r_scale) else 1.0
+        gnss = replace(gnss, std=gnss.std * math.sqrt(lam))
         tail_run = EkfRun(run.name, res.t[k:], run.u[k:], reset[0], reset[1], gnss)
         tail, status = _run_alone(model, tail_run, gate_prob, lateral)
         recoveries += 1
@@ -190,20 +279,21 @@ def _recover(model: ProcessModel, run: EkfRun, res: EkfResult, gate_prob: float,
             head = _cut(res, t_alarm) if tail is None else _splice(res, tail)
             t_s = status.t_s + (res.t[k] - run.t[0]) if status.status == "diverged" else t_alarm - run.t[0]
             return head, RunStatus(status.status if tail is not None else "diverged", t_s,
-                                   status.reason or reason, recoveries)
+                                   status.reason or reason, recoveries, steps)
         checked_from = int(np.sum(res.nis_t < res.t[k] - GRID_TOL_S))
         res = _splice(res, tail)
 
 
 def guarded_ekf_batch(model: ProcessModel, runs: list[EkfRun], lateral: LateralConstraint | None = None,
-                      recover: bool = True, gate_prob: float = GATE_PROB
+                      recover: bool = True, gate_prob: float = GATE_PROB, step_test: bool = True
                       ) -> list[tuple[EkfResult | None, RunStatus]]:
     """Return each run's EKF result (None if it failed) and :class:`RunStatus`.
 
     The runs go through :func:`sindy_ekf.estimation.ekf.run_ekf_batch` together; if the batch
     raises, each run is filtered alone so that one run's divergence costs only that run. Runs
     with GNSS are then watched by :func:`nis_alarm` and, with ``recover``, re-initialised
-    (module docstring).
+    (module docstring); ``step_test`` first asks :func:`fixes_stepped` whether an alarm is a step
+    of the fixes rather than a lost filter.
     """
     kw = {"lateral": lateral, "gate_prob": gate_prob}
     try:
@@ -214,7 +304,7 @@ def guarded_ekf_batch(model: ProcessModel, runs: list[EkfRun], lateral: LateralC
     final = []
     for run, (res, status) in zip(runs, out):
         if res is not None and status.status == "ok" and run.gnss is not None:
-            res, status = _recover(model, run, res, gate_prob, lateral, recover)
+            res, status = _recover(model, run, res, gate_prob, lateral, recover, step_test)
         if status.status != "ok":
             log.warning("%s: %s at t=%.2f s: %s", run.name, status.status, status.t_s, status.reason)
         final.append((res, status))
@@ -243,13 +333,14 @@ def combined_status(statuses: dict[str, RunStatus]) -> RunStatus:
     """Return one estimator's status over its runs: the worst run's, the reason naming the run."""
     worst = max(statuses.items(), key=lambda kv: STATUS_ORDER.index(kv[1].status), default=(None, RunStatus()))
     recoveries = sum(s.recoveries for s in statuses.values())
+    steps = sum(s.fix_steps for s in statuses.values())
     run, s = worst
     if s.status == "ok":
-        return RunStatus(recoveries=recoveries)
+        return RunStatus(recoveries=recoveries, fix_steps=steps)
     others = sum(1 for v in statuses.values() if v.status != "ok") - 1
     more = f" (and {others} other run(s))" if others > 0 else ""
     reason = s.reason if s.reason.startswith(run) else f"{run}: {s.reason}"
-    return RunStatus(s.status, s.t_s, f"{reason}{more}", recoveries)
+    return RunStatus(s.status, s.t_s, f"{reason}{more}", recoveries, steps)
 
 
 def empty_score(runtime_s: float) -> Score:

@@ -93,6 +93,9 @@ class McOutcome:
     outage_end_err_m: float  # position error at its end (NaN if none or not reached)
     ate_pos_m: float  # RMS position error over the poses the estimator reached
     final_err_m: float  # position error at the last pose reached
+    fix_steps: int = 0  # NIS alarms explained by a step of the fixes (not reset)
+    window_s: float = float("nan")  # length of the window, s (recoveries per hour)
+    saturated_steps: int = 0  # EKF steps with the model evaluated at velocities saturated at its envelope
 
 
 def prepare_sources(test_runs, smoothing: float) -> list[McSource]:
@@ -146,7 +149,8 @@ def nees_band_95(n: int, dof: int = 3) -> tuple[float, float]:
     return float(lo / n), float(hi / n)
 
 
-def outcome(w: McWindow, estimator: str, x: np.ndarray | None, P: np.ndarray | None, status) -> McOutcome:
+def outcome(w: McWindow, estimator: str, x: np.ndarray | None, P: np.ndarray | None, status,
+            saturated_steps: int = 0) -> McOutcome:
     """Return the :class:`McOutcome` of an estimate ``x, P`` on ``w``'s grid (cut short if it diverged)."""
     nan = float("nan")
     n = 0 if x is None else int(np.searchsorted(w.at_pose, len(x)))
@@ -154,7 +158,8 @@ def outcome(w: McWindow, estimator: str, x: np.ndarray | None, P: np.ndarray | N
     outage_s = float(o[0, 1] - o[0, 0]) if len(o) else nan
     if n < 2:
         return McOutcome(w.index, w.mix, estimator, status.status, status.recoveries, nan, False, nan,
-                         outage_s, nan, nan, nan)
+                         outage_s, nan, nan, nan, status.fix_steps, float(w.truth[-1, 0] - w.truth[0, 0]),
+                         saturated_steps)
     tr = w.truth[:n]
     xs, Ps = x[w.at_pose[:n]], P[w.at_pose[:n]]
     err = np.column_stack([xs[:, 0] - tr[:, 1], xs[:, 1] - tr[:, 2], wrap_angle(xs[:, 2] - tr[:, 3])])
@@ -180,7 +185,8 @@ def outcome(w: McWindow, estimator: str, x: np.ndarray | None, P: np.ndarray | N
     if len(o) and o[0, 1] <= tr[-1, 0]:
         end_err = float(np.interp(o[0, 1], tr[:, 0], dp))
     return McOutcome(w.index, w.mix, estimator, status.status, status.recoveries, nees_mean, inside, share,
-                     outage_s, end_err, float(np.sqrt(np.mean(dp ** 2))), float(dp[-1]))
+                     outage_s, end_err, float(np.sqrt(np.mean(dp ** 2))), float(dp[-1]), status.fix_steps,
+                     float(w.truth[-1, 0] - w.truth[0, 0]), saturated_steps)
 
 
 def run_windows(model: ProcessModel, lateral: LateralConstraint, windows: list[McWindow], P0: np.ndarray,
@@ -192,7 +198,8 @@ def run_windows(model: ProcessModel, lateral: LateralConstraint, windows: list[M
         runs = [EkfRun(f"mc{w.index} {name}", w.grid, w.u, w.x0, P0, w.gnss) for w in windows]
         for w, (res, status) in zip(windows, guarded_ekf_batch(model, runs, lateral=constraint)):
             x = None if res is None else res.x
-            out.append(outcome(w, name, x, None if res is None else res.P, status))
+            out.append(outcome(w, name, x, None if res is None else res.P, status,
+                               0 if res is None else res.saturated_steps))
             if name == "sindy_ekf" and status.status == "ok" and x is not None and len(x) == len(w.grid):
                 ekf_x[w.index] = x
     for w in windows:

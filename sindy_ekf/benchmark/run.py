@@ -37,6 +37,7 @@ import numpy as np
 from groundfloor.angles import wrap_angle
 from groundfloor.errors import InputError
 from groundfloor.gnss import GnssSeries
+from groundfloor.parallel import Workers, parallel_map
 from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
 from identification.preprocessing.states import body_states_from_poses
 from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel, fit_lag
@@ -52,6 +53,7 @@ from sindy_ekf.benchmark.health import (
     score_partial,
     split_short_runs,
 )
+from sindy_ekf.benchmark.motion_source import run_motion_ekfs, run_motion_graphs
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
 from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
@@ -213,11 +215,17 @@ def _process_model(models: dict[str, ProcessModel], base: str, settings: Estimat
     return model
 
 
+def _guarded_task(task: tuple):
+    """Return :func:`guarded` of one task ``(fn, args, kwargs)``: one run of one smoother."""
+    fn, args, kwargs = task
+    return guarded(fn, *args, **kwargs)
+
+
 def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: int | None = None,
                        oracle_dynamics=None, estimators=None, smoothing: float | None = None,
                        train_campaign=None, outage_warmup_s: float | None = None,
                        outage_recovery_s: float | None = None, outage_durations_s=None,
-                       config: FilterConfig | None = None) -> BenchmarkResult:
+                       config: FilterConfig | None = None, workers: Workers | int = 1) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign``.
 
     Parameters
@@ -239,6 +247,9 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         defaults): GNSS profile, seed and outages, and per estimator whether it runs, its process
         noise, initial std, gate probability, ``v_y = 0`` constraint and sensors. ``profile``,
         ``seed``, ``estimators`` and the outage arguments win over it when given (not None).
+    workers : where the runs of the smoothers (``sindy_graph*``, ``sindy_isam2``) go, one task per run
+        (:mod:`groundfloor.parallel`); the EKFs run all runs in lockstep in this process. Their
+        runtimes are wall times either way.
     """
     known = ESTIMATORS + OPTIONAL_ESTIMATORS
     unknown = set(estimators or ()) - set(known)
@@ -310,8 +321,12 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         batch = [EkfRun(f"{r.name} {name}", r.grid, r.u_motor if use_motor and r.u_motor is not None
                         else r.inputs_for(models[base].dynamics), r.x0, cfg.P0, gnss_of(cfg, r)) for r in runs]
         start = time.perf_counter()
-        keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
-                                     gate_prob=cfg.gate_prob))
+        if cfg.motion_sensors:  # gyro / wheel odometry: the seven-state EKF of ekf_motion (issue 16)
+            keep(name, run_motion_ekfs(_process_model(models, base, cfg), runs, campaign, cfg.motion_sensors,
+                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r, c=cfg: gnss_of(c, r), use_motor))
+        else:
+            keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
+                                         gate_prob=cfg.gate_prob))
         runtimes[name] = time.perf_counter() - start
     if "dead_reckoning" in estimators:
         cfg = config.estimator("dead_reckoning")
@@ -327,23 +342,30 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         model, constraint = _process_model(models, "sindy_ekf", cfg), lateral_of(cfg)
         start = time.perf_counter()
         init = estimates.get(init_name)
-        results = []
+        tasks, x_inits = [], {}
         for r in runs:
             x_init = None
             if init is not None and len(init[r.name].t) == len(r.t_pose):  # not from a diverged filter
                 x_init = np.column_stack([np.interp(r.grid, r.t_pose, init[r.name].x[:, i])
                                           for i in range(6)])
-            results.append(guarded(smooth_batch, model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r),
-                                   x_init=x_init, marginal_stride=10, lateral=constraint,
-                                   name=f"{r.name} {name}"))
-        keep(name, results)
+            x_inits[r.name] = x_init
+            tasks.append((smooth_batch, (model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r)),
+                          dict(x_init=x_init, marginal_stride=10, lateral=constraint, name=f"{r.name} {name}")))
+        if cfg.motion_sensors:  # gyro / wheel odometry factors (graph_motion, issue 16)
+            keep(name, run_motion_graphs(model, runs, campaign, cfg.motion_sensors, constraint, name, cfg.P0,
+                                         lambda r, c=cfg: gnss_of(c, r), lambda r, s=x_inits: s[r.name]))
+        else:
+            keep(name, parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} {name}" for r in runs],
+                                    desc=name))
         runtimes[name] = time.perf_counter() - start
     if "sindy_isam2" in estimators:
         cfg = config.estimator("sindy_isam2")
         model = _process_model(models, "sindy_ekf", cfg)
         start = time.perf_counter()
-        keep("sindy_isam2", [guarded(smooth_isam2, model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r),
-                                     name=f"{r.name} sindy_isam2") for r in runs])
+        tasks = [(smooth_isam2, (model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r)), dict(name=f"{r.name} sindy_isam2"))
+                 for r in runs]
+        keep("sindy_isam2", parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} sindy_isam2" for r in runs],
+                                         desc="sindy_isam2"))
         runtimes["sindy_isam2"] = time.perf_counter() - start
     truth = {r.name: r.truth for r in runs}
     outages_of_runs = {r.name: r.gnss.outages for r in runs}

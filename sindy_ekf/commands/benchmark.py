@@ -12,6 +12,7 @@ from sindy_ekf.benchmark.figures import write_benchmark_figures
 from sindy_ekf.benchmark.files import write_benchmark
 from sindy_ekf.benchmark.gnss_source import RECORDED
 from sindy_ekf.benchmark.result import BenchmarkResult
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.config import load_config
 from sindy_ekf.stages.estimation import benchmark_files
 
@@ -34,6 +35,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write TUM files of every estimate, the JSON and the plots into DIR")
+    add_worker_arguments(p, 1, "smoothers' runs (sindy_graph, sindy_graph_lateral, sindy_isam2; the EKFs run "
+                               "all runs in lockstep in one process)")
 
 
 def _cell(value: float, width: int, decimals: int) -> str:
@@ -77,7 +80,7 @@ def run(args) -> int:
     config = load_config(args.config)  # a bad file fails here, before the work
     estimators = None if args.estimators is None else tuple(n.strip() for n in args.estimators.split(","))
     result = benchmark_files(args.campaign, args.model, profile=args.gnss, seed=args.seed, estimators=estimators,
-                             config=config)
+                             config=config, workers=workers_of(args))
     if args.out is not None:
         write_benchmark(result, args.out)
         write_benchmark_figures(result, args.out)

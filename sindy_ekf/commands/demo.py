@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.commands.report import format_headline, format_problems
 from sindy_ekf.commands.simulate import format_table
 from sindy_ekf.report.demo import (
@@ -38,6 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a dynamics effect for the simulator to hide (e.g. input_delay=0.15)")
     p.add_argument("--force", action="store_true", help="replace a non-empty --out")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the headline figures as JSON")
+    add_worker_arguments(p, 1, "grid points, smoother runs and diagnosis families")
 
 
 def run(args) -> int:
@@ -50,7 +52,7 @@ def run(args) -> int:
     print(f"simulated campaign {campaign.path}: {len(truth.runs)} runs, "
           f"{sum(r.duration_s for r in truth.runs) / 60:.1f} min, seed {truth.seed}, hidden effect: {effect}")
     print(format_table(truth))
-    demo = demo_report(campaign)
+    demo = demo_report(campaign, workers_of(args))
     chain = demo.report.chain
     print(format_headline(chain))
     if format_problems(chain):

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.diagnose import Diagnosis, diagnose_campaign
 from sindy_ekf.diagnose.figures import write_diagnosis_figures
 from sindy_ekf.diagnose.residuals import top_structure
@@ -21,6 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-ekf", action="store_true", help="skip the EKF dead-reckoning through 10 s GNSS outages")
     p.add_argument("--extended-model", type=Path, default=None, metavar="PATH",
                    help="write the extended model (JSON) when a cause is found")
+    add_worker_arguments(p, 1, "families")
 
 
 def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
@@ -51,7 +53,7 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
 def run(args) -> int:
     """Diagnose, print the ranking and the gain, write JSON, plots and the extended model on request."""
     check_outputs(args)
-    d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf)
+    d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf, workers=workers_of(args))
     print(format_diagnosis(d, args.model, args.campaign))
     if args.plots:
         write_diagnosis_figures(d, args.plots)

@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_output_file, check_outputs
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.stages.figures import write_identification_figures
 from sindy_ekf.stages.identification import (
     Identification,
@@ -40,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold", nargs="+", type=float, default=None, metavar="T",
                    help="STLSQ thresholds: smallest share of an equation's signal a term must carry "
                         "(default 0 0.01 0.03 0.05 0.1 0.2)")
-    p.add_argument("--jobs", type=int, default=1, help="worker processes for the grid")
+    add_worker_arguments(p, 1, "grid points")
     p.add_argument("--plots", type=Path, default=None, metavar="DIR",
                    help="write figs. 7.4-7.7, 7.10, 7.11, 7.12 as PNG into DIR")
 
@@ -104,7 +105,7 @@ def run(args) -> int:
     overrides = grid_overrides(args.library, args.smoothing, args.tau, args.alpha, args.threshold)
     plan = plan_identification(args.campaign, quick=args.quick, kind=args.grid, overrides=overrides)
     print(f"{plan.why}; {plan.grid.size} grid points")
-    ident = identify(plan, n_jobs=args.jobs, out=args.out)
+    ident = identify(plan, n_jobs=workers_of(args), out=args.out)
     print(format_ranking(ident))
     print(f"model written to {args.out}")
     if args.plots:

@@ -16,6 +16,7 @@ from identification.preprocessing.preprocess import (
     reading_json,
 )
 from identification.preprocessing.sync import SyncedRun
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.report.bag_facts import bag_notes
 
 
@@ -33,8 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-hub-correction", action="store_true",
                    help="do not refer the prisms to the hub axes (eq. 5.25 model) before the "
                         "poses, as the thesis did not")
-    p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                   help="runs preprocessed in parallel (default: 2 or the cores there are)")
+    add_worker_arguments(p, min(2, os.cpu_count() or 1), "runs")
 
 
 def format_summary(result: PreprocessResult) -> str:
@@ -79,7 +79,7 @@ def run(args) -> int:
     check_outputs(args)
     smoothing = DEFAULT_SMOOTHING if args.smoothing is None else args.smoothing
     result = preprocess_campaign(args.campaign, args.out, smoothing=smoothing, force=args.force,
-                                 plots_dir=args.plots, jobs=args.jobs,
+                                 plots_dir=args.plots, jobs=workers_of(args),
                                  hub_correction=not args.no_hub_correction)
     if not args.quiet:
         print(format_summary(result))

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
 from identification.sindy.search import QUICK_GRID
+from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.config import load_config
 from sindy_ekf.report.html import build_report
 from sindy_ekf.stages.chain import ChainResult
@@ -25,6 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, default=None, metavar="FILE",
                    help="the benchmark's filter settings (YAML over the defaults of `sindy-ekf config --defaults`)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the headline figures as JSON")
+    add_worker_arguments(p, 1, "grid points, smoother runs and diagnosis families")
 
 
 def format_headline(chain: ChainResult) -> str:
@@ -65,7 +67,8 @@ def run(args) -> int:
     """Run the chain, write the report, print where it is and the headline figures."""
     check_outputs(args, folders=("out",))
     config = load_config(args.config)  # a bad file fails here, before the work
-    report = build_report(args.campaign, args.out, model=args.model, quick=args.quick, config=config)
+    report = build_report(args.campaign, args.out, model=args.model, quick=args.quick, config=config,
+                          workers=workers_of(args))
     if not args.quiet:
         print(format_headline(report.chain))
     if format_problems(report.chain):

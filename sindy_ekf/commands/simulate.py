@@ -11,6 +11,7 @@ from simulation.campaign import simulate_campaign
 from simulation.effects import EFFECTS
 from simulation.gnss import PROFILES
 from simulation.gnss_topic import GnssTopicSpec
+from simulation.motion_sensors import ImuSpec, OdometrySpec
 from simulation.truth import CampaignTruth, campaign_summary
 
 _FORMS = "; ".join(f"{name}: {', '.join(spec.forms)}" for name, spec in EFFECTS.items())
@@ -49,6 +50,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "campaign.yaml, the true ENU -> local transform in truth/gnss.yaml "
                         "(default: none; the other files keep their bytes)")
     p.add_argument("--gnss-ros2", action="store_true", help="write the GNSS bags as ROS2 folders")
+    p.add_argument("--imu", action="store_true",
+                   help="also record an IMU (sensor_msgs/Imu on /imu/data, 100 Hz): gyro z with a bias "
+                        "(constant per run plus a random walk) and white noise, body accelerations; the "
+                        "true bias in truth/motion_sensors.yaml (default: none)")
+    p.add_argument("--odometry", action="store_true",
+                   help="also record wheel odometry (nav_msgs/Odometry on /wheel_odom, 50 Hz): v and omega "
+                        "from the track speeds with slip and a track-width error (default: none)")
+    p.add_argument("--sensors-ros2", action="store_true", help="write the IMU / odometry bags as ROS2 folders")
     p.add_argument("--force", action="store_true", help="replace a non-empty OUT")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write a JSON summary")
 
@@ -72,10 +81,14 @@ def run(args) -> int:
         raise InputError(f"--json {args.json}: must not be inside the output folder {args.out}")
     if args.gnss_ros2 and args.gnss is None:
         raise InputError("--gnss-ros2: needs --gnss PROFILE")
+    if args.sensors_ros2 and not (args.imu or args.odometry):
+        raise InputError("--sensors-ros2: needs --imu or --odometry")
     truth = simulate_campaign(args.out, seed=args.seed, minutes=args.minutes, effects=args.effect,
                               force=args.force, receive_jitter_s=args.receive_jitter,
                               clock_resets=args.clock_reset, variant=args.variant,
-                              gnss=None if args.gnss is None else GnssTopicSpec(args.gnss, ros2=args.gnss_ros2))
+                              gnss=None if args.gnss is None else GnssTopicSpec(args.gnss, ros2=args.gnss_ros2),
+                              imu=ImuSpec(ros2=args.sensors_ros2) if args.imu else None,
+                              odometry=OdometrySpec(ros2=args.sensors_ros2) if args.odometry else None)
     total = sum(r.duration_s for r in truth.runs) / 60.0
     effect = truth.effect().label() if truth.effects else "none"
     print(f"simulated campaign {args.out}: {len(truth.runs)} runs, {total:.1f} min, seed {truth.seed}, "

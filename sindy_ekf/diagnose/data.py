@@ -11,6 +11,7 @@ start every ``stride_s`` (neighbouring windows share almost all their samples; a
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 from typing import Sequence
 
@@ -18,6 +19,9 @@ import numpy as np
 
 from groundfloor.errors import InputError
 from groundfloor.types import BodyStates
+from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -139,3 +143,23 @@ def split_from_states(states: Sequence[BodyStates], names: Sequence[str], tau: f
                  pose_local=np.vstack(cols["pose"]), v_body=np.vstack(cols["v"]), u=np.vstack(cols["u"]),
                  dt_next=np.concatenate(cols["dt"]), start=start, end=np.concatenate(ends).astype(np.intp),
                  tau=float(tau))
+
+
+def in_envelope(model, split, margin: float = 0.1):
+    """Return ``split`` without the windows that leave the model's training envelope (widened by
+    ``margin`` of its width): a model cannot be judged where it was never trained, and its
+    extrapolation there (cubic terms) would swamp every residual."""
+    env = getattr(model, "envelope", None)
+    if not env:
+        return split
+    z = np.concatenate([split.v_body, split.u], axis=-1)
+    names = LIBRARY_STATE_NAMES + LIBRARY_INPUT_NAMES
+    lo = np.array([env.get(v, [-np.inf, np.inf])[0] for v in names])
+    hi = np.array([env.get(v, [-np.inf, np.inf])[1] for v in names])
+    pad = margin * (hi - lo)
+    keep = split.windows_inside(np.all((z >= lo - pad) & (z <= hi + pad), axis=1))
+    if keep.sum() < 0.2 * len(keep):
+        log.warning("%s: only %d of %d windows inside the model's training envelope; using all",
+                    ", ".join(split.names), int(keep.sum()), len(keep))
+        return split
+    return split.select_windows(keep)

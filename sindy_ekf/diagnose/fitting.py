@@ -275,6 +275,23 @@ def _coef_from_refit(model, sol: np.ndarray):
                       hyperparameters=dict(model.hyperparameters))
 
 
+def refit_grid(family: Family, model, train: Split, weights: np.ndarray, grid: np.ndarray):
+    """Return ``(design, solutions, train SSE, admissible)`` of the model re-identified around the
+    mechanism at every ``grid`` point (inadmissible points have SSE ``inf``)."""
+    R = len(train.names)
+    y_tr = train.delta_v[None]
+    designs = [normal_equations(y_tr, refit_columns(family, model, train, th)[None], weights, train.window_run, R)
+               for th in grid]
+    d = Design(*(np.concatenate([getattr(x, k) for x in designs]) for k in ("G", "b", "yy")))
+    sols, sse = solve_design(d)
+    # Admissible as in the identification's search (identification.sindy.search.admissible): a
+    # re-identified model that runs away at rest is no explanation, however well its windows fit
+    # (on 10 Hz real data a long input delay refits to positive self-damping: measured, wheels).
+    ok = (max_re_eig_at_rest(model.library, _coefs_from_refit(model, sols)) <= STABILITY_TOL) | \
+        ~stable_at_rest(model)
+    return d, sols, np.where(ok, sse, np.inf), ok
+
+
 def refit_score(family: Family, model, train: Split, test: Split, weights: np.ndarray,
                 theta_fixed: np.ndarray) -> dict:
     """Return the family scored with the model re-identified around it (same support, eqs. 5.55 to 5.59).
@@ -289,21 +306,12 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
     null_theta = np.zeros(len(family.theta_names)) if family.kind == "input" else theta_fixed
     null_fam = Family(family.name, family.kind, family.theta_names) if family.kind == "additive" else family
     grid = family.grid(train) if family.kind == "input" else np.asarray(theta_fixed, float)[None]
-    designs = [normal_equations(y_tr, refit_columns(family, model, train, th)[None], weights, train.window_run, R)
-               for th in grid]
-    d = Design(*(np.concatenate([getattr(x, k) for x in designs]) for k in ("G", "b", "yy")))
-    sols, sse = solve_design(d)
-    # Admissible as in the identification's search (identification.sindy.search.admissible): a
-    # re-identified model that runs away at rest is no explanation, however well its windows fit
-    # (on 10 Hz real data a long input delay refits to positive self-damping: measured, wheels).
-    ok = (max_re_eig_at_rest(model.library, _coefs_from_refit(model, sols)) <= STABILITY_TOL) | \
-        ~stable_at_rest(model)
+    d, sols, sse, ok = refit_grid(family, model, train, weights, grid)
     if not ok.any():
         return {"gain": float("-inf"), "gain_runs": {}, "theta": np.asarray(grid[0], float),
                 "beta": np.zeros(family.n_columns), "estimate": family.estimate(grid[0], np.zeros(family.n_columns),
                                                                                 model),
                 "std": {}, "profile": {}}
-    sse = np.where(ok, sse, np.inf)
 
     def refit_at(th):
         X = refit_columns(family, model, train, th)

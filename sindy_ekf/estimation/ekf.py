@@ -22,6 +22,12 @@ standard deviation fitted from the train runs' ``v_y`` (:func:`fit_lateral_const
 every ``every`` steps. It is a current-time update, folded into the step's error transition
 ``M_k`` like a fix without latency. On real data a model with a spurious ``v_y`` term in the yaw
 equation diverges without it (``bench/results/real.md``).
+
+Faults (issue 14): the stated GNSS covariance is scaled by the variance factor of
+:class:`sindy_ekf.estimation.adaptive.NoiseScaler` (covariance matching on the innovations'
+scatter), and the model is evaluated with the body velocities saturated at the model's envelope
+(:meth:`ProcessModel.velocity_bounds`) so that its cubic terms cannot run away; saturated steps
+are counted (``EkfResult.saturated_steps``).
 """
 
 from __future__ import annotations
@@ -39,7 +45,12 @@ from scipy.stats import chi2
 from groundfloor.errors import DivergenceError, InputError
 from groundfloor.gnss import check_gnss
 from groundfloor.progress import progress
-from sindy_ekf.estimation.process_models import N_X, ProcessModel
+from sindy_ekf.estimation.adaptive import NoiseScaler
+from sindy_ekf.estimation.lateral import LateralConstraint, fit_lateral_constraint, lateral_update
+from sindy_ekf.estimation.process_models import N_X, ProcessModel, outside_bounds
+
+__all__ = ["LateralConstraint", "fit_lateral_constraint", "lateral_update", "ModelEKF", "EkfResult", "EkfRun",
+           "estimation_grid", "h_gnss", "run_ekf", "run_ekf_batch"]
 
 log = logging.getLogger(__name__)
 
@@ -50,66 +61,6 @@ DT_MAX_S = 0.025  # longest step of the estimation grid (50 Hz poses with a skip
 _EYE = np.eye(N_X)
 _J_H_POSITION = np.eye(2, N_X)  # d(antenna position)/d(x, y); the heading column is set per fix
 PD_MARGIN = 1e-9  # Q's smallest eigenvalue above this times P's largest entry: F P F^T + Q is PD
-
-
-@dataclass(frozen=True)
-class LateralConstraint:
-    """The ``v_y = 0`` pseudo-measurement: its standard deviation and rate.
-
-    Attributes
-    ----------
-    vy_std_m_s : standard deviation of the body lateral velocity about zero, m/s (> 0).
-    every : applied after every ``every``-th prediction step (1 = every step).
-    """
-
-    vy_std_m_s: float
-    every: int = 1
-
-    def __post_init__(self):
-        if not (np.isfinite(self.vy_std_m_s) and self.vy_std_m_s > 0):
-            raise InputError(f"lateral constraint: vy_std_m_s must be finite and > 0, got {self.vy_std_m_s}")
-        if int(self.every) != self.every or self.every < 1:
-            raise InputError(f"lateral constraint: every must be an integer >= 1, got {self.every}")
-
-
-def fit_lateral_constraint(vy_body_m_s, every: int = 1, inflation: float = 2.0,
-                           min_std_m_s: float = 1e-3) -> LateralConstraint:
-    """Return a :class:`LateralConstraint` whose std is ``inflation`` x the RMS of the train ``v_y``.
-
-    ``vy_body_m_s``: one array of body lateral velocities (m/s) or a list of them (one per run
-    or segment; non-finite samples ignored). The RMS about zero (not the std about the mean)
-    since the constraint says ``v_y = 0``; floored at ``min_std_m_s``. ``inflation`` (default 2)
-    because the error of ``v_y = 0`` is not white: it is mostly the slowly varying deterministic
-    lateral motion (e.g. ``v_x omega`` coupling), so repeated applications treated as independent
-    are over-confident; with the plain RMS the oracle's ``v_y`` NEES is about 1.8 instead of 1 at
-    5 Hz on simulated data, with 2 x RMS about 1.1 (``tests/test_ekf_lateral.py``).
-    """
-    if not (np.isfinite(inflation) and inflation > 0):
-        raise InputError(f"lateral constraint: inflation must be finite and > 0, got {inflation}")
-    parts = [np.ravel(np.asarray(v, float)) for v in
-             (vy_body_m_s if isinstance(vy_body_m_s, (list, tuple)) else [vy_body_m_s])]
-    vy = np.concatenate(parts) if parts else np.empty(0)
-    vy = vy[np.isfinite(vy)]
-    if vy.size == 0:
-        raise InputError("lateral constraint: no finite train v_y sample to fit the std on")
-    return LateralConstraint(max(inflation * float(np.sqrt(np.mean(vy * vy))), min_std_m_s), every)
-
-
-def lateral_update(x: np.ndarray, P: np.ndarray,
-                   vy_std_m_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return ``(x, P, I - K H)`` after the ``v_y = 0`` pseudo-measurement, batched over ``(m,)``.
-
-    Joseph-form Kalman update with ``H = e_vy`` (state index 4) and
-    ``R = vy_std_m_s^2``, vectorised over the leading axis of ``x (m, 6)``, ``P (m, 6, 6)``.
-    """
-    r = vy_std_m_s ** 2
-    S = P[:, 4, 4] + r                                  # (m,)
-    K = P[:, :, 4] / S[:, None]                         # (m, 6)
-    x = x - K * x[:, 4:5]
-    IKH = np.broadcast_to(np.eye(N_X), P.shape).copy()
-    IKH[:, :, 4] -= K
-    P = IKH @ P @ np.swapaxes(IKH, -1, -2) + r * K[:, :, None] * K[:, None, :]
-    return x, 0.5 * (P + np.swapaxes(P, -1, -2)), IKH
 
 
 def estimation_grid(t_poses: np.ndarray, t_gnss: np.ndarray | None = None,
@@ -257,6 +208,10 @@ class EkfResult:
     outside_envelope: np.ndarray  # (n,) bool
     runtime_s: float  # this run's share of the batch's wall time
     repairs: dict = field(default_factory=dict)
+    innovation: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))  # (m, 2) z - h(x_v), m
+    innovation_cov: np.ndarray = field(default_factory=lambda: np.empty((0, 2, 2)))  # (m, 2, 2) S used
+    r_scale: np.ndarray = field(default_factory=lambda: np.empty(0))  # (m,) variance factor applied to R
+    saturated_steps: int = 0  # steps whose model evaluation had velocities saturated at the envelope
 
 
 @dataclass(frozen=True)
@@ -310,7 +265,9 @@ class _RunState:
             lever = (0.0, 0.0)
         self.ekf = ModelEKF(model, run.x0, P0, lever, gate_prob)
         self.j = 0
-        self.nis, self.nis_t, self.accepted = [], [], []
+        self.nis, self.nis_t, self.accepted, self.y, self.S, self.r_scale = [], [], [], [], [], []
+        self.scaler = NoiseScaler()
+        self.saturated_steps = 0
 
     def attach(self, X: np.ndarray, P: np.ndarray, M: np.ndarray) -> None:
         """Keep ``X (n_max, 6)``, ``P``, ``M (n_max, 6, 6)`` (views into the batch's storage) as
@@ -326,13 +283,18 @@ class _RunState:
         ekf.x, ekf.P = self.X[k1].copy(), self.P[k1].copy()
         while self.j < len(self.ka) and self.ka[self.j] <= k1:
             kv = int(self.kv[self.j])
+            scale = self.scaler.scale()
+            R = scale * self.R[self.j]
             if kv == k1:
-                value, ok, KH = ekf.update_delayed(self.z[self.j], self.R[self.j], ekf.x, ekf.P)
+                value, ok, KH = ekf.update_delayed(self.z[self.j], R, ekf.x, ekf.P)
                 if ok and k1 > 0:  # fold the update into the step's error transition
                     self.M[k1 - 1] = (_EYE - KH) @ self.M[k1 - 1]
             else:
-                value, ok, _ = ekf.update_delayed(self.z[self.j], self.R[self.j], self.X[kv], self.P[kv],
-                                                  self.M[kv:k1])
+                value, ok, _ = ekf.update_delayed(self.z[self.j], R, self.X[kv], self.P[kv], self.M[kv:k1])
+            self.scaler.add(ekf.y, ekf.S - R, self.R[self.j])
+            self.y.append(ekf.y)
+            self.S.append(ekf.S)
+            self.r_scale.append(scale)
             self.nis.append(value)
             self.nis_t.append(self.t[kv])
             self.accepted.append(ok)
@@ -377,9 +339,16 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
     n_going = np.searchsorted(-np.array([s.n - 1 for s in ss]), -np.arange(n_max - 1), side="right")
     q_min = float(np.linalg.eigvalsh(model.Q(1.0)).min())  # Q(dt) = Q_rate dt
     dt_min = dt.min(axis=1)
+    bounds = model.velocity_bounds()
     for k in progress(range(n_max - 1), desc="EKF", total=n_max - 1):
         a = n_going[k]
-        x_next, F, _ = model.step_and_jac(X[k, :a], u[k, :a], t_rel[k, :a], dt[k, :a], input_jacobian=False)
+        x_k = X[k, :a]
+        if bounds is not None and outside_bounds(x_k, bounds[0], bounds[1]):
+            x_next, F, held = model.saturated_step_and_jac(x_k, u[k, :a], t_rel[k, :a], dt[k, :a], bounds)
+            for i in np.flatnonzero(held):
+                ss[i].saturated_steps += 1
+        else:
+            x_next, F, _ = model.step_and_jac(x_k, u[k, :a], t_rel[k, :a], dt[k, :a], input_jacobian=False)
         P_next = F @ P[k, :a] @ F.mT
         P_next += model.Q(dt[k, :a])
         if lateral is not None and (k + 1) % lateral.every == 0:
@@ -424,7 +393,9 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
                      s.name, s.ekf.n_gated, len(s.ka), GATE_DOF, gate_prob)
         results.append(EkfResult(s.name, s.t, s_X, s_P, np.array(s.nis), np.array(s.nis_t),
                                  np.array(s.accepted, bool), s.ekf.gate_nis, s.ekf.pd_repairs,
-                                 outside, runtime * s.n / sum(x.n for x in states), s.repairs))
+                                 outside, runtime * s.n / sum(x.n for x in states), s.repairs,
+                                 np.array(s.y).reshape(-1, 2), np.array(s.S).reshape(-1, 2, 2),
+                                 np.array(s.r_scale, float), s.saturated_steps))
     return results
 
 

@@ -252,7 +252,8 @@ def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     """
     ordering = graph.orderingCOLAMD()
     keys = list(values.keys())
-    unit = gtsam.noiseModel.Unit.Create(3)
+    dims = [3 if gtsam.Symbol(key).chr() == ord("x") else len(values.atVector(key)) for key in keys]
+    units = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims)}
     err0 = err = graph.error(values)
     lam = lambda0
     it = 0
@@ -262,8 +263,8 @@ def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
         while lam < 1e10:
             damped = lin.clone()
             sq = np.sqrt(lam)
-            for key in keys:  # every variable here (Pose2, Vector3) has 3 degrees of freedom
-                damped.add(gtsam.JacobianFactor(key, sq * np.eye(3), np.zeros(3), unit))
+            for key, dim in zip(keys, dims):  # Pose2 and Vector3: 3 dof; a gyro bias (graph_motion): 1
+                damped.add(gtsam.JacobianFactor(key, sq * np.eye(dim), np.zeros(dim), units[dim]))
             try:
                 trial = values.retract(damped.optimize(ordering))
             except RuntimeError:  # indeterminate at this damping: damp more, as gtsam's LM does

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Sequence
 
 from groundfloor.errors import InputError
+from groundfloor.parallel import Workers
 from simulation.campaign import simulate_campaign
 from simulation.truth import CampaignTruth
 from sindy_ekf.report.html import Report, check_report_dir, render_report
@@ -91,11 +92,11 @@ def simulate_demo_campaign(out: str | Path = DEFAULT_OUT, seed: int = 0, minutes
     return DemoCampaign(campaign, truth, tic, time.perf_counter() - tic)
 
 
-def demo_report(campaign: DemoCampaign) -> Demo:
+def demo_report(campaign: DemoCampaign, workers: Workers | int = 1) -> Demo:
     """Return the demo's chain run on its campaign (quick grid, :data:`DEMO_OUTAGES`) with the report
-    written beside the runs."""
+    written beside the runs; ``workers``: where the chain's parallel tasks go (:mod:`groundfloor.parallel`)."""
     out = campaign.path / REPORT_DIR
-    chain = run_chain(campaign.path, out, grid=QUICK, outages=DEMO_OUTAGES)
+    chain = run_chain(campaign.path, out, grid=QUICK, outages=DEMO_OUTAGES, n_jobs=workers)
     tic = time.perf_counter()
     path = render_report(chain, out)
     chain = dataclasses.replace(chain, seconds={"simulate": campaign.simulate_s, **chain.seconds,

@@ -72,7 +72,7 @@ TERMS = {
     "eta2": "share of the residual variance that the bins of one regressor explain (correlation ratio)",
 }
 
-# the diagnosis's families (sindy_ekf.diagnose.families.FAMILIES) and its verdict "none"
+# the diagnosis's families (sindy_ekf.diagnose.families.FAMILIES) and its verdicts "none" and "unexplained"
 FAMILIES = {
     "input_delay": "the motors act on the inputs a constant time late",
     "heading_dependence": "an acceleration that depends on the heading (a sloped floor)",
@@ -81,7 +81,9 @@ FAMILIES = {
     "asymmetry": "one track side stronger than the other",
     "deadband": "small inputs do not move the robot",
     "lateral_slip": "lateral slip the model's vy equation lacks",
-    "none": "no family passes its threshold: the model's errors show no mechanism the diagnosis knows",
+    "none": "no family passes its threshold and the residuals hold no structure: nothing is worth a model change",
+    "unexplained": "no family passes its threshold, but the residuals hold structure out of sample against one "
+                   "regressor (eta2 above its calibrated threshold): a mechanism the diagnosis does not know",
 }
 
 GLOSSARIES = (MODELS, ESTIMATORS, TERMS, FAMILIES)

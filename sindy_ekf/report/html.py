@@ -16,6 +16,7 @@ from pathlib import Path
 
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_text
+from groundfloor.parallel import Workers
 from groundfloor.progress import progress
 from sindy_ekf.config import FilterConfig
 from sindy_ekf.report.blocks import (
@@ -119,7 +120,8 @@ class Report:
 
 
 def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | None = None, quick: bool = False,
-                 grid=None, stages=STAGES, config: FilterConfig | None = None) -> Report:
+                 grid=None, stages=STAGES, config: FilterConfig | None = None,
+                 workers: Workers | int = 1) -> Report:
     """Return the report written for ``campaign`` into ``out_dir`` (``report.html``) and its chain.
 
     Parameters
@@ -130,6 +132,7 @@ def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | 
     quick : identify with the search's quick grid instead of the full one (``grid`` overrides).
     stages : the chain's stages to run (see :data:`sindy_ekf.stages.chain.STAGES`).
     config : the benchmark's filter settings (:func:`sindy_ekf.config.load_config`; default the shipped ones).
+    workers : where the chain's parallel tasks go (:mod:`groundfloor.parallel`).
 
     Raises
     ------
@@ -138,5 +141,5 @@ def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | 
     """
     check_report_dir(out_dir)  # fail before the work, not after it
     grid = grid if grid is not None else (QUICK if quick else None)
-    chain = run_chain(campaign, out_dir, model=model, grid=grid, stages=stages, config=config)
+    chain = run_chain(campaign, out_dir, model=model, grid=grid, stages=stages, config=config, n_jobs=workers)
     return Report(render_report(chain, out_dir), chain)

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from groundfloor.errors import InputError
+from groundfloor.parallel import Workers
 from groundfloor.progress import progress
 from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates, Survey, TrajectoryCampaign
@@ -160,7 +161,7 @@ def identification_plan(chain: ChainResult, grid: SearchGrid | str | None) -> Id
 
 
 def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid, out_dir: Path | None,
-                 n_jobs: int, estimators: Sequence[str] | None,
+                 n_jobs: Workers | int, estimators: Sequence[str] | None,
                  outages: OutageSchedule | None, config: FilterConfig | None) -> dict[str, Callable[[], dict]]:
     """Return each stage as a function of what the stages before it ``found``, returning its fields."""
     traj, path = chain.trajectory, chain.campaign_path
@@ -198,19 +199,19 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
         wished = estimators or (quick if grid == QUICK else None)
         names = None if wished is None else tuple(n for n in wished if n != ORACLE_EKF or oracle is not None)
         return {"benchmark": estimation_stage(traj, found["model"], oracle, estimators=names, outages=outages,
-                                              config=cfg)}
+                                              config=cfg, workers=n_jobs)}
 
     def diagnosis() -> dict:
         if found.get("model_path") is None:
             raise StageSkipped("the model was not written to a file")
-        return {"diagnosis": diagnose_campaign(path, found["model_path"])}
+        return {"diagnosis": diagnose_campaign(path, found["model_path"], workers=n_jobs)}
 
     return {"calibration": calibration, "synchronisation": synchronisation, "identification": identification,
             "evaluation": evaluation, "estimation": estimation, "diagnosis": diagnosis}
 
 
 def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: str | Path | None = None,
-              grid=QUICK, stages=STAGES, n_jobs: int = 1, estimators=None,
+              grid=QUICK, stages=STAGES, n_jobs: Workers | int = 1, estimators=None,
               outages: OutageSchedule | None = None, config: FilterConfig | None = None) -> ChainResult:
     """Return the chain run on ``campaign``: each stage of ``stages`` in order, failures recorded.
 
@@ -221,6 +222,8 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     model : a model file of ``identify``; without it one is identified on the train runs.
     grid : search grid for the identification (see :func:`identification_plan`).
     stages : the stages to run, a subset of :data:`STAGES`.
+    n_jobs : where the parallel tasks of the stages go (grid points, smoother runs, diagnosis
+        families): local processes, or :class:`groundfloor.parallel.Workers` with a Dask scheduler.
     estimators : the benchmark's estimators (default: those ``config`` enables, of them only
         :data:`QUICK_ESTIMATORS` with the quick grid; ``oracle_ekf`` only on a simulated campaign).
     outages : when the benchmark drops GNSS (default: ``config``'s, 5, 10, 30, 60 s in turn, 30 s apart).

@@ -14,6 +14,7 @@ from typing import Sequence
 
 from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
+from groundfloor.parallel import Workers
 from groundfloor.types import TrajectoryCampaign
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.checks import require_checks_passed
@@ -49,14 +50,14 @@ def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, ca
 def estimation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dynamics | None = None,
                      profile: str | None = None, seed: int | None = None, estimators: Sequence[str] | None = None,
                      campaign_path: str | Path | None = None, outages: OutageSchedule | None = None,
-                     config: FilterConfig | None = None) -> BenchmarkResult:
+                     config: FilterConfig | None = None, workers: Workers | int = 1) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign`` with the model.
 
     ``oracle`` (the simulator's true dynamics) runs as ``oracle_ekf``; ``estimators`` as in
     :func:`estimators_for`; ``campaign_path`` names the campaign in errors (default its root);
     ``outages`` when GNSS drops out. ``config``: the filter settings (default the shipped ones,
     :mod:`sindy_ekf.config`); ``profile``, ``seed``, ``estimators`` and ``outages`` win over it
-    when given.
+    when given. ``workers``: where the smoothers' runs go (:mod:`groundfloor.parallel`).
     """
     config = load_config() if config is None else config
     names = estimators_for(estimators, oracle, campaign.root if campaign_path is None else campaign_path,
@@ -65,21 +66,21 @@ def estimation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dy
     if outages is not None:
         config = config.with_overrides(outages=outages)
     return benchmark_campaign(campaign, model, profile=profile, seed=seed, oracle_dynamics=oracle, estimators=names,
-                              smoothing=None if s is None else float(s), config=config)
+                              smoothing=None if s is None else float(s), config=config, workers=workers)
 
 
 def benchmark_files(campaign: str | Path, model_path: str | Path, profile: str | None = None,
                     seed: int | None = None, estimators: Sequence[str] | None = None,
-                    config: FilterConfig | None = None) -> BenchmarkResult:
+                    config: FilterConfig | None = None, workers: Workers | int = 1) -> BenchmarkResult:
     """Return the benchmark of the model file on a campaign (``sindy-ekf benchmark``).
 
     A tracker campaign is preprocessed first (cached); a simulated campaign's true dynamics
     (:func:`simulation.truth.true_dynamics_of`) run as ``oracle_ekf``. ``config``: the filter
     settings (:func:`sindy_ekf.config.load_config`); ``profile``, ``seed`` and ``estimators``
-    (the command line's) win over it when given.
+    (the command line's) win over it when given. ``workers``: where the smoothers' runs go.
     """
     model = SindyModel.load(model_path)
     require_checks_passed(model, str(model_path))
     traj = open_campaign(campaign)
     return estimation_stage(traj, model, true_dynamics_of(campaign), profile, seed, estimators, campaign,
-                            config=config)
+                            config=config, workers=workers)

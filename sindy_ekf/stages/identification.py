@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Sequence
 
 from groundfloor.errors import InputError
+from groundfloor.parallel import Workers
 from groundfloor.types import TrajectoryRun
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.adjust import Adjustment, adjust_coefficients
@@ -127,7 +128,7 @@ def plan_identification(campaign: str | Path, quick: bool = False, kind: str = "
                               why)
 
 
-def identify(plan: IdentificationPlan, n_jobs: int = 1, out: str | Path | None = None) -> Identification:
+def identify(plan: IdentificationPlan, n_jobs: Workers | int = 1, out: str | Path | None = None) -> Identification:
     """Return the identification of ``plan`` and its selected model, written to ``out`` when given.
 
     The model's training facts gain the selected candidate's cross-validated 5 s errors, the

@@ -17,8 +17,11 @@ from simulation.gnss import PROFILES, simulate_gnss
 from simulation.robot import RobotParams
 from sindy_ekf.benchmark.files import read_tum
 from sindy_ekf.benchmark.health import (
+    MAX_COAST_S,
     NIS_WINDOW,
     RESET_INFLATION,
+    _segment_rss,
+    fixes_stepped,
     guarded,
     guarded_ekf_batch,
     nis_alarm,
@@ -117,8 +120,9 @@ def jump():
 
 
 def test_a_jump_in_the_fixes_is_a_divergence_at_its_time_without_recovery(jump):
+    # the NIS alarm and its time on their own: without the step test
     model, truth, run, t_jump = jump
-    [(res, status)] = guarded_ekf_batch(model, [run], recover=False)
+    [(res, status)] = guarded_ekf_batch(model, [run], recover=False, step_test=False)
     t_first = run.gnss.t_valid[run.gnss.t_valid >= t_jump][0]
     assert status.status == "diverged" and status.recoveries == 0
     assert status.t_s == pytest.approx(t_first - run.t[0], abs=1e-6)
@@ -130,8 +134,9 @@ def test_a_jump_in_the_fixes_is_a_divergence_at_its_time_without_recovery(jump):
 
 
 def test_a_jump_in_the_fixes_is_recovered_by_reinitialising_from_the_next_fix(jump):
+    # the re-initialisation on its own: without the step test
     model, truth, run, t_jump = jump
-    [(res, status)] = guarded_ekf_batch(model, [run])
+    [(res, status)] = guarded_ekf_batch(model, [run], step_test=False)
     assert status.status == "ok" and status.recoveries == 1
     assert len(res.t) == len(run.t)
     # after the reset the filter follows the (jumped) fixes again, with fixes accepted
@@ -140,6 +145,73 @@ def test_a_jump_in_the_fixes_is_recovered_by_reinitialising_from_the_next_fix(ju
     err = np.hypot(res.x[late, 0] - (ref[late, 0] + 20.0), res.x[late, 1] - ref[late, 1])
     assert np.sqrt(np.mean(err ** 2)) < 0.5
     assert np.mean(res.accepted[res.nis_t > t_jump + 5.0]) > 0.95
+
+
+def test_a_jump_of_the_fixes_is_a_step_not_a_lost_filter(jump):
+    # with the step test (default) the jumped fixes are recognised as such: no divergence even
+    # without recovery, no reset, and the filter keeps the truth on the model (25 s of dead
+    # reckoning) instead of following the fixes 20 m off
+    model, truth, run, t_jump = jump
+    for recover in (False, True):
+        [(res, status)] = guarded_ekf_batch(model, [run], recover=recover)
+        assert status.status == "ok" and status.recoveries == 0 and status.fix_steps >= 1
+        assert len(res.t) == len(run.t)
+        ref = truth_on(truth, res.t)
+        late = res.t > t_jump
+        assert np.sqrt(np.mean((res.x[late, 0] - ref[late, 0]) ** 2 + (res.x[late, 1] - ref[late, 1]) ** 2)) < 0.5
+    assert MAX_COAST_S > run.t[-1] - t_jump  # the step outlasting MAX_COAST_S is the next test's
+
+
+def test_a_step_outlasting_the_coasting_limit_is_taken_as_the_new_level(jump, monkeypatch):
+    import sindy_ekf.benchmark.health as health
+
+    model, truth, run, t_jump = jump
+    monkeypatch.setattr(health, "MAX_COAST_S", 5.0)
+    [(res, status)] = guarded_ekf_batch(model, [run])
+    assert status.status == "ok" and status.recoveries == 1 and status.fix_steps >= 1
+    late = res.t > t_jump + 15.0
+    ref = truth_on(truth, res.t)
+    assert np.median(res.x[late, 0] - ref[late, 0]) == pytest.approx(20.0, abs=0.5)
+
+
+def test_segment_fit_matches_a_direct_computation():
+    rng = np.random.default_rng(3)
+    y, w = rng.normal(size=(9, 2)), rng.uniform(0.5, 2.0, 9)
+    rss = _segment_rss(w, y)
+    for a in range(10):
+        for b in range(a, 10):
+            if b > a:
+                m = np.sum(w[a:b, None] * y[a:b], axis=0) / np.sum(w[a:b])
+                assert rss[a, b] == pytest.approx(np.sum(w[a:b, None] * (y[a:b] - m) ** 2), abs=1e-9)
+            else:
+                assert rss[a, b] == 0.0
+
+
+def _innovations(offset_m, rng, std=0.3, n=40):
+    S = np.broadcast_to(std ** 2 * np.eye(2), (n, 2, 2))
+    return rng.normal(0, std, (n, 2)) + offset_m, S
+
+
+def test_step_test_tells_steps_of_the_fixes_from_a_drifting_filter():
+    rng = np.random.default_rng(4)
+    k = np.arange(40)[:, None]
+    hits = {name: 0 for name in ("step", "burst", "burst_outlier", "drift", "noisy", "scatter")}
+    for _ in range(200):
+        hits["step"] += fixes_stepped(*_innovations(np.where(k >= 17, [2.0, -1.0], 0.0), rng))
+        hits["burst"] += fixes_stepped(*_innovations(np.where((k >= 10) & (k < 30), [0.0, 3.0], 0.0), rng))
+        y, S = _innovations(np.where(k >= 12, [1.5, 1.5], 0.0), rng)
+        y[25] += [8.0, 0.0]  # an outlier inside the step
+        hits["burst_outlier"] += fixes_stepped(y, S)
+        # a lost filter: the innovations grow instead of jumping, 6 m over the 8 s (0.75 m/s: a
+        # heading 45 deg off at 1 m/s); three levels leave a ramp's 1/sqrt(12) per level, so a
+        # ramp is told from steps once it is several times the fixes' noise over the window
+        hits["drift"] += fixes_stepped(*_innovations(k / 39 * np.array([6.0, 0.0]), rng))
+        # a step whose fixes scatter three times more than their covariance says
+        y, S = _innovations(np.where(k >= 17, [2.0, -1.0], 0.0), rng, std=0.9)
+        hits["noisy"] += fixes_stepped(y, S / 9.0)
+        hits["scatter"] += fixes_stepped(*_innovations(rng.normal(0, 1.0, (40, 2)), rng))
+    assert hits["step"] >= 195 and hits["burst"] >= 195 and hits["burst_outlier"] >= 190
+    assert hits["drift"] <= 5 and hits["noisy"] == 0 and hits["scatter"] == 0
 
 
 def test_reset_takes_the_position_of_the_next_fix_less_the_rotated_lever_arm():

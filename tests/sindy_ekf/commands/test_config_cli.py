@@ -83,7 +83,7 @@ def test_the_command_line_wins_over_the_file(small, tmp_path, capsys):
 BAD = [  # (file text or None for a missing file, what the message must name)
     ("estimators:\n  sindy_ekf:\n    gate_prob: high\n", "estimators.sindy_ekf.gate_prob"),
     ("estimators:\n  sindy_ekf:\n    gating: 0.9\n", "estimators.sindy_ekf.gating"),
-    ("estimators:\n  sindy_ekf:\n    sensors: [gnss, imu]\n", "estimators.sindy_ekf.sensors"),
+    ("estimators:\n  sindy_ekf:\n    sensors: [gnss, lidar]\n", "estimators.sindy_ekf.sensors"),  # imu is a sensor now
     ("gnss:\n  profile: galileo\n", "gnss.profile"),
     ("gnss: [\n", "not valid YAML"),
     (None, "not found"),

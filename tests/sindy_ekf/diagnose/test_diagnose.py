@@ -112,6 +112,16 @@ def test_effect_free_campaign_says_none(reference_model):
     assert max(d.structure["vx"]["heading"].eta2, d.structure["vx"]["t_run"].eta2) < 0.3
 
 
+def test_families_scored_in_two_processes_rank_as_in_one(reference_model):
+    """Scale-out (issue 16): one task per family, the ranking independent of where they ran."""
+    seed = int(np.random.default_rng([MASTER_SEED, 7]).integers(2**31))
+    train, test, a, b = simulate_states_campaign(seed, Effect("input_delay", 0.2), run_s=RUN_S, rate_hz=RATE_HZ)
+    one, two = (diagnose_states(reference_model, train, test, a, b, uncertainty=False, workers=w) for w in (1, 2))
+    assert one.verdict == two.verdict
+    assert [(c.name, c.gain, c.score.estimate) for c in one.ranked] == \
+        [(c.name, c.gain, c.score.estimate) for c in two.ranked]
+
+
 def test_extended_model_jacobians_match_numerical_derivatives(reference_model, tmp_path):
     """The EKF linearises the extended model: analytic Jacobians (pose columns included) vs central
     differences, of the accelerations and of the six-state derivative with its kinematics."""

@@ -72,3 +72,15 @@ def test_injected_gain_decay_named_with_its_rate(wheels, model_file, tmp_path):
     d = diagnose_campaign(out, model_file, ekf=False)
     assert d.verdict == "time_dependence" and d.ranked[0].name == "time_dependence"
     assert d.ranked[0].score.estimate["decay_per_10min"] == pytest.approx(0.3, rel=0.25)
+
+
+def test_injected_delay_named_from_the_response_lag(wheels, model_file, tmp_path):
+    # the model-fixed family sees only 0.075 s (the clean model already wants its inputs earlier,
+    # bench/results/inject.md); the response lag, measured against the model's own response, reads
+    # the delay itself
+    out = inject_campaign(wheels, tmp_path / "delay", "input_delay", 0.15)
+    d = diagnose_campaign(out, model_file, ekf=False)
+    assert d.verdict == "input_delay" and d.ranked[0].name == "input_delay"
+    assert d.ranked[0].score.estimate["delay_s"] == pytest.approx(0.15, rel=0.25)
+    assert d.ranked[0].score.estimate["evidence"] == "response_lag"
+    assert d.after.pos_err_5s_m < d.before.pos_err_5s_m

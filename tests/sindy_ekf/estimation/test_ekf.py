@@ -121,17 +121,42 @@ def test_covariance_losing_positive_definiteness_is_repaired_and_counted(caplog)
     assert any("positive definiteness" in r.message for r in caplog.records)
 
 
-def test_diverging_model_is_an_error_naming_the_time():
-    class Exploding(PolyBody):
-        def f_and_jacobians(self, x, u):
-            f, J_x, J_u = super().f_and_jacobians(x, u)
-            return f + 50.0 * x ** 3, J_x + np.eye(3) * 150.0 * x[..., None] ** 2, J_u
+class Exploding(PolyBody):
+    def f_and_jacobians(self, x, u):
+        f, J_x, J_u = super().f_and_jacobians(x, u)
+        return f + 50.0 * x ** 3, J_x + np.eye(3) * 150.0 * x[..., None] ** 2, J_u
 
-    model = ProcessModel(Exploding(), name="bad_model")
+
+def test_diverging_model_is_an_error_naming_the_time():
+    class NoEnvelope(Exploding):  # nothing to saturate at: the cubic terms run away
+        envelope = {}
+
+    model = ProcessModel(NoEnvelope(), name="bad_model")
     model.Q_rate_ = np.eye(6) * 1e-4
     t = np.arange(0, 20.0, 0.02)
     with np.errstate(all="ignore"), pytest.raises(InputError, match=r"bad_model.*non-finite at t="):
         run_ekf(model, t, np.ones((len(t), 2)), np.r_[0, 0, 0, 1.0, 0, 0], P0)
+
+
+def test_model_evaluated_inside_its_envelope_stays_finite_and_counts_saturated_steps():
+    # the same exploding model, with an envelope: saturated there, velocities grow at most linearly
+    model = ProcessModel(Exploding(), name="bad_model")
+    model.Q_rate_ = np.eye(6) * 1e-4
+    t = np.arange(0, 20.0, 0.02)
+    res = run_ekf(model, t, np.ones((len(t), 2)), np.r_[0, 0, 0, 1.0, 0, 0], P0)
+    assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.P))
+    assert res.saturated_steps > 0.9 * len(t)
+    # the held velocity's increment is the model's at the envelope's edge (hand computation):
+    # vx = 1.2 (edge 1 + 10 % of 2), u = 1, vy = omega = 0
+    lo, hi = model.velocity_bounds()
+    assert hi[0] == pytest.approx(1.2)
+    x = np.array([[0, 0, 0, 5.0, 0, 0]])
+    x_next, F, held = model.saturated_step_and_jac(x, np.ones((1, 2)), np.zeros(1), np.full(1, 0.02), (lo, hi))
+    edge = x.copy()
+    edge[0, 3] = 1.2
+    assert held[0]
+    assert x_next[0, 3] - 5.0 == pytest.approx(model.step(edge[0], np.ones(2), 0.0, 0.02)[3] - 1.2)
+    assert F[0, :, 3] == pytest.approx(np.eye(6)[3])
 
 
 def test_gnss_off_the_grid_is_an_error(oracle):

@@ -19,8 +19,10 @@ from sindy_ekf.estimation.process_models import (
     ProcessModel,
     StateSeries,
     body_states_from_state_series,
+    fit_mean_reversion,
     fit_process_noise,
     state_series_from_body_states,
+    unmodelled_states,
 )
 from tests.support.estimation_helpers import LinearDynamics
 
@@ -208,3 +210,88 @@ def test_envelope_flags_states_outside_the_training_range():
     x[1, 3] = 1.2  # beyond 1.0 + 10 % of the 1.5 m/s width = 1.15
     x[2, 3] = 1.1  # inside the widened envelope
     np.testing.assert_array_equal(model.in_envelope(x, np.zeros(2)), [True, False, True])
+
+
+# -- unmodelled states: Gauss-Markov instead of a random walk -----------------------------------
+
+class ZeroLateral(PolyBody):
+    """The identified model of the real cmd runs in miniature: dvy/dt = 0, vy in the yaw equation."""
+
+    name = "zero_lateral"
+
+    @staticmethod
+    def f(x, u):
+        f = PolyBody.f(x, u)
+        f[..., 1] = 0.0
+        f[..., 2] += 0.8 * x[..., 1]
+        return f
+
+    @staticmethod
+    def J_f_x(x, u):
+        J = PolyBody.J_f_x(x, u)
+        J[..., 1, :] = 0.0
+        J[..., 2, 1] += 0.8
+        return J
+
+    @staticmethod
+    def J_f_u(x, u):
+        J = PolyBody.J_f_u(x, u)
+        J[..., 1, :] = 0.0
+        return J
+
+
+def _gm_series(tau_s: float, std: float, n: int = 20000, dt: float = 0.02, seed: int = 0) -> StateSeries:
+    """A run whose vy is an exact sampled first-order Gauss-Markov process (the reference)."""
+    rng = np.random.default_rng(seed)
+    phi = np.exp(-dt / tau_s)
+    vy = np.empty(n)
+    vy[0] = rng.normal(0, std)
+    e = rng.normal(0, std * np.sqrt(1 - phi ** 2), n)
+    for k in range(1, n):
+        vy[k] = phi * vy[k - 1] + e[k]
+    x6 = np.zeros((n, 6))
+    x6[:, 4] = vy
+    return StateSeries("gm", np.arange(n) * dt, x6, np.zeros((n, 2)))
+
+
+def test_unmodelled_states_are_the_zero_equations_another_one_depends_on():
+    series = [_gm_series(0.5, 0.05, n=500)]
+    assert unmodelled_states(ProcessModel(ZeroLateral()), series) == [4]
+    assert unmodelled_states(ProcessModel(PolyBody()), series) == []
+
+
+def test_mean_reversion_time_constant_and_noise_match_the_gauss_markov_reference():
+    tau, std = 0.8, 0.05
+    series = [_gm_series(tau, std, seed=s) for s in range(3)]
+    assert fit_mean_reversion(series, 4) == pytest.approx(tau, rel=0.1)
+    model = fit_process_noise(ProcessModel(ZeroLateral()), series)
+    assert model.mean_reverting_[4] == pytest.approx(tau, rel=0.1)
+    # textbook first-order Gauss-Markov: noise density 2 std^2 / tau (Gelb 1974, table 3.8-1)
+    assert model.Q_rate_[4, 4] == pytest.approx(2 * std ** 2 / tau, rel=0.1)
+    # the step decays vy by exp(-dt / tau) and its row of F is that factor on vy alone (by hand)
+    x = np.array([0.0, 0.0, 0.0, 0.5, 0.2, 0.1])
+    x_next, F, G = model.step_and_jac(x, np.zeros(2), 0.0, 0.02)
+    phi = np.exp(-0.02 / model.mean_reverting_[4])
+    assert x_next[4] == pytest.approx(0.2 * phi, rel=1e-12)
+    np.testing.assert_allclose(F[4], phi * np.eye(6)[4], atol=1e-15)
+    np.testing.assert_allclose(G[4], 0.0, atol=1e-15)
+    assert model.step(x, np.zeros(2), 0.0, 0.02)[4] == pytest.approx(0.2 * phi, rel=1e-12)
+
+
+def test_dead_reckoned_vy_variance_stays_at_the_stationary_one():
+    # propagating only the covariance for 30 s: a Gauss-Markov vy levels off at its stationary
+    # variance std^2 (the reference); the random walk (mean_reverting=False) grows as Q t
+    tau, std = 0.8, 0.05
+    series = [_gm_series(tau, std, seed=s) for s in range(3)]
+    gm = fit_process_noise(ProcessModel(ZeroLateral()), series)
+    rw = fit_process_noise(ProcessModel(ZeroLateral()), series, mean_reverting=False)
+    assert rw.mean_reverting_ == {}
+    out = {}
+    for name, m in (("gm", gm), ("rw", rw)):
+        x, P = np.array([0.0, 0.0, 0.0, 0.5, 0.0, 0.0]), np.diag([1e-4] * 6)
+        for _ in range(1500):
+            x, F, _ = m.step_and_jac(x, np.zeros(2), 0.0, 0.02)
+            P = F @ P @ F.T + m.Q(0.02)
+        out[name] = P[4, 4]
+    assert out["gm"] == pytest.approx(std ** 2, rel=0.15)
+    assert out["rw"] > 10 * std ** 2

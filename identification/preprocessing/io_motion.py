@@ -1,0 +1,177 @@
+"""Recorded IMU gyro and wheel odometry beside the ground truth (issue 16): read, cleaned, written per run.
+
+Declared in ``campaign.yaml`` under ``sensors:`` (:mod:`identification.preprocessing.io_sensors`):
+a ``sensor_msgs/Imu`` topic gives ``imu.csv`` (``t,wz,ax,ay``: UTC s, the yaw rate
+``angular_velocity.z`` in rad/s, the body accelerations in m/s^2, then ``wz_std`` from the stated
+``angular_velocity_covariance[8]``), a ``nav_msgs/Odometry`` topic gives ``odometry.csv``
+(``t,v,omega``: ``twist.twist.linear.x`` m/s and ``angular.z`` rad/s, then ``v_std,omega_std`` from
+``twist.covariance[0]`` and ``[35]``). A trajectory campaign may carry these files directly; only
+``t,wz`` resp. ``t,v,omega`` are required (std columns missing: the filter's defaults). Rows with
+a non-finite time or value are dropped and counted; samples outside the run's pose span are cut;
+none inside it is an :class:`InputError` naming the file. ``sensor_msgs/JointState`` wheel speeds
+are declared by the data contract but not read by this version (logged).
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from groundfloor.errors import InputError
+from identification.preprocessing.io_sensors import read_sensors_config, topic_messages
+from identification.preprocessing.io_tracker import find_bags
+
+log = logging.getLogger(__name__)
+
+IMU, ODOMETRY = "imu", "odometry"
+IMU_CSV, ODOMETRY_CSV = "imu.csv", "odometry.csv"
+# per kind: CSV file, ROS message type, required value columns, optional columns
+KINDS = {
+    IMU: (IMU_CSV, "sensor_msgs/msg/Imu", ("wz",), ("ax", "ay", "wz_std")),
+    ODOMETRY: (ODOMETRY_CSV, "nav_msgs/msg/Odometry", ("v", "omega"), ("v_std", "omega_std")),
+}
+DEFAULT_TOPICS = {IMU: "/imu/data", ODOMETRY: "/wheel_odom"}
+
+
+@dataclass(frozen=True)
+class MotionSamples:
+    """One run's samples of a motion sensor: times and named columns."""
+
+    kind: str  # imu or odometry
+    t: np.ndarray  # (n,) UTC s (header stamps)
+    columns: dict  # name -> (n,) array, e.g. wz, ax, ay, wz_std or v, omega, v_std, omega_std
+
+    def select(self, keep: np.ndarray) -> MotionSamples:
+        """Return the samples where ``keep``."""
+        return MotionSamples(self.kind, self.t[keep], {k: v[keep] for k, v in self.columns.items()})
+
+    def std(self, name: str) -> np.ndarray | None:
+        """Return the stated std column of ``name`` (e.g. ``wz``), or None when not given."""
+        return self.columns.get(f"{name}_std")
+
+
+def clean_samples(s: MotionSamples, source: str) -> tuple[MotionSamples, dict[str, int]]:
+    """Return the samples without non-finite times or required values, sorted, duplicates dropped, and the counts."""
+    required = KINDS[s.kind][2]
+    ok = np.isfinite(s.t) & np.all([np.isfinite(s.columns[c]) for c in required], axis=0)
+    counts = {"samples": int(s.t.size), "nan_dropped": int((~ok).sum())}
+    if (~ok).any():
+        log.info("%s: dropped %d non-finite %s samples", source, (~ok).sum(), s.kind)
+    kept = s.select(ok)
+    kept = kept.select(np.argsort(kept.t, kind="stable"))
+    dup = np.concatenate([[False], np.diff(kept.t) == 0])
+    counts["duplicates_dropped"] = int(dup.sum())
+    return kept.select(~dup), counts
+
+
+def overlapping_samples(s: MotionSamples, t_pose: np.ndarray, source: str) -> MotionSamples:
+    """Return the samples inside the poses' time span; InputError naming ``source`` when none is."""
+    t_pose = np.asarray(t_pose, float)
+    t_pose = t_pose[np.isfinite(t_pose)]
+    keep = (s.t >= t_pose.min()) & (s.t <= t_pose.max()) if t_pose.size else np.zeros(s.t.size, bool)
+    if not keep.any():
+        span = f"[{s.t.min():.3f}, {s.t.max():.3f}]" if s.t.size else "none"
+        raise InputError(f"{source}: no {s.kind} sample inside the poses' time span (samples {span} s, poses "
+                         f"[{t_pose.min():.3f}, {t_pose.max():.3f}] s)")
+    return s.select(keep)
+
+
+def _row(kind: str, m) -> tuple:
+    if kind == IMU:
+        cov = np.asarray(m.angular_velocity_covariance, float)
+        return (m.angular_velocity.z, m.linear_acceleration.x, m.linear_acceleration.y,
+                np.sqrt(cov[8]) if cov[8] > 0 else np.nan)
+    cov = np.asarray(m.twist.covariance, float)
+    return (m.twist.twist.linear.x, m.twist.twist.angular.z, np.sqrt(cov[0]) if cov[0] > 0 else np.nan,
+            np.sqrt(cov[35]) if cov[35] > 0 else np.nan)
+
+
+def read_motion_topic(bags: list[Path], topic: str, kind: str, run: str) -> MotionSamples | None:
+    """Return the messages of ``topic`` (an IMU or odometry) across a run's bags, or None if absent.
+
+    Raises
+    ------
+    InputError
+        The topic recorded with another message type (names run, topic and type).
+    """
+    msgtype, names = KINDS[kind][1], KINDS[kind][2] + KINDS[kind][3]
+    rows = [(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, *_row(kind, m))
+            for _, m in topic_messages(bags, topic, msgtype, run)]
+    if not rows:
+        return None
+    a = np.array(rows, float)
+    return MotionSamples(kind, a[:, 0], {n: a[:, 1 + i] for i, n in enumerate(names)})
+
+
+def write_motion_csv(path: str | Path, s: MotionSamples) -> Path:
+    """Write ``imu.csv`` or ``odometry.csv`` (module docstring); return its path."""
+    names = [n for n in KINDS[s.kind][2] + KINDS[s.kind][3] if n in s.columns]
+    buf = io.StringIO()
+    np.savetxt(buf, np.column_stack([s.t] + [s.columns[n] for n in names]), delimiter=",",
+               fmt=["%.9f"] + ["%.9g"] * len(names), header=",".join(["t", *names]), comments="")
+    Path(path).write_text(buf.getvalue())
+    return Path(path)
+
+
+def read_motion_csv(path: str | Path, kind: str) -> MotionSamples:
+    """Return the samples of an ``imu.csv`` or ``odometry.csv`` as written (NaN rows kept: :func:`clean_samples`).
+
+    Raises
+    ------
+    InputError
+        Naming the file: unreadable, a required column missing.
+    """
+    path = Path(path)
+    try:
+        data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, ndmin=1)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: unreadable CSV ({str(exc).splitlines()[-1].strip()})") from None
+    names = data.dtype.names or ()
+    missing = [c for c in ("t",) + KINDS[kind][2] if c not in names]
+    if missing:
+        raise InputError(f"{path}: required column '{missing[0]}' missing (header: {','.join(names)})")
+    known = KINDS[kind][2] + KINDS[kind][3]
+    return MotionSamples(kind, np.array(data["t"], float), {n: np.array(data[n], float) for n in known if n in names})
+
+
+def load_run_motion(run_dir: str | Path, kind: str, t_pose: np.ndarray) -> tuple[MotionSamples, dict] | None:
+    """Return a trajectory run's cleaned samples of ``kind`` inside its poses and the counts, or None without the file."""
+    path = Path(run_dir) / KINDS[kind][0]
+    if not path.is_file():
+        return None
+    s, counts = clean_samples(read_motion_csv(path, kind), str(path))
+    return overlapping_samples(s, t_pose, str(path)), counts
+
+
+def write_run_motion(campaign_dir: Path, out_dir: Path, runs: dict[str, np.ndarray]) -> dict:
+    """Write ``imu.csv`` / ``odometry.csv`` of each preprocessed run from the bags; return counts per kind and run.
+
+    ``runs`` maps each written run (a part ``<run>.k`` of a cut run included) to its pose times.
+    Nothing happens for a kind without a declared sensor.
+    """
+    config = read_sensors_config(campaign_dir)
+    if config.first("wheels") is not None:
+        log.info("%s: sensor_msgs/JointState wheel speeds declared; not read by this version "
+                 "(give nav_msgs/Odometry or odometry.csv)", campaign_dir)
+    out: dict = {}
+    for kind in (IMU, ODOMETRY):
+        spec = config.first(kind)
+        if spec is None:
+            continue
+        topic = spec.topic or DEFAULT_TOPICS[kind]
+        for name, t_pose in runs.items():
+            folder = name if (campaign_dir / "runs" / name).is_dir() else name.rsplit(".", 1)[0]
+            s = read_motion_topic(find_bags(campaign_dir / "runs" / folder), topic, kind, name)
+            if s is None:
+                log.warning("run %s: no %s topic %s", name, kind, topic)
+                continue
+            s, counts = clean_samples(s, f"run {name}: topic {topic}")
+            s = overlapping_samples(s, t_pose, f"run {name}: topic {topic}")
+            counts["written"] = int(s.t.size)
+            write_motion_csv(out_dir / "runs" / name / KINDS[kind][0], s)
+            out.setdefault(kind, {})[name] = counts
+    return out

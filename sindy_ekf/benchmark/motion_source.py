@@ -1,0 +1,84 @@
+"""Recorded IMU gyro and wheel odometry for the benchmark's EKFs (issue 16 item 2).
+
+An estimator whose ``sensors:`` (``sindy_ekf/data/filters.yaml``) hold ``imu`` and/or
+``odometry`` runs :func:`sindy_ekf.estimation.ekf_motion.run_ekf_motion` on each test run, with the
+run's ``imu.csv`` / ``odometry.csv`` of the trajectory campaign (written by ``preprocess`` from the
+declared topics, or by a user; read by :mod:`identification.preprocessing.io_motion`: non-finite
+rows dropped and counted, samples outside the poses cut, none inside an error naming the file).
+Gyro and odometry keep coming through the scheduled GNSS outages: only the fixes drop out. A
+factor graph (``sindy_graph``, ``sindy_graph_lateral``) with them runs
+:func:`sindy_ekf.estimation.graph_motion.smooth_batch_motion`, started from its EKF's estimate.
+The NIS monitor's re-initialisation of the six-state EKFs (:mod:`sindy_ekf.benchmark.health`) is
+not applied to this filter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from groundfloor.errors import InputError
+from identification.preprocessing.io_motion import IMU, KINDS, ODOMETRY, load_run_motion
+from sindy_ekf.benchmark.health import RunStatus, guarded
+from sindy_ekf.estimation.ekf import EkfRun
+from sindy_ekf.estimation.ekf_motion import MotionSensors, run_ekf_motion
+from sindy_ekf.estimation.graph_motion import smooth_batch_motion
+
+
+def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -> MotionSensors:
+    """Return the gyro and/or odometry samples of a test run for the filter.
+
+    Raises
+    ------
+    InputError
+        A wanted file missing (names it), or without a sample inside the poses.
+    """
+    run_dir = campaign.root / "runs" / run_name
+    got = {}
+    for kind in kinds:
+        loaded = load_run_motion(run_dir, kind, t_pose)
+        if loaded is None:
+            raise InputError(f"{run_dir / KINDS[kind][0]}: missing; sensors: [{kind}] needs it")
+        got[kind] = loaded[0]
+    im, od = got.get(IMU), got.get(ODOMETRY)
+    gyro = {} if im is None else {"t_gyro": im.t, "wz": im.columns["wz"], "wz_std": im.std("wz")}
+    odo = {}
+    if od is not None:
+        std = None if od.std("v") is None or od.std("omega") is None \
+            else np.column_stack([od.std("v"), od.std("omega")])
+        odo = {"t_odometry": od.t, "v_omega": np.column_stack([od.columns["v"], od.columns["omega"]]),
+               "v_omega_std": std}
+    return MotionSensors(**gyro, **odo)
+
+
+def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: float, lateral, name: str,
+                    P0, gnss_of, use_motor: bool = False) -> list:
+    """Return ``(result or None, RunStatus)`` of the seven-state EKF on each prepared test run."""
+    out = []
+    for r in runs:
+        sensors = motion_sensors_of(campaign, r.name, r.t_pose, kinds)
+        u = r.u_motor if use_motor and r.u_motor is not None else r.u
+        run = EkfRun(f"{r.name} {name}", r.grid, u, r.x0, P0, gnss_of(r))
+        out.append(guarded(run_ekf_motion, model, run, sensors, gate_prob=gate_prob, lateral=lateral))
+    return out
+
+
+def run_motion_graphs(model, runs, campaign, kinds: tuple[str, ...], lateral, name: str, P0, gnss_of,
+                      x_init_of) -> list:
+    """Return ``(result or None, RunStatus)`` of the batch smoother with gyro / odometry factors on each run.
+
+    ``x_init_of(r)``: the starting trajectory on the run's grid (None: the seven-state EKF's estimate).
+    """
+    out = []
+    for r in runs:
+        sensors = motion_sensors_of(campaign, r.name, r.t_pose, kinds)
+        x_init = x_init_of(r)
+        if x_init is None:
+            ekf, _ = guarded(run_ekf_motion, model, EkfRun(f"{r.name} {name}", r.grid, r.u, r.x0, P0, gnss_of(r)),
+                             sensors, lateral=lateral)
+            x_init = None if ekf is None else ekf.x
+        if x_init is None:
+            out.append((None, RunStatus("failed", 0.0, "no starting trajectory (its EKF failed)")))
+            continue
+        out.append(guarded(smooth_batch_motion, model, r.grid, r.u, r.x0, P0, gnss_of(r), sensors, x_init,
+                           marginal_stride=10, lateral=lateral, name=f"{r.name} {name}"))
+    return out

@@ -1,0 +1,100 @@
+"""Recorded IMU and wheel odometry in preprocessing: read by name and type from campaign.yaml (ROS2
+bag folders here; ROS1 in the CLI test), written to imu.csv / odometry.csv that hold the true yaw
+rate plus the true bias (truth/motion_sensors.yaml) within the stated noise; CSV rows with NaN
+dropped and counted; no sample inside the poses an error naming the file; what the readers do not
+know (JointState wheel speeds) ignored."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from groundfloor.errors import InputError
+from identification.preprocessing.io_motion import (
+    IMU,
+    IMU_CSV,
+    ODOMETRY,
+    ODOMETRY_CSV,
+    clean_samples,
+    load_run_motion,
+    read_motion_csv,
+    write_run_motion,
+)
+from identification.preprocessing.preprocess import preprocess_campaign
+from simulation.campaign import simulate_campaign
+from simulation.motion_sensors import ImuSpec, OdometrySpec, true_bias
+from simulation.truth import read_truth
+
+
+@pytest.fixture(scope="module")
+def camp(tmp_path_factory):
+    root = tmp_path_factory.mktemp("motion_ros2")
+    simulate_campaign(root / "c", seed=3, minutes=2.25, imu=ImuSpec(ros2=True), odometry=OdometrySpec(ros2=True))
+    result = preprocess_campaign(root / "c", root / "t")
+    return root / "c", root / "t", result
+
+
+def test_imu_csv_is_true_yaw_rate_plus_true_bias_within_stated_noise(camp):
+    tracker, traj, result = camp
+    truth = yaml.safe_load((tracker / "truth" / "motion_sensors.yaml").read_text())
+    counts = result.to_json_dict()["sensors"]
+    for r in read_truth(tracker).runs:
+        st = r.states
+        imu = read_motion_csv(traj / "runs" / r.name / IMU_CSV, IMU)
+        odo = read_motion_csv(traj / "runs" / r.name / ODOMETRY_CSV, ODOMETRY)
+        assert counts[IMU][r.name]["written"] == imu.t.size and counts[ODOMETRY][r.name]["written"] == odo.t.size
+        assert counts[IMU][r.name]["samples"] == truth["runs"][r.name]["imu"]["n_samples"]
+        omega = np.interp(imu.t, st.t_utc_ns * 1e-9, st.omega)
+        res = imu.columns["wz"] - omega - true_bias(truth, r.name, imu.t)
+        assert abs(res.std() / ImuSpec().noise_std_rad_s - 1) < 0.2  # 1 Hz bias truth: its walk in between adds
+        assert abs(res.mean()) < 4 * ImuSpec().noise_std_rad_s / np.sqrt(imu.t.size) + 2e-4
+        np.testing.assert_allclose(imu.columns["wz_std"], ImuSpec().noise_std_rad_s)
+        vx = np.interp(odo.t, st.t_utc_ns * 1e-9, st.vx)
+        assert np.corrcoef(odo.columns["v"], vx)[0, 1] > 0.99
+        np.testing.assert_allclose(odo.columns["v_std"], OdometrySpec().stated_std[0], rtol=1e-6)
+
+
+def test_nan_rows_dropped_and_counted_and_no_overlap_names_the_file(camp, tmp_path):
+    _, traj, _ = camp
+    src = (traj / "runs" / "run_01" / IMU_CSV).read_text().splitlines()
+    lines = src[:1] + [src[1].replace(src[1].split(",")[1], "nan", 1), "nan,0.1,0,0,0.005"] + src[2:]
+    run = tmp_path / "run_01"
+    run.mkdir()
+    (run / IMU_CSV).write_text("\n".join(lines) + "\n")
+    t_pose = np.loadtxt(traj / "runs" / "run_01" / "poses.csv", delimiter=",", skiprows=1, usecols=0)
+    s, counts = load_run_motion(run, IMU, t_pose)
+    assert counts["nan_dropped"] == 2 and counts["samples"] == len(src)  # header + one added row
+    assert s.t.size == len(src) - 2 and np.all(np.isfinite(s.columns["wz"]))  # the written rows are all inside
+    with pytest.raises(InputError, match=r"run_01/imu.csv: no imu sample inside the poses' time span"):
+        load_run_motion(run, IMU, t_pose + 1e4)
+    (run / ODOMETRY_CSV).write_text("t,v\n1,2\n")
+    with pytest.raises(InputError, match=r"odometry.csv: required column 'omega' missing"):
+        load_run_motion(run, ODOMETRY, t_pose)
+
+
+def test_clean_samples_sorts_and_drops_duplicates():
+    from identification.preprocessing.io_motion import MotionSamples
+    s = MotionSamples(IMU, np.array([2.0, 1.0, 1.0, np.nan]), {"wz": np.array([0.2, 0.1, 0.1, 0.3])})
+    kept, counts = clean_samples(s, "x")
+    assert kept.t.tolist() == [1.0, 2.0] and counts == {"samples": 4, "nan_dropped": 1, "duplicates_dropped": 1}
+
+
+def test_unknown_readers_ignored_and_a_wrong_message_type_named(camp, tmp_path):
+    tracker, _, _ = camp
+    out = tmp_path / "out"
+    (out / "runs" / "run_01").mkdir(parents=True)
+    doc = yaml.safe_load((tracker / "campaign.yaml").read_text())
+    t_pose = np.array([0.0, 2e9])
+    cases = (([{"name": "wheels", "topic": "/joint_states", "type": "sensor_msgs/JointState"}], {}),
+             ([{"name": "imu", "topic": "/wheel_odom", "type": "sensor_msgs/Imu"}], None))
+    for i, (sensors, expect) in enumerate(cases):
+        root = tmp_path / f"c{i}"
+        root.mkdir()
+        (root / "runs").symlink_to(tracker / "runs")
+        (root / "campaign.yaml").write_text(yaml.safe_dump({**doc, "sensors": sensors}))
+        if expect is None:
+            with pytest.raises(InputError, match="/wheel_odom is nav_msgs/msg/Odometry, expected sensor_msgs/msg/Imu"):
+                write_run_motion(root, out, {"run_01": t_pose})
+        else:
+            assert write_run_motion(root, out, {"run_01": t_pose}) == expect
