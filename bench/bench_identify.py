@@ -192,7 +192,7 @@ def main() -> None:
         f"{result.selected + 1} of the table: the {model.training['selection']}; the best, "
         f"rank 1, has {result.row(0)['complexity']:.0f} terms and {100 * result.row(0)['pos_err_5s_m']:.2f} "
         f"+- {100 * result.row(0)['pos_err_5s_se_m']:.2f} cm)",
-        f"- regression: unit-norm columns and targets (`fit_stlsq(normalize=True)`), so alpha and T are "
+        "- regression: unit-norm columns and targets (`fit_stlsq(normalize=True)`), so alpha and T are "
         "dimensionless (T = smallest share of its equation's signal a term must carry)",
         f"- admissible rows (stable at rest: eigenvalues of J_f_x(0, 0) with real part <= 0, and no held-out "
         f"rollout beyond {grid.blowup_factor:g}x the training velocities or non-finite): {int(ok.sum())} of "
@@ -249,7 +249,7 @@ def main() -> None:
         "",
         "## Least-squares adjustment of the selected model (eq. 5.79, section 7.9)",
         "",
-        f"- condition number of the active columns per equation: "
+        "- condition number of the active columns per equation: "
         + ", ".join(f"{k} {v:.3g}" for k, v in adj.condition_number.items()),
         f"- largest |correlation| {adj.max_abs_correlation():.3f}; 15 strongest (table 7.7 of the thesis: "
         "-0.99 u1/vx, -0.98 u2/omega, ...):",

@@ -100,7 +100,7 @@ def adjust_coefficients(model: SindyModel, problem: IntegralProblem, rows: np.nd
         sigma0[eq] = s0
         cond[eq] = condition_number(a)
     if not terms:
-        raise InputError(f"adjustment: the model has no active terms")
+        raise InputError("adjustment: the model has no active terms")
     p = len(terms)
     cov = np.zeros((p, p))
     k = 0

@@ -169,7 +169,7 @@ class _TestRun:
         d = getattr(dynamics, "dead_time_s", (0.0, 0.0))
         if not np.any(d):
             return self.u
-        return np.column_stack([_zoh(self.t_in + d[i], self.u_in[:, i], self.grid) for i in range(2)])
+        return np.column_stack([hold_inputs(self.t_in + d[i], self.u_in[:, i], self.grid) for i in range(2)])
 
 
 def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float,
