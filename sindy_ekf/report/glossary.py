@@ -16,6 +16,8 @@ MODELS = {
     "constant_velocity": "baseline: the body velocities stay at their values at the start of the window",
     "unicycle": "baseline: a kinematic unicycle, vx = k1 u1 and omega = k2 u2 with the gains fitted on the train runs, "
                 "no lateral velocity",
+    "lag": "baseline, the hand-written model to beat: a first-order lag per axis toward gain x input with an input "
+           "dead time (6 parameters, output-error fit on the train runs, DRIVE-style)",
     "oracle": "the simulator's true dynamics (only on a simulated campaign): the best any model can do from the same "
               "start states; the gap between sindy and oracle is what identification leaves on the table",
 }
@@ -24,8 +26,9 @@ MODELS = {
 ESTIMATORS = {
     "dead_reckoning": "the SINDy model integrated from the initial state, no GNSS at all: how far the model alone goes",
     "cv_ekf": "EKF with a constant-velocity process model (the inputs unused)",
-    "unicycle_ekf": "EKF with a first-order lag model: vx and omega follow the inputs with one gain and one time "
-                    "constant each, fitted on the train runs",
+    "unicycle_ekf": "EKF with the kinematic unicycle: vx and omega are the inputs times gains fitted on the train runs",
+    "lag_ekf": "EKF with the lag baseline, the hand-written model to beat: vx and omega follow the inputs with one "
+               "gain, one time constant and one input dead time each, fitted by output error on the train runs",
     "sindy_ekf": "EKF with the identified SINDy model as process model",
     "sindy_ekf_lateral": "sindy_ekf plus the pseudo-measurement v_y = 0 of a skid-steered robot (5 Hz)",
     "oracle_ekf": "EKF with the simulator's true dynamics as process model (simulated campaigns only): the reference "

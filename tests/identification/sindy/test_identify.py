@@ -124,7 +124,7 @@ def test_the_simulators_true_model_passes_every_check_on_its_own_driving():
     model = model_from_terms(RobotParams().terms(), envelope=envelope_from_data(x, u), extrapolation="frozen")
     checks = run_checks(model, ref.states)
     assert checks["passed"], checks
-    assert dissipativity(model, ref.states)["n_points"] == 6 * 200
+    assert dissipativity(model, ref.states)["n_points"] == 3 * 200  # each sample pushed once per velocity
     unbounded = model_from_terms(RobotParams().terms(), envelope=model.envelope)  # the bare polynomial runs away
     fast = np.array([[2.0, 0.0, 0.0]])
     assert unbounded.f(fast, [1.0, 0.0])[0, 0] > 0 > model.f(fast, [1.0, 0.0])[0, 0]
@@ -263,4 +263,6 @@ def test_dissipativity_is_the_inward_pointing_field_on_the_widened_box(gain, pas
     check = dissipativity(model_from_terms(terms, "poly1", envelope=env, extrapolation="frozen"), states)
     assert check["passed"] is passes
     assert check["worst_state"]["vx"] == pytest.approx(3.0)
-    assert check["worst_rate"] == pytest.approx((gain * max(st.u1.max() for st in states) - 3.0) / 2.0, rel=1e-3)
+    u1 = check["worst_state"]["u1"]
+    assert u1 > 0.99  # the worst state is on the face at the sampled full throttle
+    assert check["worst_rate"] == pytest.approx((gain * u1 - 3.0) / 2.0, rel=1e-9)
