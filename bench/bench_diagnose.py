@@ -75,12 +75,11 @@ def one_campaign(task: tuple) -> dict:
 def cause_statistics(model, train, test, train_names, test_names) -> dict:
     """Return the cause step's statistics (response lag on train and test runs, unexplained eta2)."""
     from sindy_ekf.diagnose.cause import response_lag, unexplained_structure
-    from sindy_ekf.diagnose.data import split_from_states
-    from sindy_ekf.diagnose.pipeline import in_envelope
+    from sindy_ekf.diagnose.data import model_split
 
     tau = float(model.hyperparameters.get("tau") or 2.0)
-    tr = in_envelope(model, split_from_states(train, train_names, tau))
-    te = in_envelope(model, split_from_states(test, test_names, tau))
+    tr = model_split(model, train, train_names, tau)
+    te = model_split(model, test, test_names, tau)
     eta2, eq, reg = unexplained_structure(model, tr, te)
     return {"delay_train_s": response_lag(model, tr).delay_s, "delay_test_s": response_lag(model, te).delay_s,
             "eta2": eta2, "eta2_where": f"{eq} vs {reg}"}

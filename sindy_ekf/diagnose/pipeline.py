@@ -34,7 +34,7 @@ from sindy_ekf.diagnose.cause import (
     threshold,
     unexplained_structure,
 )
-from sindy_ekf.diagnose.data import in_envelope, split_from_states
+from sindy_ekf.diagnose.data import in_envelope, model_split
 from sindy_ekf.diagnose.extend import (
     ExtendedModel,
     multistep,
@@ -353,8 +353,8 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     seconds = {}
     t0 = time.perf_counter()
     tau = float(tau or model.hyperparameters.get("tau") or 2.0)
-    tr = in_envelope(model, split_from_states(train, train_names, tau, what="train runs"))
-    te = in_envelope(model, split_from_states(test, test_names, tau, what="test runs"))
+    tr = model_split(model, train, train_names, tau, what="train runs")
+    te = model_split(model, test, test_names, tau, what="test runs")
     weights = equation_weights(model, tr)
     base_pred = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
     scores = parallel_map(_score_family_task, [(f, model, tr, te, weights, base_pred, uncertainty) for f in families],
