@@ -23,7 +23,9 @@ Time ``t`` (s) is the time since the start of the run; no model of the project r
 Input dead time: a model that sees its inputs late, ``u_i(t - d_i)``, says so in
 :attr:`Dynamics.dead_time_s` (``(d1, d2)`` in seconds, zero by default). The model's methods take
 the inputs it sees; whoever drives it (the multi-step evaluation, the filters) feeds it the
-recorded inputs delayed by that much.
+recorded inputs delayed by that much. A model whose motors also smooth their command says so in
+:attr:`Dynamics.input_lag_s` (first-order lags ``(T1, T2)``, applied before the dead time's shift;
+:mod:`groundfloor.input_chain` is the one place the chain is computed).
 """
 
 from __future__ import annotations
@@ -102,6 +104,7 @@ class Dynamics(ABC):
 
     name: str = "dynamics"
     dead_time_s: tuple[float, float] = (0.0, 0.0)  # input dead times (d1, d2): the model sees u_i(t - d_i)
+    input_lag_s: tuple[float, float] = (0.0, 0.0)  # first-order input lags (T1, T2), groundfloor.input_chain
 
     # -- to implement --------------------------------------------------------------------------
     @abstractmethod

@@ -192,8 +192,10 @@ class LagParameters(ParametricModel):
     lower = np.array([-np.inf, 0.005, -np.inf, 0.005])  # time constants positive (at least 5 ms)
     upper = np.array([np.inf, 100.0, np.inf, 100.0])
 
-    def build(self, theta, dead_time_s) -> LagModel:
-        return LagModel(*map(float, theta), dead_time_s=dead_time_s)
+    def build(self, theta, dead_time_s, input_lag_s=(0.0, 0.0)) -> LagModel:
+        model = LagModel(*map(float, theta), dead_time_s=dead_time_s)
+        model.input_lag_s = tuple(float(v) for v in input_lag_s)  # the hand-written baseline fits none
+        return model
 
     def accel_param_jacobian(self, dynamics: LagModel, x6, u):
         x6 = np.asarray(x6, dtype=float)

@@ -38,6 +38,7 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.errors import InputError
+from groundfloor.input_chain import chain_inputs
 from groundfloor.types import BodyStates
 from identification.sindy.library import LIBRARY_STATE_NAMES, LIBRARY_VARIABLE_NAMES, FeatureLibrary
 from identification.sindy.model import SindyModel
@@ -83,6 +84,14 @@ def measured_accel_max(states: Sequence[BodyStates]) -> np.ndarray:
     return np.percentile(np.abs(np.vstack(acc)), ACCEL_PERCENTILE, axis=0)
 
 
+def seen_samples(model: SindyModel, states: Sequence[BodyStates]) -> np.ndarray:
+    """Return ``[vx, vy, omega, u1, u2]`` ``(N, 5)`` of the training samples with the inputs as the
+    model sees them (through its dead time and input lags, :mod:`groundfloor.input_chain`): what
+    its features are evaluated on; a step of the recorded command never reaches a lagged model."""
+    return np.vstack([np.column_stack([st.state, chain_inputs(st.t, st.t, st.inputs, model.dead_time_s,
+                                                              model.input_lag_s)]) for st in states])
+
+
 def contribution_bound(model: SindyModel, states: Sequence[BodyStates], accel_max: np.ndarray | None = None,
                        factor: float = CONTRIBUTION_FACTOR) -> dict:
     """Return the contribution check: the largest ``|xi_ej theta_j|`` over the training samples
@@ -91,15 +100,33 @@ def contribution_bound(model: SindyModel, states: Sequence[BodyStates], accel_ma
     Returns ``{"passed", "worst_term", "worst_ratio", "factor", "accel_max"}`` (ratio 1 = at the bound).
     """
     accel_max = measured_accel_max(states) if accel_max is None else np.asarray(accel_max, float)
-    z = np.vstack([np.column_stack([st.state, st.inputs]) for st in states])
+    z = seen_samples(model, states)
     theta = model.features(z)
+    scale = np.maximum(accel_max, damping_scale(model, z))
     worst, worst_term = 0.0, ""
     for e, j in zip(*np.nonzero(model.coef * ~model.linear_columns)):
-        ratio = float(np.max(np.abs(model.coef[e, j] * theta[:, j])) / (factor * max(accel_max[e], 1e-9)))
+        ratio = float(np.max(np.abs(model.coef[e, j] * theta[:, j])) / (factor * max(scale[e], 1e-9)))
         if ratio > worst:
             worst, worst_term = ratio, f"{LIBRARY_STATE_NAMES[e]}: {model.library.feature_names[j]}"
     return {"passed": bool(worst <= 1.0), "worst_term": worst_term, "worst_ratio": worst, "factor": factor,
-            "accel_max": [float(a) for a in accel_max]}
+            "accel_max": [float(a) for a in accel_max], "scale": [float(v) for v in scale]}
+
+
+def damping_scale(model: SindyModel, z: np.ndarray) -> np.ndarray:
+    """Return the size of each equation's own damping term over the samples ``z (N, 5)`` ``(3,)``:
+    the :data:`ACCEL_PERCENTILE` of ``|xi_(e, v_e) v_e|`` (zero where the equation has none).
+
+    A stiff equation (a lateral velocity that settles within a few tens of milliseconds on
+    ``k vx omega``) holds terms much larger than the accelerations it produces, because they
+    cancel; its damping says how large its forces are. A term above both this and the measured
+    accelerations is what the check is for: a huge coefficient in a direction the data barely move.
+    """
+    names = model.library.feature_names
+    out = np.zeros(len(LIBRARY_STATE_NAMES))
+    for e, v in enumerate(LIBRARY_STATE_NAMES):
+        if v in names and model.coef[e, names.index(v)] != 0.0:
+            out[e] = np.percentile(np.abs(model.coef[e, names.index(v)] * z[:, e]), ACCEL_PERCENTILE)
+    return out
 
 
 def dissipativity(model: SindyModel, states: Sequence[BodyStates], n_samples: int = 200) -> dict:
@@ -131,7 +158,7 @@ def dissipativity(model: SindyModel, states: Sequence[BodyStates], n_samples: in
     if not np.all(np.isfinite(A)) or np.linalg.eigvals(A).real.max() >= 0:
         return {"passed": False, "worst_rate": float("inf"), "worst_state": None, "n_points": 0,
                 "reason": "linear part not stable: no way back from far outside"}
-    z = np.vstack([np.column_stack([st.state, st.inputs]) for st in states])
+    z = seen_samples(model, states)
     z = z[np.round(np.linspace(0, len(z) - 1, min(n_samples, len(z)))).astype(int)]
     pushed, outward = [], []
     for i in range(3):

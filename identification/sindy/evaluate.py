@@ -33,6 +33,7 @@ from scipy.integrate import solve_ivp
 
 from groundfloor.dynamics import Dynamics, pose_rate, rk4_rollout_step
 from groundfloor.errors import InputError
+from groundfloor.input_chain import first_order_lag, lag_grid
 from groundfloor.types import BodyStates, InputSeries, PoseTrack
 from identification.sindy.data import gap_threshold_s, states_of_runs
 
@@ -65,6 +66,16 @@ class InputTrack:
         held = np.vstack([self.u[:1], self.u])  # value on [knots[i], knots[i + 1])
         integral = np.vstack([np.zeros((1, 2)), np.cumsum(held * np.diff(knots)[:, None], axis=0)])
         return knots, integral, held
+
+    def lagged(self, lag_s) -> "InputTrack":
+        """Return the track of what the motors see through first-order lags ``lag_s (2,)``
+        (:func:`groundfloor.input_chain.first_order_lag` of this track's held inputs on a uniform
+        grid, joined by straight lines); the track itself when both lags are zero."""
+        lag = np.asarray(lag_s, dtype=float)
+        if not np.any(lag > 0.0) or len(self.t) < 2:
+            return self
+        grid = lag_grid(self.t)
+        return InputTrack(grid, first_order_lag(self.at(grid), float(grid[1] - grid[0]), lag), "linear")
 
     def at(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
         """Return the inputs ``u_i(t - d_i)`` ``(*t_query.shape, 2)``; ``delay_s`` is ``(2,)`` or
@@ -141,23 +152,26 @@ class Windows:
         """Return the relative times of :attr:`u_half` ``(2n - 1,)``: the grid and its midpoints."""
         return np.arange(2 * len(self.t_rel) - 1) * (0.5 * (self.t_rel[1] - self.t_rel[0]))
 
-    def inputs_for(self, delay_s=(0.0, 0.0), rate: bool = False) -> np.ndarray:
-        """Return the inputs a model with dead times ``delay_s`` sees, ``(W, 2n - 1, 2)``.
+    def inputs_for(self, delay_s=(0.0, 0.0), rate: bool = False, lag_s=(0.0, 0.0)) -> np.ndarray:
+        """Return the inputs a model with dead times ``delay_s`` and input lags ``lag_s`` sees,
+        ``(W, 2n - 1, 2)`` (:mod:`groundfloor.input_chain`).
 
-        ``delay_s`` ``(2,)``, or ``(M, 2)`` for ``M`` models at once (then ``(M, W, 2n - 1, 2)``);
-        ``rate`` returns their time derivatives instead. Zero dead time gives :attr:`u_half`.
+        ``delay_s`` ``(2,)``, or ``(M, 2)`` for ``M`` models at once (then ``(M, W, 2n - 1, 2)``;
+        ``lag_s`` is ``(2,)``, shared by them); ``rate`` returns their time derivatives instead.
+        Zero dead times and lags give :attr:`u_half`.
         """
         d = np.asarray(delay_s, dtype=float)
-        if not rate and not np.any(d):
+        lag = np.asarray(lag_s, dtype=float)
+        if not rate and not np.any(d) and not np.any(lag):
             return self.u_half if d.ndim == 1 else np.broadcast_to(self.u_half, d.shape[:1] + self.u_half.shape)
         if not self.tracks:
-            raise InputError("windows without input tracks cannot apply an input dead time")
+            raise InputError("windows without input tracks cannot apply an input dead time or lag")
         t0 = self.t0_run if self.t0_run is not None else np.zeros_like(self.t0)
         out = np.empty(d.shape[:-1] + self.u_half.shape)
         for r in np.unique(self.run):
             sel = self.run == r
             tq = t0[sel][:, None] + self.t_half[None, :]
-            track = self.tracks[r]
+            track = self.tracks[r].lagged(lag)
             out[..., sel, :, :] = track.rate(tq, d) if rate else track.at(tq, d)
         return out
 
@@ -286,8 +300,9 @@ def rollout(model: Dynamics, windows: Windows, method: str = "rk4", batch_shape:
     out = np.empty(s.shape[:-1] + (n, 6))
     out[..., 0, :] = s
     delay = np.asarray(model.dead_time_s, dtype=float)
-    u_half = windows.inputs_for(delay.reshape(-1, 2)).reshape(delay.shape[:-1] + windows.u_half.shape) \
-        if delay.ndim > 1 else windows.inputs_for(delay)
+    lag = np.asarray(getattr(model, "input_lag_s", (0.0, 0.0)), dtype=float)
+    u_half = windows.inputs_for(delay.reshape(-1, 2), lag_s=lag).reshape(delay.shape[:-1] + windows.u_half.shape) \
+        if delay.ndim > 1 else windows.inputs_for(delay, lag_s=lag)
     with np.errstate(over="ignore", invalid="ignore"):
         for i in range(n - 1):
             u0, um, u1 = (u_half[..., 2 * i + j, :] for j in range(3))
@@ -362,8 +377,9 @@ def evaluate_reference(model: Dynamics, states: Sequence[BodyStates], names=None
     n = len(windows.t_rel)
     pred = np.empty((windows.n_windows, n, 6))
     delay = np.asarray(model.dead_time_s, dtype=float)
+    lag = getattr(model, "input_lag_s", (0.0, 0.0))
     for w in range(windows.n_windows):  # deliberately one solve per window: the reference
-        track = windows.tracks[windows.run[w]]
+        track = windows.tracks[windows.run[w]].lagged(lag)
         t0 = windows.t0_run[w]
 
         def rhs(tt, s, track=track, t0=t0):

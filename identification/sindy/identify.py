@@ -21,7 +21,11 @@
    non-overlapping windows), then output error fits the coefficients and the dead times
    (:func:`refine`); each is checked (:func:`identification.sindy.checks.run_checks`) and scored
    on the held-out group's reference windows. The one-standard-error rule over the folds picks the
-   sparsest candidate that passes the checks in every fold.
+   sparsest candidate that passes the checks in most folds (more than half): a fold's model is
+   fitted on less data, and a structure whose refit on one fold's groups leans on a term the
+   data barely excite fails there without being fragile on all train runs, which the final
+   model is checked on (measured on simulator variant 2: every refined structure failed the
+   dissipativity check in one fold of three, on ``vy omega^2`` with ``vy`` at 15 mm/s).
 6. **Final model**: the picked candidate refitted on all train runs the same way; if it fails
    the checks, the next candidate by CV error is taken (never a failing model).
 """
@@ -79,7 +83,7 @@ class Candidate:
     fold_n: np.ndarray  # (folds,) windows per held-out fold
     fold_yaw_deg: np.ndarray  # (folds,) RMS 5 s heading error on each held-out fold
     complexity: float  # mean number of active terms over the folds
-    passed: bool  # every fold's model passed the checks
+    passed: bool  # the models of most folds (more than half) passed the checks
     failed: tuple[str, ...] = ()
 
     @property
@@ -165,15 +169,41 @@ def _fixed(model: SindyModel, excluded) -> np.ndarray:
     return self_terms(model) & np.array([e in excluded for e in range(3)])[:, None]
 
 
-def refine(model: SindyModel, windows: Windows, excluded=frozenset(),
-           fit_dead_time: bool = True) -> tuple[SindyModel, OutputErrorFit]:
-    """Return ``model``'s active coefficients and dead times refitted by output error on ``windows``.
+#: splits of the start's dead time ``d0`` into a dead time and a first-order input lag tried before
+#: the output-error fit: (dead time, lag) = (d0 (1 - f), d0 f) for each ``f``. A motor lag ``T``
+#: fitted by a dead time alone reads as ``d0`` of about ``T``; the fit is local, and from
+#: ``(d0, 0)`` shortening the dead time first makes the error worse, so the start is chosen here
+INPUT_LAG_SPLITS = (0.0, 0.5, 1.0)
 
-    The damping of a state the data do not excite (in ``excluded``) keeps its value.
+
+def input_chain_start(model: SindyModel, windows: Windows) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Return the ``(dead_time_s, input_lag_s)`` of :data:`INPUT_LAG_SPLITS` with the smallest pose error."""
+    d0 = np.asarray(model.dead_time_s, dtype=float)
+    best, best_sse = (model.dead_time_s, model.input_lag_s), np.inf
+    for f in INPUT_LAG_SPLITS:
+        trial = model.with_coefficients(model.coef, tuple(d0 * (1.0 - f)), tuple(d0 * f))
+        with np.errstate(over="ignore", invalid="ignore"):
+            eps_p, eps_h = errors_from_rollout(rollout(trial, windows), windows)
+        sse = float(np.sum(eps_p**2) + np.sum(eps_h**2))
+        if np.isfinite(sse) and sse < best_sse:
+            best, best_sse = (trial.dead_time_s, trial.input_lag_s), sse
+    return best
+
+
+def refine(model: SindyModel, windows: Windows, excluded=frozenset(),
+           fit_dead_time: bool = True, fit_input_lag: bool = True) -> tuple[SindyModel, OutputErrorFit]:
+    """Return ``model``'s active coefficients, dead times and first-order input lags
+    (:mod:`groundfloor.input_chain`) refitted by output error on ``windows``.
+
+    The damping of a state the data do not excite (in ``excluded``) keeps its value. The fit
+    starts from the best split of the dead time into dead time and lag
+    (:func:`input_chain_start`).
     """
     spec = SindyStructure(model, _fixed(model, excluded))
-    fit = fit_output_error(spec, spec.theta0, windows, model.dead_time_s, fit_dead_time)
-    return spec.build(fit.theta, fit.dead_time_s), fit
+    dead0, lag0 = input_chain_start(model, windows) if fit_input_lag else (model.dead_time_s, model.input_lag_s)
+    fit = fit_output_error(spec, spec.theta0, windows, dead0, fit_dead_time, input_lag0=lag0,
+                           fit_input_lag=fit_input_lag)
+    return spec.build(fit.theta, fit.dead_time_s, fit.input_lag_s), fit
 
 
 def _significance(adj: Adjustment | None) -> tuple[tuple[str, ...], np.ndarray | None]:
@@ -201,7 +231,7 @@ def select_candidate(candidates: Sequence[Candidate]) -> int:
     standard error of the best such candidate's CV error (the one-standard-error rule over folds)."""
     ok = [i for i, c in enumerate(candidates) if c.passed and np.isfinite(c.cv_pos_err_5s_m)]
     if not ok:
-        raise InputError("identification: no candidate passed the well-posedness checks in every fold")
+        raise InputError("identification: no candidate passed the well-posedness checks in most folds")
     best = min(ok, key=lambda i: candidates[i].cv_pos_err_5s_m)
     se = candidates[best].cv_se_m
     limit = candidates[best].cv_pos_err_5s_m + (se if np.isfinite(se) else 0.0)
@@ -318,7 +348,9 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
         if complexity is not None:
             return Candidate(label, None, rms, n, yaw, complexity, True)
         failed = [k for p in per_fold for k in p[label][4]]
-        return rms, n, yaw, float(np.mean([p[label][3] for p in per_fold])), not failed, tuple(dict.fromkeys(failed))
+        n_failing = sum(1 for p in per_fold if p[label][4])
+        return (rms, n, yaw, float(np.mean([p[label][3] for p in per_fold])), 2 * n_failing < len(per_fold),
+                tuple(dict.fromkeys(failed)))
 
     candidates = tuple(Candidate(label, hp, *collect(label)) for label, hp in specs)
     lag_cv = collect("lag baseline", complexity=6.0)
@@ -349,13 +381,14 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
                        "fold_pos_err_5s_m": [float(v) for v in c.fold_rms_m],
                        "lag_pos_err_5s_m": lag_cv.cv_pos_err_5s_m, "lag_se_m": lag_cv.cv_se_m},
                 "candidates": [k.summary() for k in candidates], "selected": c.label,
-                "selection": "sparsest candidate passing the checks in every fold within one standard error "
+                "selection": "sparsest candidate passing the checks in most folds within one standard error "
                              "(over folds) of the best CV error",
                 "excitation_std": stds, "not_excited": quiet, "lag_baseline": lag.to_dict(),
                 "output_error": None if fit is None else {
                     "names": list(fit.names), "std": [float(v) for v in fit.std], "rms_pos_m": fit.rms_pos_m,
                     "n_windows": fit.n_windows, "window_s": OE_WINDOW_S}}
-    hyper = dict(c.hyperparameters or {"structure": "lag", "s": ref.smoothing}) | {"dead_time_s": list(model.dead_time_s)}
+    hyper = dict(c.hyperparameters or {"structure": "lag", "s": ref.smoothing}) | {
+        "dead_time_s": list(model.dead_time_s), "input_lag_s": list(model.input_lag_s)}
     model = replace(model, checks=checks, training=training, hyperparameters=hyper)
     ident = Identification(model=model, lag=lag, search=result, candidates=candidates, selected=chosen, folds=folds,
                            lag_cv=lag_cv, not_excited=tuple(quiet), notes=tuple(notes))

@@ -39,7 +39,7 @@ from identification.sindy.library import (
 log = logging.getLogger(__name__)
 
 FORMAT = "sindy-ekf-model"
-FORMAT_VERSION = 2  # 2: dead_time_s, extrapolation, checks (format 1 still loads)
+FORMAT_VERSION = 3  # 2: dead_time_s, extrapolation, checks; 3: input_lag_s (formats 1 and 2 still load)
 
 
 #: part of the envelope's width added on both sides: where a model is still trusted (the
@@ -72,6 +72,9 @@ class SindyModel(Dynamics):
         Free-form facts about the fit (condition number, number of windows, runs).
     dead_time_s : (d1, d2)
         Input dead times: the model sees ``u_i(t - d_i)`` (the caller delays the inputs).
+    input_lag_s : (T1, T2)
+        First-order lags of the inputs before the dead time (:mod:`groundfloor.input_chain`):
+        the motors' response to their command; zero is none.
     extrapolation : str
         ``"polynomial"``: the polynomial everywhere (models of format 1). ``"frozen"``: outside
         the training envelope widened by :data:`EXTRAPOLATION_MARGIN` of its width, the
@@ -91,6 +94,7 @@ class SindyModel(Dynamics):
     version: str = ""
     dead_time_s: tuple = (0.0, 0.0)
     extrapolation: str = "polynomial"
+    input_lag_s: tuple = (0.0, 0.0)
     checks: dict = field(default_factory=dict)
     name = "sindy"
     _active: tuple | None = field(default=None, init=False, repr=False, compare=False)
@@ -105,13 +109,17 @@ class SindyModel(Dynamics):
         self.dead_time_s = tuple(float(d) for d in self.dead_time_s)
         if len(self.dead_time_s) != 2 or not all(np.isfinite(self.dead_time_s)) or min(self.dead_time_s) < 0:
             raise InputError(f"model dead_time_s {self.dead_time_s!r}: expected two finite values >= 0")
+        self.input_lag_s = tuple(float(v) for v in self.input_lag_s)
+        if len(self.input_lag_s) != 2 or not all(np.isfinite(self.input_lag_s)) or min(self.input_lag_s) < 0:
+            raise InputError(f"model input_lag_s {self.input_lag_s!r}: expected two finite values >= 0")
         if not self.version:
             self.version = __version__
 
-    def with_coefficients(self, coef: np.ndarray, dead_time_s=None) -> "SindyModel":
-        """Return a copy with other coefficients (and dead times), everything else kept."""
+    def with_coefficients(self, coef: np.ndarray, dead_time_s=None, input_lag_s=None) -> "SindyModel":
+        """Return a copy with other coefficients (and dead times, input lags), everything else kept."""
         return replace(self, coef=np.asarray(coef, dtype=float),
-                       dead_time_s=self.dead_time_s if dead_time_s is None else tuple(dead_time_s))
+                       dead_time_s=self.dead_time_s if dead_time_s is None else tuple(dead_time_s),
+                       input_lag_s=self.input_lag_s if input_lag_s is None else tuple(input_lag_s))
 
     # extrapolation ----------------------------------------------------------------------------
     @property
@@ -295,6 +303,7 @@ class SindyModel(Dynamics):
             "equations": self.equations().splitlines(),
             "hyperparameters": self.hyperparameters,
             "dead_time_s": list(self.dead_time_s),
+            "input_lag_s": list(self.input_lag_s),
             "extrapolation": self.extrapolation,
             "envelope": self.envelope,
             "checks": self.checks,
@@ -312,9 +321,9 @@ class SindyModel(Dynamics):
             got = d.get("format") if isinstance(d, dict) else type(d).__name__
             raise InputError(f"{source}: not a sindy-ekf model file (format {got!r}, expected {FORMAT!r})")
         version = d.get("format_version")
-        if version not in (1, FORMAT_VERSION):
+        if version not in (1, 2, FORMAT_VERSION):
             raise InputError(f"{source}: model format_version {version!r} not supported "
-                             f"(this is sindy-ekf reading versions 1 and {FORMAT_VERSION}); re-identify the model")
+                             f"(this is sindy-ekf reading versions 1 to {FORMAT_VERSION}); re-identify the model")
         if version == 1:
             log.warning("%s: a model of format 1 (no dead time, no well-posedness checks, polynomial "
                         "extrapolation); re-identify it with this version for the checks", source)
@@ -340,9 +349,13 @@ class SindyModel(Dynamics):
             dead_time = tuple(float(v) for v in d.get("dead_time_s") or (0.0, 0.0))
         except (TypeError, ValueError):
             raise InputError(f"{source}: key dead_time_s is malformed ({d.get('dead_time_s')!r})") from None
+        try:
+            input_lag = tuple(float(v) for v in d.get("input_lag_s") or (0.0, 0.0))
+        except (TypeError, ValueError):
+            raise InputError(f"{source}: key input_lag_s is malformed ({d.get('input_lag_s')!r})") from None
         return cls(library=library, coef=coef, hyperparameters=dict(d.get("hyperparameters") or {}),
                    envelope=dict(d.get("envelope") or {}), training=dict(d.get("training") or {}),
-                   version=str(d.get("package_version", "")), dead_time_s=dead_time,
+                   version=str(d.get("package_version", "")), dead_time_s=dead_time, input_lag_s=input_lag,
                    extrapolation=str(d.get("extrapolation") or "polynomial"), checks=dict(d.get("checks") or {}))
 
     @classmethod

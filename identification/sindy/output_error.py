@@ -46,6 +46,8 @@ log = logging.getLogger(__name__)
 HEADING_WEIGHT_M = 1.0
 #: largest input dead time considered, s
 MAX_DEAD_TIME_S = 1.0
+#: largest first-order input lag considered, s (groundfloor.input_chain)
+MAX_INPUT_LAG_S = 1.0
 #: windows of the output-error fits (non-overlapping) and their integration step
 OE_WINDOW_S = 3.0
 OE_DT = 0.05
@@ -68,8 +70,8 @@ class ParametricModel(ABC):
         return len(self.names)
 
     @abstractmethod
-    def build(self, theta: np.ndarray, dead_time_s) -> Dynamics:
-        """Return the dynamics with parameters ``theta (p,)`` and dead times ``(d1, d2)``."""
+    def build(self, theta: np.ndarray, dead_time_s, input_lag_s=(0.0, 0.0)) -> Dynamics:
+        """Return the dynamics with parameters ``theta (p,)``, dead times ``(d1, d2)`` and input lags ``(T1, T2)``."""
 
     @abstractmethod
     def accel_param_jacobian(self, dynamics: Dynamics, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -115,10 +117,10 @@ class SindyStructure(ParametricModel):
         """Return the template model's active coefficients."""
         return self.template.coef[self.eq, self.col].copy()
 
-    def build(self, theta, dead_time_s) -> SindyModel:
+    def build(self, theta, dead_time_s, input_lag_s=(0.0, 0.0)) -> SindyModel:
         coef = self.template.coef.copy()  # the fixed terms keep their values
         coef[self.eq, self.col] = theta
-        return self.template.with_coefficients(coef, dead_time_s)
+        return self.template.with_coefficients(coef, dead_time_s, input_lag_s)
 
     def accel_param_jacobian(self, dynamics, x6, u):
         return self.derivative_and_jacobians(dynamics, np.asarray(x6, float), np.asarray(u, float), 0.0)[3]
@@ -159,15 +161,16 @@ class SindyStructure(ParametricModel):
 class OutputErrorFit:
     """Parameters fitted by output error, with their cluster-robust covariance."""
 
-    names: tuple[str, ...]  # parameters, then "d1", "d2" when the dead times were fitted
+    names: tuple[str, ...]  # parameters, then "d1", "d2" and "T1", "T2" when the dead times / lags were fitted
     theta: np.ndarray  # (p,) model parameters
     dead_time_s: tuple[float, float]
-    cov: np.ndarray  # (p + 2 or p, same) covariance of [theta, d1, d2] (dead times last when fitted)
+    cov: np.ndarray  # covariance of [theta, d1, d2, T1, T2] (whichever were fitted, in that order)
     rms_pos_m: float  # RMS position residual over all steps of all windows
     n_windows: int
     nfev: int
     success: bool
     message: str = ""
+    input_lag_s: tuple[float, float] = (0.0, 0.0)
 
     @property
     def std(self) -> np.ndarray:
@@ -182,19 +185,38 @@ class OutputErrorFit:
             return np.where(sd > 0, np.abs(self.theta) / sd, np.inf)
 
 
+def lag_sensitivity(windows: Windows, delay_s, lag_s) -> np.ndarray:
+    """Return ``d u_seen / d T_i`` ``(W, 2n - 1, 2)`` of the inputs a model sees (input ``i`` on
+    its own lag ``T_i``), by central differences of the lagged tracks (forward at ``T_i = 0``)."""
+    lag = np.asarray(lag_s, dtype=float)
+    out = np.empty(windows.u_half.shape)
+    for i in range(2):
+        eps = max(1e-3, 0.02 * lag[i])
+        lo, hi = lag.copy(), lag.copy()
+        lo[i], hi[i] = max(lag[i] - eps, 0.0), lag[i] + eps
+        out[..., i] = (windows.inputs_for(delay_s, lag_s=hi)[..., i]
+                       - windows.inputs_for(delay_s, lag_s=lo)[..., i]) / (hi[i] - lo[i])
+    return out
+
+
 def rollout_with_sensitivities(dynamics: Dynamics, model: ParametricModel, windows: Windows,
-                               fit_dead_time: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                               fit_dead_time: bool = True, fit_input_lag: bool = False
+                               ) -> tuple[np.ndarray, np.ndarray]:
     """Return predicted states ``(W, n, 6)`` and their sensitivities ``(W, n, 6, P)``.
 
     Classical RK4 with the inputs at the step's start, middle and end, exactly as
     :func:`identification.sindy.evaluate.rollout`; ``P`` is the number of model parameters plus
-    the two dead times when ``fit_dead_time``.
+    the two dead times when ``fit_dead_time`` plus the two input lags when ``fit_input_lag``
+    (``d f / d T_i = J_f_u[:, i] d u_i / d T_i``, :func:`lag_sensitivity`).
     """
     delay = np.asarray(dynamics.dead_time_s, dtype=float)
-    u_half = windows.inputs_for(delay)
-    u_rate = windows.inputs_for(delay, rate=True) if fit_dead_time else None
+    lag = np.asarray(getattr(dynamics, "input_lag_s", (0.0, 0.0)), dtype=float)
+    u_half = windows.inputs_for(delay, lag_s=lag)
+    u_rate = windows.inputs_for(delay, rate=True, lag_s=lag) if fit_dead_time else None
+    u_dlag = lag_sensitivity(windows, delay, lag) if fit_input_lag else None
     p = model.n_params
-    n_par = p + (2 if fit_dead_time else 0)
+    n_d = 2 if fit_dead_time else 0
+    n_par = p + n_d + (2 if fit_input_lag else 0)
     dt = windows.t_rel[1] - windows.t_rel[0]
     n = len(windows.t_rel)
     t0 = windows.t0_run if windows.t0_run is not None else np.zeros_like(windows.t0)
@@ -210,7 +232,9 @@ def rollout_with_sensitivities(dynamics: Dynamics, model: ParametricModel, windo
         dS = J_x @ Sx
         dS[:, 3:, :p] += J_p
         if fit_dead_time:
-            dS[:, :, p:] -= J_u * u_rate[:, j][:, None, :]
+            dS[:, :, p:p + 2] -= J_u * u_rate[:, j][:, None, :]
+        if fit_input_lag:
+            dS[:, :, p + n_d:] += J_u * u_dlag[:, j][:, None, :]
         return f, dS
 
     with np.errstate(over="ignore", invalid="ignore"):
@@ -234,8 +258,10 @@ def pose_residuals(pred: np.ndarray, windows: Windows) -> np.ndarray:
 
 
 def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Windows, dead_time0=(0.0, 0.0),
-                     fit_dead_time: bool = True, max_nfev: int = 40) -> OutputErrorFit:
-    """Return the output-error least-squares fit of ``model``'s parameters (and dead times) on ``windows``.
+                     fit_dead_time: bool = True, max_nfev: int = 40, input_lag0=(0.0, 0.0),
+                     fit_input_lag: bool = False) -> OutputErrorFit:
+    """Return the output-error least-squares fit of ``model``'s parameters (and dead times, and
+    first-order input lags) on ``windows``.
 
     ``windows`` should not overlap (the covariance takes windows as independent clusters).
     Windows whose prediction diverges count :data:`DIVERGED_RESIDUAL_M` per residual with a zero
@@ -243,20 +269,35 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
     """
     theta0 = np.asarray(theta0, dtype=float)
     p = len(theta0)
-    x0 = np.concatenate([theta0, np.clip(dead_time0, 0.0, MAX_DEAD_TIME_S)]) if fit_dead_time else theta0
-    lower = np.concatenate([model.lower, [0.0, 0.0]]) if fit_dead_time else model.lower
-    upper = np.concatenate([model.upper, [MAX_DEAD_TIME_S] * 2]) if fit_dead_time else model.upper
-    x0 = np.clip(x0, lower, upper)
+    n_d = 2 if fit_dead_time else 0
+    parts0, lower, upper = [theta0], [model.lower], [model.upper]
+    if fit_dead_time:
+        parts0.append(np.clip(dead_time0, 0.0, MAX_DEAD_TIME_S))
+        lower.append([0.0, 0.0])
+        upper.append([MAX_DEAD_TIME_S] * 2)
+    if fit_input_lag:
+        parts0.append(np.clip(input_lag0, 0.0, MAX_INPUT_LAG_S))
+        lower.append([0.0, 0.0])
+        upper.append([MAX_INPUT_LAG_S] * 2)
+    lower, upper = np.concatenate(lower), np.concatenate(upper)
+    x0 = np.clip(np.concatenate(parts0), lower, upper)
     fixed_d = tuple(float(d) for d in dead_time0)
+    fixed_lag = tuple(float(v) for v in input_lag0)
+
+    def chain(x):
+        """Return the dead times and input lags of the parameter vector ``x``."""
+        d = tuple(x[p:p + 2]) if fit_dead_time else fixed_d
+        lag = tuple(x[p + n_d:p + n_d + 2]) if fit_input_lag else fixed_lag
+        return d, lag
+
     cache: dict = {}
 
     def evaluate(x):
         key = x.tobytes()
         if key not in cache:
             cache.clear()
-            d = tuple(x[p:]) if fit_dead_time else fixed_d
-            dyn = model.build(x[:p], d)
-            pred, sens = rollout_with_sensitivities(dyn, model, windows, fit_dead_time)
+            dyn = model.build(x[:p], *chain(x))
+            pred, sens = rollout_with_sensitivities(dyn, model, windows, fit_dead_time, fit_input_lag)
             r = pose_residuals(pred, windows)
             J = sens[:, 1:, :3, :].copy()
             J[..., 2, :] *= HEADING_WEIGHT_M
@@ -280,10 +321,10 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
     cov = A_inv @ B @ A_inv
     pos = r.reshape(n_w, per // 3, 3)[..., :2] if per % 3 == 0 else None
     rms = float(np.sqrt(np.mean(np.sum(pos**2, axis=-1)))) if pos is not None else float("nan")
-    d = tuple(float(v) for v in sol.x[p:]) if fit_dead_time else fixed_d
-    names = tuple(model.names) + (("d1", "d2") if fit_dead_time else ())
+    d, lag = (tuple(float(v) for v in part) for part in chain(sol.x))
+    names = tuple(model.names) + (("d1", "d2") if fit_dead_time else ()) + (("T1", "T2") if fit_input_lag else ())
     if bad.any():
         log.info("output-error fit: %d of %d windows diverge at the solution", int(bad.sum()), n_w)
     return OutputErrorFit(names=names, theta=sol.x[:p].copy(), dead_time_s=d, cov=cov, rms_pos_m=rms,
                           n_windows=n_w, nfev=int(sol.nfev), success=bool(sol.success) and not bad.any(),
-                          message=str(sol.message))
+                          message=str(sol.message), input_lag_s=lag)

@@ -33,6 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.errors import InputError
+from groundfloor.input_chain import chain_inputs
 from groundfloor.types import BodyStates, TrajectoryRun
 from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import Windows, make_windows
@@ -164,12 +165,15 @@ def cv_folds(groups: Sequence[str], runs: Sequence, max_folds: int = MAX_FOLDS) 
     return Folds(fold=fold, kind=kind, note=note, held_out=held)
 
 
-def delayed_inputs(states: Sequence[BodyStates], dead_time_s) -> list[BodyStates]:
-    """Return ``states`` with the inputs each seen ``dead_time_s = (d1, d2)`` later, ``u_i(t - d_i)``.
+def delayed_inputs(states: Sequence[BodyStates], dead_time_s, input_lag_s=(0.0, 0.0)) -> list[BodyStates]:
+    """Return ``states`` with the inputs each seen ``dead_time_s = (d1, d2)`` later, ``u_i(t - d_i)``,
+    after first-order lags ``input_lag_s`` (:func:`groundfloor.input_chain.chain_inputs`).
 
     The inputs at the pose times are interpolated linearly (the first sample holds before the
     segment): what the integral regression needs; the windows take the recorded inputs instead.
     """
-    d1, d2 = (float(d) for d in dead_time_s)
-    return [replace(st, u1=np.interp(st.t - d1, st.t, st.u1), u2=np.interp(st.t - d2, st.t, st.u2))
-            for st in states]
+    out = []
+    for st in states:
+        w = chain_inputs(st.t, st.t, st.inputs, dead_time_s, input_lag_s)
+        out.append(replace(st, u1=w[:, 0], u2=w[:, 1]))
+    return out

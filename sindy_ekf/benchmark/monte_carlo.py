@@ -36,7 +36,7 @@ from identification.preprocessing.states import body_states_from_poses
 from simulation.gnss import simulate_gnss
 from simulation.gnss_faults import FAULT_MIXES, GnssFaults, apply_gnss_faults, draw_gnss_faults
 from sindy_ekf.benchmark.health import guarded, guarded_ekf_batch
-from sindy_ekf.benchmark.run import hold_inputs
+from sindy_ekf.benchmark.run import held_inputs_for, hold_inputs
 from sindy_ekf.benchmark.scoring import pose_truth
 from sindy_ekf.estimation.ekf import GRID_TOL_S, EkfRun, LateralConstraint, estimation_grid
 from sindy_ekf.estimation.graph import smooth_batch
@@ -75,6 +75,15 @@ class McWindow:
     x0: np.ndarray
     gnss: object  # groundfloor.gnss.GnssSeries with the faults laid over it
     faults: GnssFaults
+    t_input: np.ndarray | None = None  # the source run's input stamps and inputs, for models with a
+    u_input: np.ndarray | None = None  # dead time or input lag (:meth:`inputs_for`)
+
+    def inputs_for(self, dynamics) -> np.ndarray:
+        """Return the inputs on the grid the model ``dynamics`` sees (``benchmark.run.held_inputs_for``)."""
+        if self.t_input is None or (not np.any(getattr(dynamics, "dead_time_s", 0.0))
+                                    and not np.any(getattr(dynamics, "input_lag_s", 0.0))):
+            return self.u
+        return held_inputs_for(dynamics, self.t_input, self.u_input, self.grid)
 
 
 @dataclass(frozen=True)
@@ -140,7 +149,7 @@ def draw_window(sources: list[McSource], index: int, seed: int, profile: str = "
     x0 = src.x6[sel[0]].copy()
     x0[2] = truth[0, 3] + wrap_angle(x0[2] - truth[0, 3])
     return McWindow(index, mix, src.name, truth, grid, at_pose, hold_inputs(src.t_input, src.u_input, grid), x0,
-                    gnss, faults)
+                    gnss, faults, src.t_input, src.u_input)
 
 
 def nees_band_95(n: int, dof: int = 3) -> tuple[float, float]:
@@ -195,7 +204,7 @@ def run_windows(model: ProcessModel, lateral: LateralConstraint, windows: list[M
     out: list[McOutcome] = []
     ekf_x = {}
     for name, constraint in (("sindy_ekf", None), ("sindy_ekf_lateral", lateral)):
-        runs = [EkfRun(f"mc{w.index} {name}", w.grid, w.u, w.x0, P0, w.gnss) for w in windows]
+        runs = [EkfRun(f"mc{w.index} {name}", w.grid, w.inputs_for(model.dynamics), w.x0, P0, w.gnss) for w in windows]
         for w, (res, status) in zip(windows, guarded_ekf_batch(model, runs, lateral=constraint)):
             x = None if res is None else res.x
             out.append(outcome(w, name, x, None if res is None else res.P, status,
@@ -205,7 +214,7 @@ def run_windows(model: ProcessModel, lateral: LateralConstraint, windows: list[M
     for w in windows:
         if w.index not in graph_on:
             continue
-        res, status = guarded(smooth_batch, model, w.grid, w.u, w.x0, P0, w.gnss, x_init=ekf_x.get(w.index),
+        res, status = guarded(smooth_batch, model, w.grid, w.inputs_for(model.dynamics), w.x0, P0, w.gnss, x_init=ekf_x.get(w.index),
                               marginal_stride=10, name=f"mc{w.index} sindy_graph")
         out.append(outcome(w, "sindy_graph", None if res is None else res.x, None if res is None else res.P,
                            status))

@@ -56,7 +56,7 @@ def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: fl
     out = []
     for r in runs:
         sensors = motion_sensors_of(campaign, r.name, r.t_pose, kinds)
-        u = r.u_motor if use_motor and r.u_motor is not None else r.u
+        u = r.u_motor if use_motor and r.u_motor is not None else r.inputs_for(model.dynamics)
         run = EkfRun(f"{r.name} {name}", r.grid, u, r.x0, P0, gnss_of(r))
         out.append(guarded(run_ekf_motion, model, run, sensors, gate_prob=gate_prob, lateral=lateral))
     return out
@@ -73,12 +73,12 @@ def run_motion_graphs(model, runs, campaign, kinds: tuple[str, ...], lateral, na
         sensors = motion_sensors_of(campaign, r.name, r.t_pose, kinds)
         x_init = x_init_of(r)
         if x_init is None:
-            ekf, _ = guarded(run_ekf_motion, model, EkfRun(f"{r.name} {name}", r.grid, r.u, r.x0, P0, gnss_of(r)),
+            ekf, _ = guarded(run_ekf_motion, model, EkfRun(f"{r.name} {name}", r.grid, r.inputs_for(model.dynamics), r.x0, P0, gnss_of(r)),
                              sensors, lateral=lateral)
             x_init = None if ekf is None else ekf.x
         if x_init is None:
             out.append((None, RunStatus("failed", 0.0, "no starting trajectory (its EKF failed)")))
             continue
-        out.append(guarded(smooth_batch_motion, model, r.grid, r.u, r.x0, P0, gnss_of(r), sensors, x_init,
+        out.append(guarded(smooth_batch_motion, model, r.grid, r.inputs_for(model.dynamics), r.x0, P0, gnss_of(r), sensors, x_init,
                            marginal_stride=10, lateral=lateral, name=f"{r.name} {name}"))
     return out

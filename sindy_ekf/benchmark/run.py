@@ -37,6 +37,7 @@ import numpy as np
 from groundfloor.angles import wrap_angle
 from groundfloor.errors import InputError
 from groundfloor.gnss import GnssSeries
+from groundfloor.input_chain import HELD_LAG_GRID_S, first_order_lag, lag_grid
 from groundfloor.parallel import Workers, parallel_map
 from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
 from identification.preprocessing.states import body_states_from_poses
@@ -117,6 +118,21 @@ def hold_inputs(t_src: np.ndarray, v_src: np.ndarray, t: np.ndarray) -> np.ndarr
     return v_src[idx]
 
 
+def held_inputs_for(dynamics, t_in: np.ndarray, u_in: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Return the recorded inputs ``u_in`` (held from each stamp ``t_in``) as the model ``dynamics``
+    sees them on ``grid``: delayed by its ``dead_time_s``, ``u(t - d)``, through its first-order
+    ``input_lag_s`` when it has them (:mod:`groundfloor.input_chain`: the held inputs lagged on a
+    fine grid from before the first query, then delayed)."""
+    d = getattr(dynamics, "dead_time_s", (0.0, 0.0))
+    lag = getattr(dynamics, "input_lag_s", (0.0, 0.0))
+    if not np.any(lag):
+        return np.column_stack([hold_inputs(t_in + d[i], u_in[:, i], grid) for i in range(2)])
+    fine = lag_grid(np.array([min(grid[0] - max(d), t_in[0]), grid[-1]]), HELD_LAG_GRID_S)
+    held = np.column_stack([hold_inputs(t_in, u_in[:, i], fine) for i in range(2)])
+    w = first_order_lag(held, float(fine[1] - fine[0]), lag, hold="zoh")
+    return np.column_stack([np.interp(grid - d[i], fine, w[:, i]) for i in range(2)])
+
+
 def train_series(train_runs, smoothing: float | None = None) -> list[StateSeries]:
     """Return the train runs' six-state series (finite segments of more than 10 samples)."""
     s = DEFAULT_SMOOTHING if smoothing is None else smoothing
@@ -165,11 +181,10 @@ class _TestRun:
     u_in: np.ndarray  # (m, 2) the recorded inputs
 
     def inputs_for(self, dynamics) -> np.ndarray:
-        """Return the held inputs on the grid a model with ``dynamics.dead_time_s`` sees, ``u(t - d)``."""
-        d = getattr(dynamics, "dead_time_s", (0.0, 0.0))
-        if not np.any(d):
+        """Return the inputs on the grid the model ``dynamics`` sees (:func:`held_inputs_for`)."""
+        if not np.any(getattr(dynamics, "dead_time_s", 0.0)) and not np.any(getattr(dynamics, "input_lag_s", 0.0)):
             return self.u
-        return np.column_stack([hold_inputs(self.t_in + d[i], self.u_in[:, i], self.grid) for i in range(2)])
+        return held_inputs_for(dynamics, self.t_in, self.u_in, self.grid)
 
 
 def _prepare_run(run, profile: str, seed: int, oracle_dynamics, smoothing: float,

@@ -57,6 +57,7 @@ def format_ranking(ident: Identification) -> str:
              f"{ident.plan.grid.size} points; {cv_note}",
              model.equations(),
              f"dead time: u1 {1000 * model.dead_time_s[0]:.0f} ms, u2 {1000 * model.dead_time_s[1]:.0f} ms; "
+             f"input lag: u1 {1000 * model.input_lag_s[0]:.0f} ms, u2 {1000 * model.input_lag_s[1]:.0f} ms; "
              f"well-posedness checks {'passed' if model.checks.get('passed') else 'NOT RECORDED'}",
              "\nscreening (integral regression, scored on reference windows of held-out groups):",
              f"{'rank':>4} {'s':>7} {'tau':>4} {'alpha':>6} {'T':>5} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} "
@@ -77,8 +78,9 @@ def format_ranking(ident: Identification) -> str:
               f"{'candidate':14} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} {'yaw 5s deg':>10}  note"]
     for i, c in enumerate(pipe.candidates):
         note = "selected" if i == pipe.selected else ""
-        if not c.passed:
-            note += ("; " if note else "") + "fails " + ", ".join(c.failed)
+        if c.failed:
+            note += ("; " if note else "") + ("fails " if not c.passed else "fails in a minority of folds: ") \
+                + ", ".join(c.failed)
         lines.append(f"{c.label:14} {c.complexity:5.1f} {100 * c.cv_pos_err_5s_m:9.2f} {100 * c.cv_se_m:5.2f} "
                      f"{c.cv_yaw_err_5s_deg:10.2f}  {note}")
     lag = pipe.lag_cv

@@ -170,11 +170,12 @@ def model_split(model, states: Sequence[BodyStates], names: Sequence[str], tau: 
     """Return the runs as the model sees them: inputs delayed by its dead time, windows in its envelope.
 
     A model with input dead time ``(d1, d2)`` (``Dynamics.dead_time_s``) responds to
-    ``u_i(t - d_i)``; every family, the response lag and the residual structure are judged against
+    ``u_i(t - d_i)`` (through its input lags ``Dynamics.input_lag_s`` when it has them); every family, the response lag and the residual structure are judged against
     that, so a mechanism is what the data hold beyond the model, not the model's own dead time
     found again (an identified wheels model with 84/141 ms read as an unexplained lag otherwise).
     """
     dead = tuple(getattr(model, "dead_time_s", (0.0, 0.0)))
-    shifted = delayed_inputs(states, dead) if any(dead) else list(states)
+    lag = tuple(getattr(model, "input_lag_s", (0.0, 0.0)))
+    shifted = delayed_inputs(states, dead, lag) if any(dead) or any(lag) else list(states)
     return in_envelope(model, split_from_states(shifted, names, tau, what=what))
 

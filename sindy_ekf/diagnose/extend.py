@@ -68,6 +68,7 @@ class ExtendedModel(Dynamics):
     def __post_init__(self):
         # the mechanism acts on the recorded inputs; the base's dead time still delays what it sees
         self.dead_time_s = tuple(float(d) for d in getattr(self.base, "dead_time_s", (0.0, 0.0)))
+        self.input_lag_s = tuple(float(v) for v in getattr(self.base, "input_lag_s", (0.0, 0.0)))
         self.theta = np.asarray(self.theta, float).reshape(-1)
         self.beta = np.asarray(self.beta, float).reshape(-1)
         self.vy_scale = float(self.vy_scale)

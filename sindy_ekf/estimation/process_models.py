@@ -32,6 +32,7 @@ import numpy as np
 
 from groundfloor.dynamics import N_U, N_X, Dynamics
 from groundfloor.errors import InputError
+from groundfloor.input_chain import chain_inputs
 from groundfloor.types import BodyStates
 
 log = logging.getLogger(__name__)
@@ -211,8 +212,8 @@ def one_step_residuals(model: ProcessModel, series: list[StateSeries]) -> tuple[
     x0 = np.concatenate([s.x6[:-1] for s in series])
     x1 = np.concatenate([s.x6[1:] for s in series])
     d = getattr(model.dynamics, "dead_time_s", (0.0, 0.0))
-    u0 = np.concatenate([np.column_stack([np.interp(s.t - d[i], s.t, s.u[:, i]) for i in range(2)])[:-1]
-                         for s in series])
+    lag = getattr(model.dynamics, "input_lag_s", (0.0, 0.0))
+    u0 = np.concatenate([chain_inputs(s.t, s.t, s.u, d, lag)[:-1] for s in series])
     t0 = np.concatenate([s.t[:-1] - s.t[0] for s in series])
     dt = np.concatenate([np.diff(s.t) for s in series])
     if np.any(dt <= 0):

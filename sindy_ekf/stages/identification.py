@@ -74,7 +74,8 @@ class Identification:
                "cv_pos_err_5s_m": self.best["pos_err_5s_m"], "cv_yaw_err_5s_deg": self.best["yaw_err_5s_deg"],
                "condition_number": m.training.get("condition_number"), "grid_size": self.plan.grid.size,
                "selected_rank": self.search.selected + 1, "ranking": self.search.ranking(14),
-               "checks_passed": bool(m.checks.get("passed", False)), "dead_time_s": list(m.dead_time_s)}
+               "checks_passed": bool(m.checks.get("passed", False)), "dead_time_s": list(m.dead_time_s),
+               "input_lag_s": list(m.input_lag_s)}
         if self.pipeline is not None:
             p = self.pipeline
             out |= {"cv_se_m": self.best["pos_err_5s_se_m"], "cv": m.training.get("cv"),

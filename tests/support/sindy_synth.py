@@ -84,13 +84,17 @@ def lag_f(k_v: float = 1.8, tau_v: float = 0.3, k_w: float = 1.2, tau_w: float =
 
 def simulate_trajectory_runs(duration_s: float, seeds, f=sparse_f, dead_time_s=(0.0, 0.0),
                              pose_std_m: float = 1e-4, yaw_std_rad: float = 1e-4, rate_hz: float = 50.0,
-                             msg_hz: float = 20.0, dt: float = 0.005, inputs=None) -> list[TrajectoryRun]:
+                             msg_hz: float = 20.0, dt: float = 0.005, inputs=None,
+                             input_lag_s=(0.0, 0.0)) -> list[TrajectoryRun]:
     """Return one TrajectoryRun per seed of ``f`` driven by recorded command messages seen late.
 
     The inputs are messages at ``msg_hz`` sampled from smooth random inputs (or ``inputs``, a
     function ``(t, rng) -> (n, 2)``); the system holds each message (zero-order hold) and sees it
     ``dead_time_s`` late, so the recording is exact and only the dead time separates it from what
     the system saw (keep the dead times multiples of ``dt`` so that the switches fall on steps).
+    With ``input_lag_s`` ``(T1, T2)`` it sees them through first-order lags, integrated as two
+    more states of the same RK4 (``T w' = u - w``, at rest on the first message): a motor lag
+    written here independently of ``groundfloor.input_chain``.
     Poses at ``rate_hz`` with white noise of the given sigmas (and those sigmas in the pose
     track); fixed-step RK4 at ``dt``, all runs at once.
     """
@@ -109,12 +113,19 @@ def simulate_trajectory_runs(duration_s: float, seeds, f=sparse_f, dead_time_s=(
 
     u0, uh = u_at(t), u_at(t[:-1] + dt / 2)
 
+    lag = np.asarray(input_lag_s, float)
+    lagged = lag > 0
+
     def g(s, u):
+        # s: (runs, 8) = six states and the two lagged inputs (an input without lag is seen as held)
+        w = np.where(lagged, s[:, 6:], u)
         c, sn = np.cos(s[:, 2]), np.sin(s[:, 2])
         kin = np.stack([s[:, 3] * c - s[:, 4] * sn, s[:, 3] * sn + s[:, 4] * c, s[:, 5]], axis=-1)
-        return np.concatenate([kin, f(s[:, 3:], u)], axis=-1)
+        dw = np.where(lagged, (u - s[:, 6:]) / np.where(lagged, lag, 1.0), 0.0)
+        return np.concatenate([kin, f(s[:, 3:6], w), dw], axis=-1)
 
-    s = np.zeros((n + 1, len(seeds), 6))
+    s = np.zeros((n + 1, len(seeds), 8))
+    s[0, :, 6:] = u0[0]
     for i in range(n):
         k1 = g(s[i], u0[i])
         k2 = g(s[i] + dt / 2 * k1, uh[i])

@@ -70,6 +70,51 @@ def test_output_error_recovers_a_sparse_known_model_within_10_percent(sparse_run
     assert max(model.dead_time_s) < 0.01
 
 
+INPUT_LAG = (0.15, 0.1)
+
+
+def test_a_motor_lag_is_identified_as_input_lag_within_20_ms():
+    """A first-order lag per axis whose motors smooth their commands (0.15 / 0.1 s, no dead time):
+    the output-error fit finds the input lags, and a dead time alone cannot stand in for them."""
+    runs = simulate_trajectory_runs(40.0, [21, 22, 23], f=lag_f(), input_lag_s=INPUT_LAG)
+    ref = reference(runs)
+    x = np.vstack([st.state for st in ref.states])
+    u = np.vstack([st.inputs for st in ref.states])
+    terms = {"vx": {"vx": -1 / 0.3, "u1": 1.8 / 0.3}, "vy": {"vy": -1 / 0.3},
+             "omega": {"omega": -1 / 0.2, "u2": 1.2 / 0.2}}
+    truth = model_from_terms(terms, "poly1")
+    start = SindyModel(truth.library, truth.coef * 0.8, envelope=envelope_from_data(x, u), extrapolation="frozen",
+                       dead_time_s=(0.1, 0.1))
+    windows = ref.windows(3.0, 0.0, 0.05)
+    model, fit = refine(start, windows)
+    np.testing.assert_allclose(model.input_lag_s, INPUT_LAG, atol=0.02)
+    assert max(model.dead_time_s) < 0.02
+    moved = (truth.coef != 0) & np.array([True, False, True])[:, None]  # vy stays at zero: not identifiable
+    np.testing.assert_allclose(model.coef[moved], truth.coef[moved], rtol=0.1)
+    dead_only, fit_dead = refine(start, windows, fit_input_lag=False)
+    assert fit.rms_pos_m < 0.5 * fit_dead.rms_pos_m
+
+
+def test_input_lag_sensitivities_equal_finite_differences(sparse_runs):
+    ref = reference(sparse_runs[:1])
+    windows = ref.windows(3.0, 0.0, 0.05)
+    model = model_from_terms(SPARSE_TERMS, dead_time_s=(0.1, 0.05)).with_coefficients(
+        model_from_terms(SPARSE_TERMS).coef, (0.1, 0.05), (0.12, 0.2))
+    spec = SindyStructure(model)
+    pred, sens = rollout_with_sensitivities(model, spec, windows, fit_dead_time=True, fit_input_lag=True)
+    np.testing.assert_allclose(pred, rollout(model, windows), atol=1e-12)
+    p = spec.n_params
+    h = 1e-4
+    for i in range(2):
+        up, down = list(model.input_lag_s), list(model.input_lag_s)
+        up[i] += h
+        down[i] -= h
+        fd = (rollout(model.with_coefficients(model.coef, None, up), windows)
+              - rollout(model.with_coefficients(model.coef, None, down), windows)) / (2 * h)
+        assert np.linalg.norm(fd - sens[..., p + 2 + i]) <= 1e-3 * np.linalg.norm(fd), i
+        assert np.linalg.norm(fd) > 0
+
+
 def test_sensitivities_equal_finite_differences(sparse_runs):
     ref = reference(sparse_runs[:1])
     windows = ref.windows(3.0, 0.0, 0.05)

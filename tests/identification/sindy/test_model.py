@@ -87,14 +87,17 @@ def test_json_round_trip_keeps_dynamics_and_metadata(tmp_path):
     model = random_model("poly3_absu", seed=6)
     model.hyperparameters = {"s": 0.0005, "tau": 3.0, "alpha": 10.0, "T": 0.25}
     model.envelope = {v: [-1.0, 1.0] for v in ("vx", "vy", "omega", "u1", "u2")}
+    model = model.with_coefficients(model.coef, (0.04, 0.07), (0.15, 0.2))
     path = model.to_json(tmp_path / "m.json")
     d = json.loads(path.read_text())
-    assert d["library"]["name"] == "poly3_absu" and d["format_version"] == 2
+    assert d["library"]["name"] == "poly3_absu" and d["format_version"] == 3
+    assert d["dead_time_s"] == [0.04, 0.07] and d["input_lag_s"] == [0.15, 0.2]
     assert len(d["feature_names"]) == len(d["coefficients"]["omega"]) == 60
     loaded = SindyModel.load(path)
     x, u = np.random.default_rng(7).normal(size=(2, 10, 3)), np.random.default_rng(8).normal(size=(10, 2))
     np.testing.assert_array_equal(loaded.f(x[0], u), model.f(x[0], u))
     assert loaded.hyperparameters == model.hyperparameters and loaded.envelope == model.envelope
+    assert loaded.dead_time_s == (0.04, 0.07) and loaded.input_lag_s == (0.15, 0.2)
 
 
 def _write(tmp_path, d):

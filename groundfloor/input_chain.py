@@ -1,0 +1,80 @@
+"""What a model's motors see of the recorded inputs: a dead time, then a first-order lag, per input.
+
+A :class:`~groundfloor.dynamics.Dynamics` may see its inputs late and smoothed: input ``i`` is
+recorded as ``u_i(t)``; the model sees ``w_i(t)`` with
+
+.. math::  T_i \\dot w_i(t) = u_i(t - d_i) - w_i(t),
+
+a dead time ``d_i`` (:attr:`Dynamics.dead_time_s`) followed by a first-order lag of time constant
+``T_i`` (:attr:`Dynamics.input_lag_s`; ``T_i = 0`` is no lag, ``w_i = u_i(t - d_i)``). That is a
+motor's (or a velocity controller's) response to its command, which no function of the body
+velocities can express: a model with a dead time alone sees a step of the command all at once,
+a motor with a 0.2 s lag does not (the simulator's variants, ``simulation.actuator``, have one).
+The lag's state starts at rest on the first input (``w(t_0) = u(t_0 - d)``).
+
+Both are linear and time-invariant, so they commute: the lag is applied to the inputs on a
+uniform grid (:func:`first_order_lag`, exact for inputs linear between the grid points), and the
+dead time is a shift of the lagged signal. Everything that drives a model (the multi-step
+evaluation's input tracks, the filters, the integral regression, the diagnosis) calls
+:func:`chain_inputs` or :func:`first_order_lag`, so the chain is written once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+#: step of the uniform grid the lag is computed on, s (at most; the samples' own when finer)
+LAG_GRID_S = 0.01
+#: the same for held command messages (a switch falls between grid points: at most this late)
+HELD_LAG_GRID_S = 0.001
+
+
+def first_order_lag(u: np.ndarray, step_s: float, lag_s, hold: str = "linear") -> np.ndarray:
+    """Return the first-order lag ``T w' = u - w`` of ``u (n, 2)`` sampled every ``step_s``.
+
+    Exact over one step with ``a = exp(-h / T)``: for an input linear between the samples
+    (``hold="linear"``, first-order hold) ``w_{k+1} = a w_k + (1 - c) u_{k+1} + (c - a) u_k`` with
+    ``c = T (1 - a) / h``; for an input held from each sample to the next (``hold="zoh"``,
+    command messages) ``w_{k+1} = a w_k + (1 - a) u_k``. The lag starts at rest on the first
+    sample. ``lag_s`` is ``(2,)``; an input with ``T_i = 0`` is returned unchanged.
+    """
+    u = np.asarray(u, dtype=float)
+    out = u.copy()
+    for i, T in enumerate(np.asarray(lag_s, dtype=float).reshape(-1)[:2]):
+        if T <= 0.0 or len(u) < 2:
+            continue
+        a = float(np.exp(-step_s / T))
+        c = T * (1.0 - a) / step_s if hold == "linear" else 1.0
+        b = np.array([1.0 - c, c - a])  # zoh: [0, 1 - a]
+        zi = np.array([c * u[0, i]])  # the filter's state at rest on the first sample (w = u)
+        out[:, i] = lfilter(b, [1.0, -a], u[:, i], zi=zi)[0]
+    return out
+
+
+def lag_grid(t: np.ndarray, step_s: float = LAG_GRID_S) -> np.ndarray:
+    """Return the uniform grid over ``[t[0], t[-1]]`` the lag is computed on (step at most ``step_s``)."""
+    t = np.asarray(t, dtype=float)
+    n = max(int(np.ceil((t[-1] - t[0]) / step_s)), 1)
+    return np.linspace(t[0], t[-1], n + 1)
+
+
+def chain_inputs(t_query: np.ndarray, t: np.ndarray, u: np.ndarray, dead_time_s=(0.0, 0.0),
+                 input_lag_s=(0.0, 0.0)) -> np.ndarray:
+    """Return what a model sees at ``t_query`` of inputs ``u (m, 2)`` sampled at ``t (m,)``, ``(..., 2)``.
+
+    The samples are joined by straight lines (inputs sampled at the pose times), lagged by
+    ``input_lag_s`` on a uniform grid (:func:`first_order_lag`) and delayed by ``dead_time_s``;
+    before the first sample the first value holds, after the last the last.
+    """
+    t = np.asarray(t, dtype=float)
+    u = np.asarray(u, dtype=float)
+    tq = np.asarray(t_query, dtype=float)
+    d = np.asarray(dead_time_s, dtype=float)
+    lag = np.asarray(input_lag_s, dtype=float)
+    if np.any(lag > 0.0) and len(t) > 1:
+        grid = lag_grid(t)
+        w = first_order_lag(np.column_stack([np.interp(grid, t, u[:, i]) for i in range(2)]),
+                            float(grid[1] - grid[0]), lag)
+        t, u = grid, w
+    return np.stack([np.interp(tq - d[i], t, u[:, i]) for i in range(2)], axis=-1)
