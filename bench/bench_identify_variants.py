@@ -16,7 +16,11 @@ The true dynamics are driven with the inputs their motors saw (``evaluate``'s st
 joystick), every other model with the recorded inputs; all on the same windows from the same
 start states (body states at the selected model's smoothing).
 
-Target (issue 13): median identified / true 5 s position error <= 1.2, worst <= 1.5.
+Then the benchmark's filters (``benchmark``'s stage: ``sindy_ekf``, ``lag_ekf``, default GNSS
+profile and outages) on the test runs with the identified model, to see that none diverges.
+
+Target (issue 13): median identified / true 5 s position error <= 1.2, worst <= 1.5; no selected
+model failing its checks; no EKF divergence.
 """
 
 from __future__ import annotations
@@ -33,7 +37,8 @@ from bench.bench_variants import DEFAULT_OUT, _indices, variant_campaigns
 from groundfloor.files import atomic_write_json, atomic_write_text
 from identification.preprocessing.campaigns import open_campaign
 from simulation.truth import true_dynamics_of
-from sindy_ekf.stages.evaluation import MODEL, ORACLE, evaluation_stage
+from sindy_ekf.stages.estimation import estimation_stage
+from sindy_ekf.stages.evaluation import LAG, MODEL, ORACLE, evaluation_stage
 from sindy_ekf.stages.identification import identify, plan_identification
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,11 +51,18 @@ def score_variant(vc, jobs: int, quick: bool) -> dict:
     start = time.perf_counter()
     ident = identify(plan, n_jobs=jobs)
     wall = time.perf_counter() - start
-    ev = evaluation_stage(open_campaign(vc.trajectory), ident.model, true_dynamics_of(vc.campaign))
+    campaign, oracle = open_campaign(vc.trajectory), true_dynamics_of(vc.campaign)
+    ev = evaluation_stage(campaign, ident.model, oracle)
+    bench = estimation_stage(campaign, ident.model, estimators=("sindy_ekf", "lag_ekf"), workers=jobs)
+    m = ident.model
     return {"variant": vc.index, "motor_lag_s": vc.variant.motor_lag_s, "identify_s": wall,
-            "grid_size": plan.grid.size, "complexity": ident.model.complexity,
-            "hyperparameters": {k: v for k, v in ident.model.hyperparameters.items() if k in ("s", "tau", "alpha", "T")},
-            "test": {n: e.to_json() for n, e in ev.errors().items()}}
+            "grid_size": plan.grid.size, "complexity": m.complexity,
+            "hyperparameters": {k: v for k, v in m.hyperparameters.items() if k in ("s", "tau", "alpha", "T")},
+            "selected": m.training.get("selected", ""), "checks_passed": bool(m.checks.get("passed", False)),
+            "dead_time_s": list(m.dead_time_s), "input_lag_s": list(m.input_lag_s),
+            "test": {n: e.to_json() for n, e in ev.errors().items()},
+            "ekf": {n: {"status": sc.status, "reason": sc.reason, "recoveries": sc.recoveries}
+                    for n, sc in bench.scores.items()}}
 
 
 def markdown(records: list[dict], command: str, minutes: float) -> str:
@@ -60,8 +72,9 @@ def markdown(records: list[dict], command: str, minutes: float) -> str:
              "and its one-SE selection) and scored on its test runs (5 s windows, 50 % overlap, `evaluate`'s stage). "
              "The true dynamics are driven with their motor inputs, every other model with the recorded inputs. "
              "Machine: 2 cores (times are upper bounds).", "",
-             "| variant | motor lag s | identified pos 5 s [m] / yaw [deg] | true dynamics | unicycle | id / true | "
-             "selected (s, tau, alpha, T) | terms | identify [s] |", "|---|---|---|---|---|---|---|---|---|"]
+             "| variant | motor lag s | identified pos 5 s [m] / yaw [deg] | true dynamics | lag | unicycle | "
+             "id / true | selected (s, tau, alpha, T) | terms | dead time / input lag [ms] | checks | EKF (sindy, lag) "
+             "| identify [s] |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     ratios = []
     for r in records:
         t = r["test"]
@@ -69,15 +82,24 @@ def markdown(records: list[dict], command: str, minutes: float) -> str:
         ratio = m["pos_err_5s_m"] / o["pos_err_5s_m"]
         ratios.append(ratio)
         hp = r["hyperparameters"]
+        chain = "/".join(f"{1000 * v:.0f}" for v in r.get("dead_time_s", [])) + " / " + \
+            "/".join(f"{1000 * v:.0f}" for v in r.get("input_lag_s", []))
+        ekf = ", ".join(f"{e['status']}" + (f" ({e['recoveries']} re-init)" if e["recoveries"] else "")
+                        for e in r.get("ekf", {}).values())
+        lag = t.get(LAG, {}).get("pos_err_5s_m", float("nan"))
         lines.append(f"| {r['variant']} | {r['motor_lag_s']:.3f} | {m['pos_err_5s_m']:.4f} / {m['yaw_err_5s_deg']:.2f} | "
-                     f"{o['pos_err_5s_m']:.4f} / {o['yaw_err_5s_deg']:.2f} | {uni['pos_err_5s_m']:.3f} | "
-                     f"{ratio:.2f}x | {hp.get('s')}, {hp.get('tau')}, {hp.get('alpha')}, {hp.get('T')} | "
-                     f"{r['complexity']} | {r['identify_s']:.0f} |")
+                     f"{o['pos_err_5s_m']:.4f} / {o['yaw_err_5s_deg']:.2f} | {lag:.4f} | {uni['pos_err_5s_m']:.3f} | "
+                     f"{ratio:.2f}x | {r.get('selected', '')}: {hp.get('s')}, {hp.get('tau')}, {hp.get('alpha')}, "
+                     f"{hp.get('T')} | {r['complexity']} | {chain} | {'passed' if r.get('checks_passed') else 'FAILED'} "
+                     f"| {ekf} | {r['identify_s']:.0f} |")
     if ratios:
         med, worst = float(np.median(ratios)), float(np.max(ratios))
         lines += ["", f"Over {len(ratios)} variants: identified / true dynamics median **{med:.2f}x** "
                       f"(target <= {MEDIAN_TARGET}: {'met' if med <= MEDIAN_TARGET else 'NOT met'}), worst "
-                      f"**{worst:.2f}x** (target <= {WORST_TARGET}: {'met' if worst <= WORST_TARGET else 'NOT met'})."]
+                      f"**{worst:.2f}x** (target <= {WORST_TARGET}: {'met' if worst <= WORST_TARGET else 'NOT met'}); "
+                      f"selected models failing their checks: {sum(not r.get('checks_passed') for r in records)}; "
+                      f"EKF runs not ok: {sum(e['status'] != 'ok' for r in records for e in r.get('ekf', {}).values())} "
+                      f"of {sum(len(r.get('ekf', {})) for r in records)}."]
     return "\n".join(lines) + "\n"
 
 
