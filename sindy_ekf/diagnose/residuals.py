@@ -109,9 +109,11 @@ def binned_effect(residual: np.ndarray, regressor: np.ndarray, name: str, n_bins
     return BinnedEffect(name, 0.5 * (edges[:-1] + edges[1:]), mean, se, count, float(eta2), p)
 
 
-def residual_structure(model, split: Split, n_bins: int = 8) -> dict[str, dict[str, BinnedEffect]]:
-    """Return ``{equation: {regressor: BinnedEffect}}`` of the window residuals of ``model`` on ``split``."""
-    r = window_residuals(model, split)
+def residual_structure(model, split: Split, n_bins: int = 8, residuals: np.ndarray | None = None
+                       ) -> dict[str, dict[str, BinnedEffect]]:
+    """Return ``{equation: {regressor: BinnedEffect}}`` of the window residuals of ``model`` on ``split``
+    (or of ``residuals (p, 3)`` when given)."""
+    r = window_residuals(model, split) if residuals is None else residuals
     reg = regressors_of_windows(split)
     stride = np.median(np.diff(split.start)) * np.median(split.dt_next[split.dt_next > 0])
     overlap = max(split.tau / max(stride, 1e-9), 1.0)

@@ -311,3 +311,18 @@ def test_dissipativity_is_the_inward_pointing_field_on_the_widened_box(gain, pas
     u1 = check["worst_state"]["u1"]
     assert u1 > 0.99  # the worst state is on the face at the sampled full throttle
     assert check["worst_rate"] == pytest.approx((gain * u1 - 3.0) / 2.0, rel=1e-9)
+
+
+def test_significance_reads_the_adjustments_terms_when_a_fixed_damping_is_not_among_them(sparse_runs):
+    # an unexcited state's damping is fixed: in the model, not in the adjustment (real cmd day 2024-08-08
+    # under the full grid raised an IndexError, 7 active terms against 6 t statistics)
+    ref = reference(sparse_runs)
+    model = model_from_terms(SPARSE_TERMS)
+    feats = model.library.feature_names
+    names = [f"{eq}: {feats[j]}" for e, eq in enumerate(("vx", "vy", "omega")) for j in np.flatnonzero(model.coef[e])]
+    kept = [n for n in names if not n.startswith("vy: vy")]
+    assert len(kept) == len(names) - 1
+    t = np.full(len(kept), 5.0)
+    t[-1] = 0.5  # the weakest free term
+    sig = run_checks(model, ref.states, kept, t)["significance"]
+    assert not sig["passed"] and sig["weakest"] == kept[-1]
