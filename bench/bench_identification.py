@@ -178,6 +178,12 @@ def main(argv=None) -> int:
         print(args.out.read_text())
         return 0
     found = {"command": command.strip(), "leave_one_day_out": [], "identify_wall_s": {}, "simulated": None}
+    if raw.exists() and (args.no_lodo or args.no_walls or args.no_sim):  # a partial run keeps the other parts
+        before = json.loads(raw.read_text())
+        found = {**before, "command": f"{before.get('command', '')}; then {command.strip()}"}
+        found.update({k: v for k, v in (("leave_one_day_out", []), ("identify_wall_s", {}), ("simulated", None))
+                      if not getattr(args, "no_" + {"leave_one_day_out": "lodo", "identify_wall_s": "walls",
+                                                    "simulated": "sim"}[k])})
     # the figures are saved after every step: a crash keeps what was measured
     for name in () if args.no_lodo else CAMPAIGNS:
         found["leave_one_day_out"] += leave_one_day_out(name, args.jobs, args.quick)
