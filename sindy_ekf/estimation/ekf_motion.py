@@ -39,6 +39,7 @@ from sindy_ekf.estimation.ekf import (
     EkfResult,
     EkfRun,
     LateralConstraint,
+    fixes_on_grid,
     h_gnss,
     repair_covariance,
 )
@@ -194,15 +195,8 @@ def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gat
     lever = np.zeros(2)
     if run.gnss is not None:
         gnss, repairs = check_gnss(run.gnss, f"{run.name} GNSS")
-        inside = (gnss.t_valid >= t[0] - GRID_TOL_S) & (gnss.t_valid <= t[-1] + GRID_TOL_S)
-        kv = np.minimum(np.searchsorted(t, gnss.t_valid[inside] - GRID_TOL_S), n - 1)
-        if np.any(np.abs(t[kv] - gnss.t_valid[inside]) > GRID_TOL_S):
-            raise InputError(f"{run.name}: GNSS times of validity are not on the estimation grid "
-                             "(build it with ekf.estimation_grid)")
-        ka = np.minimum(np.searchsorted(t, gnss.t_arrival[inside] - GRID_TOL_S), n - 1)
-        for j in np.argsort(ka, kind="stable").tolist():
-            fixes.setdefault(int(ka[j]), []).append((int(kv[j]), gnss.p_local[inside][j, :2],
-                                                     np.diag(gnss.std[inside][j, :2] ** 2)))
+        for kv, ka, z, std in zip(*fixes_on_grid(gnss, t, run.name)):
+            fixes.setdefault(int(ka), []).append((int(kv), z, np.diag(std ** 2)))
         lever = np.asarray(gnss.lever_arm_body, float)[:2]
     gate_nis = float(chi2.ppf(gate_prob, GATE_DOF)) if gate_prob < 1 else np.inf
     nis, nis_t, accepted = [], [], []
