@@ -302,7 +302,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         start = time.perf_counter()
         if cfg.motion_sensors:  # gyro / wheel odometry: the seven-state EKF of ekf_motion (issue 16)
             keep(name, run_motion_ekfs(_process_model(models, base, cfg), runs, campaign, cfg.motion_sensors,
-                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r, c=cfg: gnss_of(c, r), use_motor))
+                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r, c=cfg: gnss_of(c, r), use_motor,
+                                       cfg.imu, cfg.odometry))
         else:
             keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
                                          gate_prob=cfg.gate_prob))
@@ -332,7 +333,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
                           dict(x_init=x_init, marginal_stride=10, lateral=constraint, name=f"{r.name} {name}")))
         if cfg.motion_sensors:  # gyro / wheel odometry factors (graph_motion, issue 16)
             keep(name, run_motion_graphs(model, runs, campaign, cfg.motion_sensors, constraint, name, cfg.P0,
-                                         lambda r, c=cfg: gnss_of(c, r), lambda r, s=x_inits: s[r.name]))
+                                         lambda r, c=cfg: gnss_of(c, r), lambda r, s=x_inits: s[r.name],
+                                         cfg.imu, cfg.odometry))
         else:
             keep(name, parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} {name}" for r in runs],
                                     desc=name))

@@ -4,13 +4,14 @@ The graph of :func:`sindy_ekf.estimation.graph.build_graph` (SINDy dynamics, GNS
 optional ``v_y = 0``) plus:
 
 - **gyro bias** ``B(j)``: a ``Vector1`` per :data:`BIAS_SEGMENT_S` seconds, a prior (std
-  ``bias_std_rad_s``) on the first and built-in ``BetweenFactorVector`` random-walk factors
-  (std ``q sqrt(segment)``) between neighbours;
+  ``GyroNoise.bias_std_rad_s``) on the first and built-in ``BetweenFactorVector`` random-walk
+  factors (std ``q sqrt(segment)``, ``q = GyroNoise.bias_walk_rad_s_sqrt_s``) between neighbours;
 - **gyro** (a ``gtsam.CustomFactor``, linear): ``wz = omega_k + b_j`` on ``V(k), B(j)``, the
   samples nearest grid step ``k`` averaged as in :mod:`sindy_ekf.estimation.ekf_motion`;
 - **odometry** (built-in): a ``PriorFactorVector`` on ``V(k)`` holding ``(v, ., omega)`` with the
   lateral component free (:data:`sindy_ekf.estimation.graph.FREE_SIGMA`), its noise the stated
-  std plus the relative ``odometry_scale_std``.
+  std (or the assumed one of :class:`~sindy_ekf.estimation.ekf_motion.OdometryNoise`) plus the
+  relative ``OdometryNoise.scale_std``.
 
 Only the batch smoother takes them; the fixed-lag iSAM2 does not (yet).
 """
@@ -25,13 +26,7 @@ import gtsam
 import numpy as np
 
 from groundfloor.errors import InputError
-from sindy_ekf.estimation.ekf_motion import (
-    BIAS_STD_RAD_S,
-    BIAS_WALK_RAD_S_SQRT_S,
-    ODOMETRY_SCALE_STD,
-    MotionSensors,
-    _measurements,
-)
+from sindy_ekf.estimation.ekf_motion import GyroNoise, MotionSensors, OdometryNoise, _measurements
 from sindy_ekf.estimation.graph import (
     FREE_SIGMA,
     GraphResult,
@@ -77,19 +72,19 @@ def _gyro_factor(k: int, j: int, wz: float, std: float) -> gtsam.CustomFactor:
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, std), [kv, kb], error)
 
 
-def add_motion_factors(graph, t: np.ndarray, sensors: MotionSensors, bias_std_rad_s: float = BIAS_STD_RAD_S,
-                       bias_walk_rad_s_sqrt_s: float = BIAS_WALK_RAD_S_SQRT_S,
-                       odometry_scale_std: float = ODOMETRY_SCALE_STD) -> int:
+def add_motion_factors(graph, t: np.ndarray, sensors: MotionSensors, gyro_noise: GyroNoise = GyroNoise(),
+                       odometry_noise: OdometryNoise = OdometryNoise()) -> int:
     """Add the gyro, bias and odometry factors of one run to ``graph``; return the number of bias variables."""
     t = np.asarray(t, float)
     segment = np.floor((t - t[0]) / BIAS_SEGMENT_S).astype(int)
     n_bias = int(segment[-1]) + 1 if sensors.t_gyro is not None else 0
     if n_bias:
-        graph.add(gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, bias_std_rad_s)))
-        walk = gtsam.noiseModel.Isotropic.Sigma(1, bias_walk_rad_s_sqrt_s * np.sqrt(BIAS_SEGMENT_S))
+        graph.add(gtsam.PriorFactorVector(B(0), np.zeros(1),
+                                          gtsam.noiseModel.Isotropic.Sigma(1, gyro_noise.bias_std_rad_s)))
+        walk = gtsam.noiseModel.Isotropic.Sigma(1, gyro_noise.bias_walk_rad_s_sqrt_s * np.sqrt(BIAS_SEGMENT_S))
         for j in range(n_bias - 1):
             graph.add(gtsam.BetweenFactorVector(B(j), B(j + 1), np.zeros(1), walk))
-    for k, items in _measurements(t, sensors, odometry_scale_std).items():
+    for k, items in _measurements(t, sensors, gyro_noise, odometry_noise).items():
         for kind, z, R in items:
             if kind == "gyro":
                 graph.add(_gyro_factor(k, int(segment[k]), float(z[0]), float(np.sqrt(R[0, 0]))))
@@ -103,20 +98,22 @@ def add_motion_factors(graph, t: np.ndarray, sensors: MotionSensors, bias_std_ra
 def smooth_batch_motion(model, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P0: np.ndarray, gnss,
                         sensors: MotionSensors, x_init: np.ndarray, robust: str | None = "huber",
                         marginal_stride: int | None = 1, max_iterations: int = 20, rel_tol: float = 1e-6,
-                        name: str = "sindy_graph", lateral=None,
-                        bias_init: np.ndarray | None = None) -> MotionGraphResult:
+                        name: str = "sindy_graph", lateral=None, bias_init: np.ndarray | None = None,
+                        gyro_noise: GyroNoise = GyroNoise(),
+                        odometry_noise: OdometryNoise = OdometryNoise()) -> MotionGraphResult:
     """Return the batch smoothing of one run with gyro and/or odometry factors.
 
     ``x_init`` (n, 6): the starting trajectory (the seven-state EKF's estimate); ``bias_init``
-    (n,): its gyro bias, sampled per segment (default 0). Otherwise as
-    :func:`sindy_ekf.estimation.graph.smooth_batch`.
+    (n,): its gyro bias, sampled per segment (default 0); ``gyro_noise``, ``odometry_noise``: what
+    the factors assume of the sensors (as :func:`sindy_ekf.estimation.ekf_motion.run_ekf_motion`).
+    Otherwise as :func:`sindy_ekf.estimation.graph.smooth_batch`.
     """
     start = time.perf_counter()
     t = np.asarray(t, float)
     if not np.all(np.isfinite(x_init)):
         raise InputError(f"{name}: initial trajectory for the graph is not finite")
     graph, _ = build_graph(model, t, u, x0, P0, gnss, robust, name, lateral)
-    n_bias = add_motion_factors(graph, t, sensors)
+    n_bias = add_motion_factors(graph, t, sensors, gyro_noise, odometry_noise)
     values = _initial_values(np.asarray(x_init, float))
     starts = np.searchsorted(t - t[0], np.arange(n_bias) * BIAS_SEGMENT_S)
     for j in range(n_bias):
