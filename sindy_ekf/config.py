@@ -28,7 +28,7 @@ from simulation.gnss import OUTAGE_DURATIONS_S, PROFILES, GnssProfile
 from sindy_ekf.benchmark.gnss_source import RECORDED
 from sindy_ekf.estimation.ekf_motion import GyroNoise, OdometryNoise
 
-SENSORS = ("gnss", "imu", "odometry")  # what the filters fuse (imu, odometry: not sindy_isam2)
+SENSORS = ("gnss", "imu", "odometry")  # what the filters fuse
 MOTION_SENSORS = ("imu", "odometry")  # fused by sindy_ekf.estimation.ekf_motion and graph_motion
 N_STATE = 6  # x, y, psi, vx, vy, omega
 FIT = "fit"
@@ -330,15 +330,13 @@ def _process_noise(v: Any, source: str, key: str) -> str | tuple:
     return _numbers(v, N_STATE, source, key, expected, lambda x: x > 0)
 
 
-def _sensors(v: Any, source: str, key: str, gnss_only: bool = False) -> tuple[str, ...]:
-    """Return the sensor names; an unknown one, or imu / odometry for an estimator without them, is an error."""
+def _sensors(v: Any, source: str, key: str) -> tuple[str, ...]:
+    """Return the sensor names; an unknown one, or one listed twice, is an error."""
     if not (isinstance(v, list) and all(isinstance(s, str) for s in v)):
         raise _fail(source, key, f"a list of sensor names ({', '.join(SENSORS)})", v)
     for s in v:
         if s not in SENSORS:
             raise InputError(f"{source}: {key}: unknown sensor {s!r} (known: {', '.join(SENSORS)})")
-        if gnss_only and s in MOTION_SENSORS:
-            raise InputError(f"{source}: {key}: {s} is fused by the EKFs and the batch graphs, not by iSAM2 yet")
     if len(set(v)) != len(v):
         raise InputError(f"{source}: {key}: a sensor is listed twice: {v!r}")
     return tuple(v)
@@ -375,8 +373,7 @@ def _estimator(name: str, v: dict, source: str) -> EstimatorSettings:
         gate_prob=(_number(v["gate_prob"], source, f"{key}.gate_prob", "a number in (0, 1]", lambda x: 0 < x <= 1)
                    if "gate_prob" in v else None),
         lateral=_lateral(v["lateral"], source, f"{key}.lateral") if "lateral" in v else None,
-        # iSAM2 takes no gyro / odometry factors yet (the batch graphs do: graph_motion)
-        sensors=_sensors(v["sensors"], source, f"{key}.sensors", name == "sindy_isam2") if "sensors" in v else None,
+        sensors=_sensors(v["sensors"], source, f"{key}.sensors") if "sensors" in v else None,
         **{kind: _noise(kind, v[kind], source, f"{key}.{kind}") for kind in _NOISE if kind in v})
 
 

@@ -7,7 +7,8 @@ declared topics, or by a user; read by :mod:`identification.preprocessing.io_mot
 rows dropped and counted, samples outside the poses cut, none inside an error naming the file).
 Gyro and odometry keep coming through the scheduled GNSS outages: only the fixes drop out. A
 factor graph (``sindy_graph``, ``sindy_graph_lateral``) with them runs
-:func:`sindy_ekf.estimation.graph_motion.smooth_batch_motion`, started from its EKF's estimate.
+:func:`sindy_ekf.estimation.graph_motion.smooth_batch_motion`, started from its EKF's estimate;
+``sindy_isam2`` runs :func:`sindy_ekf.estimation.graph_motion.smooth_isam2_motion`.
 What the filter and the graph assume of the sensors is the estimator's ``imu`` and ``odometry``
 settings (:class:`~sindy_ekf.estimation.ekf_motion.GyroNoise`, ``OdometryNoise``). The NIS
 monitor's re-initialisation of the six-state EKFs (:mod:`sindy_ekf.benchmark.health`) is not
@@ -23,7 +24,7 @@ from identification.preprocessing.io_motion import IMU, KINDS, ODOMETRY, load_ru
 from sindy_ekf.benchmark.health import RunStatus, guarded
 from sindy_ekf.estimation.ekf import EkfRun
 from sindy_ekf.estimation.ekf_motion import GyroNoise, MotionSensors, OdometryNoise, run_ekf_motion
-from sindy_ekf.estimation.graph_motion import smooth_batch_motion
+from sindy_ekf.estimation.graph_motion import smooth_batch_motion, smooth_isam2_motion
 
 
 def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -> MotionSensors:
@@ -89,3 +90,12 @@ def run_motion_graphs(model, runs, campaign, kinds: tuple[str, ...], lateral, na
         out.append(guarded(smooth_batch_motion, model, r.grid, r.u, r.x0, P0, gnss_of(r), sensors, x_init,
                            marginal_stride=10, lateral=lateral, name=f"{r.name} {name}", **noise))
     return out
+
+
+def isam2_motion_tasks(model, runs, campaign, kinds: tuple[str, ...], P0, gnss_of, gyro_noise: GyroNoise = GyroNoise(),
+                       odometry_noise: OdometryNoise = OdometryNoise()) -> list:
+    """Return the ``(function, args, kwargs)`` tasks of the fixed-lag iSAM2 with gyro / odometry factors,
+    one per prepared test run (the sensors read here, so that a missing file fails before any work)."""
+    return [(smooth_isam2_motion, (model, r.grid, r.u, r.x0, P0, gnss_of(r),
+                                   motion_sensors_of(campaign, r.name, r.t_pose, kinds)),
+             dict(name=f"{r.name} sindy_isam2", gyro_noise=gyro_noise, odometry_noise=odometry_noise)) for r in runs]

@@ -44,7 +44,7 @@ def test_the_shipped_defaults_are_the_code_constants():
         assert e.sensors in (None, ("gnss",))
         # the gyro / odometry noise of every estimator that can fuse them: the former constants
         assert e.imu in (None, GyroNoise()) and e.odometry in (None, OdometryNoise()), e.name
-        assert (e.imu is None) == (e.odometry is None) == (e.sensors is None or e.name == "sindy_isam2"), e.name
+        assert (e.imu is None) == (e.odometry is None) == (e.sensors is None), e.name
     # a factor graph has no gate, dead reckoning no sensor and no constraint
     assert c.estimator("sindy_graph").gate_prob is None and c.estimator("sindy_isam2").lateral is None
     assert c.estimator("dead_reckoning").sensors is None and not c.estimator("dead_reckoning").fuses_gnss
@@ -70,6 +70,10 @@ def test_sensor_noise_changes_only_the_values_given():
     assert c.estimator("sindy_ekf").odometry == OdometryNoise()
     assert c.estimator("sindy_graph").odometry == OdometryNoise(v_std_m_s=2.0, scale_std=0.0)
     assert c.estimator("sindy_ekf_lateral").imu == GyroNoise()  # per estimator
+    isam2 = config_from_dict({"estimators": {"sindy_isam2": {"sensors": ["gnss", "imu", "odometry"],
+                                                             "imu": {"bias_std_rad_s": 0.1}}}}, "f")
+    assert isam2.estimator("sindy_isam2").motion_sensors == ("imu", "odometry")
+    assert isam2.estimator("sindy_isam2").imu == GyroNoise(bias_std_rad_s=0.1)
 
 
 def test_process_noise_forms_give_the_density_matrix():
@@ -130,9 +134,6 @@ BAD = [  # (file text, the dotted key the message must name, a fragment of the c
     ("estimators:\n  sindy_ekf:\n    lateral: {every: 2.5}\n", "estimators.sindy_ekf.lateral.every", "got 2.5"),
     ("estimators:\n  sindy_ekf:\n    lateral: {vy_std_m_s: -1}\n", "estimators.sindy_ekf.lateral.vy_std_m_s", "> 0"),
     ("estimators:\n  sindy_ekf:\n    lateral: {on: true}\n", "estimators.sindy_ekf.lateral", "key True is not a name"),
-    ("estimators:\n  sindy_isam2:\n    sensors: [gnss, imu]\n", "estimators.sindy_isam2.sensors",
-     "imu is fused by the EKFs and the batch graphs, not by iSAM2 yet"),
-    ("estimators:\n  sindy_isam2:\n    sensors: [odometry]\n", "estimators.sindy_isam2.sensors", "odometry"),
     ("estimators:\n  sindy_ekf:\n    sensors: [lidar]\n", "estimators.sindy_ekf.sensors", "unknown sensor 'lidar'"),
     ("estimators:\n  sindy_ekf:\n    sensors: gnss\n", "estimators.sindy_ekf.sensors", "a list"),
     ("estimators:\n  sindy_ekf:\n    sensors: [gnss, gnss]\n", "estimators.sindy_ekf.sensors", "twice"),

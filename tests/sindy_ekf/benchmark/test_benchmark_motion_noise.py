@@ -1,7 +1,7 @@
-"""The ``imu`` and ``odometry`` settings of an estimator reach its seven-state EKF and its batch
-graph (issue 16): a benchmark run with them changed gives what the filter API called directly with
-that noise gives, and that differs from the default noise (the setting matters on this campaign,
-whose imu.csv / odometry.csv state no std, so the assumed one applies)."""
+"""The ``imu`` and ``odometry`` settings of an estimator reach its seven-state EKF, its batch graph
+and iSAM2 (issue 16): a benchmark run with them changed gives what the estimator's API called
+directly with that noise gives, and that differs from the default noise (the setting matters on
+this campaign, whose imu.csv / odometry.csv state no std, so the assumed one applies)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from sindy_ekf.benchmark.motion_source import motion_sensors_of
 from sindy_ekf.benchmark.run import _prepare_run, fit_models, train_series
 from sindy_ekf.estimation.ekf import EkfRun
 from sindy_ekf.estimation.ekf_motion import GyroNoise, OdometryNoise, run_ekf_motion
-from sindy_ekf.estimation.graph_motion import smooth_batch_motion
+from sindy_ekf.estimation.graph_motion import smooth_batch_motion, smooth_isam2_motion
 from tests.sindy_ekf.benchmark.test_benchmark_config import P0, RECOVERY_S, SEED, WARMUP_S, _bench
 
 GYRO = {"rate_std_rad_s": 0.2, "bias_std_rad_s": 0.05, "bias_walk_rad_s_sqrt_s": 0.003}
@@ -69,3 +69,14 @@ def test_the_sensor_noise_reaches_the_batch_graph_and_its_starting_ekf(mini):
                                   marginal_stride=10)
     assert np.max(np.abs(g.x[:, :2] - default.x[:, :2])) > 0.01  # the setting matters here
     assert np.array_equal(result.estimates["sindy_graph"]["run_c"].x, g.x[r.at_pose])
+
+
+def test_the_sensors_and_their_noise_reach_isam2(mini):
+    result = _bench(mini, {"estimators": {"sindy_isam2": {"enabled": True, "sensors": ["gnss", "imu", "odometry"],
+                                                          "imu": GYRO, "odometry": ODOMETRY}}}, run=("sindy_isam2",))
+    r, pm, sensors = _direct(mini, ("imu", "odometry"))
+    noise = {"gyro_noise": GyroNoise(**GYRO), "odometry_noise": OdometryNoise(**ODOMETRY)}
+    isam = smooth_isam2_motion(pm, r.grid, r.u, r.x0, P0, r.gnss, sensors, **noise)
+    default = smooth_isam2_motion(pm, r.grid, r.u, r.x0, P0, r.gnss, sensors)
+    assert np.max(np.abs(isam.x[:, :2] - default.x[:, :2])) > 0.01  # the setting matters here
+    assert np.array_equal(result.estimates["sindy_isam2"]["run_c"].x, isam.x[r.at_pose])
