@@ -3,7 +3,8 @@
 ``sindy-ekf benchmark ... --config FILE`` (issue 16, item 3). The defaults live in
 ``sindy_ekf/data/filters.yaml`` (printed verbatim by ``sindy-ekf config --defaults``): the GNSS
 profile, its seed and the outage schedule, and per estimator its process noise (or ``fit``),
-initial standard deviations, gate probability, ``v_y = 0`` constraint and sensors. A user file
+initial standard deviations, gate probability, ``v_y = 0`` constraint, sensors and what it assumes
+of the gyro (``imu``) and the wheel odometry (``odometry``). A user file
 holds only what it changes and is merged over the defaults key by key; the defaults file is also
 the schema, so a key it does not hold at that place (for that estimator) is unknown. Every value
 is checked here, before any work: a bad one is a one-line :class:`InputError` naming the file and
@@ -25,8 +26,9 @@ import yaml
 from groundfloor.errors import InputError
 from simulation.gnss import OUTAGE_DURATIONS_S, PROFILES, GnssProfile
 from sindy_ekf.benchmark.gnss_source import RECORDED
+from sindy_ekf.estimation.ekf_motion import GyroNoise, OdometryNoise
 
-SENSORS = ("gnss", "imu", "odometry")  # what the filters fuse (imu, odometry: not sindy_isam2)
+SENSORS = ("gnss", "imu", "odometry")  # what the filters fuse
 MOTION_SENSORS = ("imu", "odometry")  # fused by sindy_ekf.estimation.ekf_motion and graph_motion
 N_STATE = 6  # x, y, psi, vx, vy, omega
 FIT = "fit"
@@ -67,6 +69,8 @@ class EstimatorSettings:
     gate_prob: float | None = None  # a factor graph has no gate
     lateral: LateralSettings | None = None
     sensors: tuple[str, ...] | None = None  # dead reckoning fuses nothing by construction
+    imu: GyroNoise | None = None  # what the filter assumes of the gyro, when it fuses it
+    odometry: OdometryNoise | None = None  # likewise of the wheel odometry
 
     @property
     def P0(self) -> np.ndarray:
@@ -170,6 +174,9 @@ def _estimator_dict(e: EstimatorSettings) -> dict:
                           "vy_std_m_s": FIT if std is None else std}
     if e.sensors is not None:
         out["sensors"] = list(e.sensors)
+    for key, noise in (("imu", e.imu), ("odometry", e.odometry)):
+        if noise is not None:
+            out[key] = dataclasses.asdict(noise)
     return out
 
 
@@ -323,15 +330,13 @@ def _process_noise(v: Any, source: str, key: str) -> str | tuple:
     return _numbers(v, N_STATE, source, key, expected, lambda x: x > 0)
 
 
-def _sensors(v: Any, source: str, key: str, gnss_only: bool = False) -> tuple[str, ...]:
-    """Return the sensor names; an unknown one, or imu / odometry for an estimator without them, is an error."""
+def _sensors(v: Any, source: str, key: str) -> tuple[str, ...]:
+    """Return the sensor names; an unknown one, or one listed twice, is an error."""
     if not (isinstance(v, list) and all(isinstance(s, str) for s in v)):
         raise _fail(source, key, f"a list of sensor names ({', '.join(SENSORS)})", v)
     for s in v:
         if s not in SENSORS:
             raise InputError(f"{source}: {key}: unknown sensor {s!r} (known: {', '.join(SENSORS)})")
-        if gnss_only and s in MOTION_SENSORS:
-            raise InputError(f"{source}: {key}: {s} is fused by the EKFs and the batch graphs, not by iSAM2 yet")
     if len(set(v)) != len(v):
         raise InputError(f"{source}: {key}: a sensor is listed twice: {v!r}")
     return tuple(v)
@@ -345,6 +350,20 @@ def _lateral(v: dict, source: str, key: str) -> LateralSettings:
                                                            lambda x: x > 0))
 
 
+_NOISE = {"imu": GyroNoise, "odometry": OdometryNoise}  # the sensor-noise mappings of an estimator
+
+
+def _noise(kind: str, v: dict, source: str, key: str) -> GyroNoise | OdometryNoise:
+    """Return the assumed noise of sensor ``kind`` from its mapping; every value a number > 0 (the
+    odometry's relative ``scale_std`` >= 0: 0 says wheels that do not slip)."""
+    kw = {}
+    for f in dataclasses.fields(_NOISE[kind]):
+        kw[f.name] = (_number(v[f.name], source, f"{key}.{f.name}", "a number >= 0", lambda x: x >= 0)
+                      if f.name == "scale_std" else
+                      _number(v[f.name], source, f"{key}.{f.name}", "a number > 0", lambda x: x > 0))
+    return _NOISE[kind](**kw)
+
+
 def _estimator(name: str, v: dict, source: str) -> EstimatorSettings:
     key = f"estimators.{name}"
     return EstimatorSettings(
@@ -354,8 +373,8 @@ def _estimator(name: str, v: dict, source: str) -> EstimatorSettings:
         gate_prob=(_number(v["gate_prob"], source, f"{key}.gate_prob", "a number in (0, 1]", lambda x: 0 < x <= 1)
                    if "gate_prob" in v else None),
         lateral=_lateral(v["lateral"], source, f"{key}.lateral") if "lateral" in v else None,
-        # iSAM2 takes no gyro / odometry factors yet (the batch graphs do: graph_motion)
-        sensors=_sensors(v["sensors"], source, f"{key}.sensors", name == "sindy_isam2") if "sensors" in v else None)
+        sensors=_sensors(v["sensors"], source, f"{key}.sensors") if "sensors" in v else None,
+        **{kind: _noise(kind, v[kind], source, f"{key}.{kind}") for kind in _NOISE if kind in v})
 
 
 _PROFILE_CHECKS = {  # GnssProfile field -> (expected, test); name and outlier_m apart

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from groundfloor.errors import InputError
-from identification.preprocessing.io_sensors import read_sensors_config, topic_messages
+from identification.preprocessing.io_sensors import read_csv_columns, read_sensors_config, topic_messages
 from identification.preprocessing.io_tracker import find_bags
 
 log = logging.getLogger(__name__)
@@ -126,14 +126,8 @@ def read_motion_csv(path: str | Path, kind: str) -> MotionSamples:
         Naming the file: unreadable, a required column missing.
     """
     path = Path(path)
-    try:
-        data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, ndmin=1)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: unreadable CSV ({str(exc).splitlines()[-1].strip()})") from None
-    names = data.dtype.names or ()
-    missing = [c for c in ("t",) + KINDS[kind][2] if c not in names]
-    if missing:
-        raise InputError(f"{path}: required column '{missing[0]}' missing (header: {','.join(names)})")
+    data = read_csv_columns(path, ("t",) + KINDS[kind][2])
+    names = data.dtype.names
     known = KINDS[kind][2] + KINDS[kind][3]
     return MotionSamples(kind, np.array(data["t"], float), {n: np.array(data[n], float) for n in known if n in names})
 

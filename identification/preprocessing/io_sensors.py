@@ -21,6 +21,7 @@ import io
 import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import yaml
@@ -174,6 +175,25 @@ def clean_fixes(fixes: GnssFixes, source: str) -> tuple[GnssFixes, dict[str, int
     return kept.select(~dup), counts
 
 
+def read_csv_columns(path: Path, required: Sequence[str]) -> np.ndarray:
+    """Return the CSV file ``path`` with a header line as a structured array (one field per column).
+
+    Raises
+    ------
+    InputError
+        Naming the file: unreadable, or a column of ``required`` missing.
+    """
+    try:
+        data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, ndmin=1)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: unreadable CSV ({str(exc).splitlines()[-1].strip()})") from None
+    names = data.dtype.names or ()
+    missing = [c for c in required if c not in names]
+    if missing:
+        raise InputError(f"{path}: required column '{missing[0]}' missing (header: {','.join(names)})")
+    return data
+
+
 def topic_messages(bags: list[Path], topic: str, msgtype: str, run: str):
     """Yield ``(t_bag_ns, message)`` of ``topic`` across a run's bags (ROS1 bags read together,
     each ROS2 bag alone), in each reader's order; nothing when the topic is absent.
@@ -234,14 +254,8 @@ def read_gnss_csv(path: str | Path) -> GnssFixes:
         Naming the file: unreadable, a required column missing, neither covariance nor std columns.
     """
     path = Path(path)
-    try:
-        data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, ndmin=1)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: unreadable CSV ({str(exc).splitlines()[-1].strip()})") from None
-    names = data.dtype.names or ()
-    missing = [c for c in ("t", "lat", "lon", "alt") if c not in names]
-    if missing:
-        raise InputError(f"{path}: required column '{missing[0]}' missing (header: {','.join(names)})")
+    data = read_csv_columns(path, ("t", "lat", "lon", "alt"))
+    names = data.dtype.names
     n = data.size
     cov = np.zeros((n, 9))
     if all(c in names for c in COV_COLUMNS):

@@ -7,9 +7,12 @@ declared topics, or by a user; read by :mod:`identification.preprocessing.io_mot
 rows dropped and counted, samples outside the poses cut, none inside an error naming the file).
 Gyro and odometry keep coming through the scheduled GNSS outages: only the fixes drop out. A
 factor graph (``sindy_graph``, ``sindy_graph_lateral``) with them runs
-:func:`sindy_ekf.estimation.graph_motion.smooth_batch_motion`, started from its EKF's estimate.
-The NIS monitor's re-initialisation of the six-state EKFs (:mod:`sindy_ekf.benchmark.health`) is
-not applied to this filter.
+:func:`sindy_ekf.estimation.graph_motion.smooth_batch_motion`, started from its EKF's estimate;
+``sindy_isam2`` runs :func:`sindy_ekf.estimation.graph_motion.smooth_isam2_motion`.
+What the filter and the graph assume of the sensors is the estimator's ``imu`` and ``odometry``
+settings (:class:`~sindy_ekf.estimation.ekf_motion.GyroNoise`, ``OdometryNoise``). The NIS
+monitor's re-initialisation of the six-state EKFs (:mod:`sindy_ekf.benchmark.health`) is not
+applied to this filter.
 """
 
 from __future__ import annotations
@@ -20,8 +23,8 @@ from groundfloor.errors import InputError
 from identification.preprocessing.io_motion import IMU, KINDS, ODOMETRY, load_run_motion
 from sindy_ekf.benchmark.health import RunStatus, guarded
 from sindy_ekf.estimation.ekf import EkfRun
-from sindy_ekf.estimation.ekf_motion import MotionSensors, run_ekf_motion
-from sindy_ekf.estimation.graph_motion import smooth_batch_motion
+from sindy_ekf.estimation.ekf_motion import GyroNoise, MotionSensors, OdometryNoise, run_ekf_motion
+from sindy_ekf.estimation.graph_motion import smooth_batch_motion, smooth_isam2_motion
 
 
 def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -> MotionSensors:
@@ -51,34 +54,48 @@ def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -
 
 
 def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: float, lateral, name: str,
-                    P0, gnss_of, use_motor: bool = False) -> list:
+                    P0, gnss_of, use_motor: bool = False, gyro_noise: GyroNoise = GyroNoise(),
+                    odometry_noise: OdometryNoise = OdometryNoise()) -> list:
     """Return ``(result or None, RunStatus)`` of the seven-state EKF on each prepared test run."""
     out = []
     for r in runs:
         sensors = motion_sensors_of(campaign, r.name, r.t_pose, kinds)
         u = r.u_motor if use_motor and r.u_motor is not None else r.inputs_for(model.dynamics)
         run = EkfRun(f"{r.name} {name}", r.grid, u, r.x0, P0, gnss_of(r))
-        out.append(guarded(run_ekf_motion, model, run, sensors, gate_prob=gate_prob, lateral=lateral))
+        out.append(guarded(run_ekf_motion, model, run, sensors, gate_prob=gate_prob, lateral=lateral,
+                           gyro_noise=gyro_noise, odometry_noise=odometry_noise))
     return out
 
 
 def run_motion_graphs(model, runs, campaign, kinds: tuple[str, ...], lateral, name: str, P0, gnss_of,
-                      x_init_of) -> list:
+                      x_init_of, gyro_noise: GyroNoise = GyroNoise(),
+                      odometry_noise: OdometryNoise = OdometryNoise()) -> list:
     """Return ``(result or None, RunStatus)`` of the batch smoother with gyro / odometry factors on each run.
 
-    ``x_init_of(r)``: the starting trajectory on the run's grid (None: the seven-state EKF's estimate).
+    ``x_init_of(r)``: the starting trajectory on the run's grid (None: the seven-state EKF's
+    estimate, with the same sensor noise).
     """
+    noise = {"gyro_noise": gyro_noise, "odometry_noise": odometry_noise}
     out = []
     for r in runs:
         sensors = motion_sensors_of(campaign, r.name, r.t_pose, kinds)
         x_init = x_init_of(r)
         if x_init is None:
-            ekf, _ = guarded(run_ekf_motion, model, EkfRun(f"{r.name} {name}", r.grid, r.inputs_for(model.dynamics), r.x0, P0, gnss_of(r)),
-                             sensors, lateral=lateral)
+            ekf, _ = guarded(run_ekf_motion, model, EkfRun(f"{r.name} {name}", r.grid, r.inputs_for(model.dynamics),
+                                                           r.x0, P0, gnss_of(r)), sensors, lateral=lateral, **noise)
             x_init = None if ekf is None else ekf.x
         if x_init is None:
             out.append((None, RunStatus("failed", 0.0, "no starting trajectory (its EKF failed)")))
             continue
-        out.append(guarded(smooth_batch_motion, model, r.grid, r.inputs_for(model.dynamics), r.x0, P0, gnss_of(r), sensors, x_init,
-                           marginal_stride=10, lateral=lateral, name=f"{r.name} {name}"))
+        out.append(guarded(smooth_batch_motion, model, r.grid, r.inputs_for(model.dynamics), r.x0, P0, gnss_of(r),
+                           sensors, x_init, marginal_stride=10, lateral=lateral, name=f"{r.name} {name}", **noise))
     return out
+
+
+def isam2_motion_tasks(model, runs, campaign, kinds: tuple[str, ...], P0, gnss_of, gyro_noise: GyroNoise = GyroNoise(),
+                       odometry_noise: OdometryNoise = OdometryNoise()) -> list:
+    """Return the ``(function, args, kwargs)`` tasks of the fixed-lag iSAM2 with gyro / odometry factors,
+    one per prepared test run (the sensors read here, so that a missing file fails before any work)."""
+    return [(smooth_isam2_motion, (model, r.grid, r.inputs_for(model.dynamics), r.x0, P0, gnss_of(r),
+                                   motion_sensors_of(campaign, r.name, r.t_pose, kinds)),
+             dict(name=f"{r.name} sindy_isam2", gyro_noise=gyro_noise, odometry_noise=odometry_noise)) for r in runs]

@@ -54,7 +54,7 @@ from sindy_ekf.benchmark.health import (
     score_partial,
     split_short_runs,
 )
-from sindy_ekf.benchmark.motion_source import run_motion_ekfs, run_motion_graphs
+from sindy_ekf.benchmark.motion_source import isam2_motion_tasks, run_motion_ekfs, run_motion_graphs
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
 from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
@@ -338,7 +338,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         start = time.perf_counter()
         if cfg.motion_sensors:  # gyro / wheel odometry: the seven-state EKF of ekf_motion (issue 16)
             keep(name, run_motion_ekfs(_process_model(models, base, cfg), runs, campaign, cfg.motion_sensors,
-                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r, c=cfg: gnss_of(c, r), use_motor))
+                                       cfg.gate_prob, lateral, name, cfg.P0, lambda r, c=cfg: gnss_of(c, r), use_motor,
+                                       cfg.imu, cfg.odometry))
         else:
             keep(name, guarded_ekf_batch(_process_model(models, base, cfg), batch, lateral=lateral,
                                          gate_prob=cfg.gate_prob))
@@ -368,7 +369,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
                           dict(x_init=x_init, marginal_stride=10, lateral=constraint, name=f"{r.name} {name}")))
         if cfg.motion_sensors:  # gyro / wheel odometry factors (graph_motion, issue 16)
             keep(name, run_motion_graphs(model, runs, campaign, cfg.motion_sensors, constraint, name, cfg.P0,
-                                         lambda r, c=cfg: gnss_of(c, r), lambda r, s=x_inits: s[r.name]))
+                                         lambda r, c=cfg: gnss_of(c, r), lambda r, s=x_inits: s[r.name],
+                                         cfg.imu, cfg.odometry))
         else:
             keep(name, parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} {name}" for r in runs],
                                     desc=name))
@@ -377,8 +379,12 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         cfg = config.estimator("sindy_isam2")
         model = _process_model(models, "sindy_ekf", cfg)
         start = time.perf_counter()
-        tasks = [(smooth_isam2, (model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r)), dict(name=f"{r.name} sindy_isam2"))
-                 for r in runs]
+        if cfg.motion_sensors:  # gyro / wheel odometry factors added with each state (graph_motion, issue 16)
+            tasks = isam2_motion_tasks(model, runs, campaign, cfg.motion_sensors, cfg.P0, lambda r, c=cfg: gnss_of(c, r),
+                                       cfg.imu, cfg.odometry)
+        else:
+            tasks = [(smooth_isam2, (model, r.grid, r.inputs_for(sindy_body), r.x0, cfg.P0, gnss_of(cfg, r)),
+                      dict(name=f"{r.name} sindy_isam2")) for r in runs]
         keep("sindy_isam2", parallel_map(_guarded_task, tasks, workers, names=[f"{r.name} sindy_isam2" for r in runs],
                                          desc="sindy_isam2"))
         runtimes["sindy_isam2"] = time.perf_counter() - start

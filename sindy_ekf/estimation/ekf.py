@@ -43,10 +43,14 @@ from scipy.linalg.lapack import dpotrf as potrf
 from scipy.stats import chi2
 
 from groundfloor.errors import DivergenceError, InputError
-from groundfloor.gnss import check_gnss
+from groundfloor.gnss import GnssSeries, check_gnss
 from groundfloor.progress import progress
 from sindy_ekf.estimation.adaptive import NoiseScaler
-from sindy_ekf.estimation.lateral import LateralConstraint, fit_lateral_constraint, lateral_update
+from sindy_ekf.estimation.lateral import (
+    LateralConstraint,
+    fit_lateral_constraint,
+    lateral_update,
+)
 from sindy_ekf.estimation.process_models import N_X, ProcessModel, outside_bounds
 
 __all__ = ["LateralConstraint", "fit_lateral_constraint", "lateral_update", "ModelEKF", "EkfResult", "EkfRun",
@@ -214,6 +218,28 @@ class EkfResult:
     saturated_steps: int = 0  # steps whose model evaluation had velocities saturated at the envelope
 
 
+def fixes_on_grid(gnss: GnssSeries, t: np.ndarray, name: str
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return the fixes of ``gnss`` inside the grid ``t`` in order of arrival: the grid steps of
+    their validity ``kv`` and arrival ``ka`` (a fix arriving in ``(t_{k-1}, t_k]`` is applied at
+    step ``k``), their positions ``(m, 2)`` and standard deviations ``(m, 2)``.
+
+    Raises
+    ------
+    InputError
+        A time of validity off the grid (names the run ``name``).
+    """
+    n = len(t)
+    inside = (gnss.t_valid >= t[0] - GRID_TOL_S) & (gnss.t_valid <= t[-1] + GRID_TOL_S)
+    kv = np.minimum(np.searchsorted(t, gnss.t_valid[inside] - GRID_TOL_S), n - 1)
+    if np.any(np.abs(t[kv] - gnss.t_valid[inside]) > GRID_TOL_S):
+        raise InputError(f"{name}: GNSS times of validity are not on the estimation grid "
+                         "(build it with ekf.estimation_grid)")
+    ka = np.minimum(np.searchsorted(t, gnss.t_arrival[inside] - GRID_TOL_S), n - 1)
+    order = np.argsort(ka, kind="stable")
+    return kv[order], ka[order], gnss.p_local[inside][order, :2], gnss.std[inside][order, :2]
+
+
 @dataclass(frozen=True)
 class EkfRun:
     """What one run gives the filter: grid, inputs, initial state and (optional) GNSS."""
@@ -248,17 +274,8 @@ class _RunState:
         gnss = run.gnss
         if gnss is not None:
             gnss, self.repairs = check_gnss(gnss, f"{name} GNSS")
-            inside = (gnss.t_valid >= t[0] - GRID_TOL_S) & (gnss.t_valid <= t[-1] + GRID_TOL_S)
-            kv = np.minimum(np.searchsorted(t, gnss.t_valid[inside] - GRID_TOL_S), n - 1)
-            if np.any(np.abs(t[kv] - gnss.t_valid[inside]) > GRID_TOL_S):
-                raise InputError(f"{name}: GNSS times of validity are not on the estimation grid "
-                                 "(build it with ekf.estimation_grid)")
-            # a fix arriving in (t_{k-1}, t_k] is applied at step k
-            ka = np.minimum(np.searchsorted(t, gnss.t_arrival[inside] - GRID_TOL_S), n - 1)
-            order = np.argsort(ka, kind="stable")
-            self.kv, self.ka = kv[order], ka[order]
-            self.z = gnss.p_local[inside][order, :2]
-            self.R = gnss.std[inside][order, :2, None] ** 2 * np.eye(2)  # (fixes, 2, 2)
+            self.kv, self.ka, self.z, std = fixes_on_grid(gnss, t, name)
+            self.R = std[:, :, None] ** 2 * np.eye(2)  # (fixes, 2, 2)
             lever = gnss.lever_arm_body
         else:
             self.kv = self.ka = np.empty(0, dtype=int)

@@ -3,7 +3,10 @@
 The process model stays the injected six-state model (the identified SINDy model, or any
 :class:`~sindy_ekf.estimation.process_models.ProcessModel`); the state is augmented with the gyro
 bias, ``z = [x, y, psi, v_x, v_y, omega, b_g]``, a random walk (density
-``bias_walk_rad_s_sqrt_s``, ``Q_b = q^2 dt``) that the model's dynamics do not touch.
+``bias_walk_rad_s_sqrt_s``, ``Q_b = q^2 dt``) that the model's dynamics do not touch. What the
+filter assumes of the sensors is :class:`GyroNoise` and :class:`OdometryNoise` (per estimator
+the ``imu`` and ``odometry`` keys of ``sindy_ekf/data/filters.yaml``; their defaults the
+constants below).
 
 Measurements (all Joseph-form updates):
 
@@ -11,10 +14,12 @@ Measurements (all Joseph-form updates):
   dof), applied at its time of validity with the stochastic cloning of :mod:`sindy_ekf.estimation.ekf`
   (error transitions ``M_k`` of the seven-state filter);
 - gyro: ``wz = omega + b_g + n`` (:func:`h_gyro`), the samples falling nearest a grid step averaged
-  into one measurement with variance ``sigma^2 / n``;
+  into one measurement with variance ``sigma^2 / n`` (``sigma``: the stated std of each sample, or
+  ``GyroNoise.rate_std_rad_s`` where the IMU states none);
 - wheel odometry: ``(v, omega_odo) = (v_x, omega) + n`` (:func:`h_odometry`) with the stated std
-  plus a relative ``odometry_scale_std`` for slip and track-width error, which the stated noise
-  of an odometry message does not hold; the samples nearest a grid step averaged likewise.
+  (or ``OdometryNoise.v_std_m_s`` / ``omega_std_rad_s`` where it states none) plus a relative
+  ``OdometryNoise.scale_std`` for slip and track-width error, which the stated noise of an
+  odometry message does not hold; the samples nearest a grid step averaged likewise.
 
 Gyro and odometry are current-time updates, folded into the step's error transition ``M_k`` as the
 ``v_y = 0`` constraint is. One run at a time (a Python loop over the grid, 7 x 7 matrices).
@@ -39,6 +44,7 @@ from sindy_ekf.estimation.ekf import (
     EkfResult,
     EkfRun,
     LateralConstraint,
+    fixes_on_grid,
     h_gnss,
     repair_covariance,
 )
@@ -56,6 +62,24 @@ BIAS_STD_RAD_S = 0.02  # prior std of the gyro bias (MEMS gyros: ~1 deg/s turn-o
 BIAS_WALK_RAD_S_SQRT_S = 4e-4
 ODOMETRY_STD = (0.05, 0.05)  # v m/s, omega rad/s when the odometry states none
 ODOMETRY_SCALE_STD = 0.05  # relative error of odometry from slip and track width (not in its stated std)
+
+
+@dataclass(frozen=True)
+class GyroNoise:
+    """What the filters assume of the gyro (the ``imu`` settings of an estimator in ``filters.yaml``)."""
+
+    rate_std_rad_s: float = GYRO_STD_RAD_S  # a sample's std where the IMU states none
+    bias_std_rad_s: float = BIAS_STD_RAD_S  # prior std of the bias, about zero
+    bias_walk_rad_s_sqrt_s: float = BIAS_WALK_RAD_S_SQRT_S  # random-walk density of the bias
+
+
+@dataclass(frozen=True)
+class OdometryNoise:
+    """What the filters assume of the wheel odometry (the ``odometry`` settings of an estimator)."""
+
+    v_std_m_s: float = ODOMETRY_STD[0]  # a sample's std of v where the odometry states none
+    omega_std_rad_s: float = ODOMETRY_STD[1]  # likewise of omega
+    scale_std: float = ODOMETRY_SCALE_STD  # relative std added to the stated (or assumed) one
 
 
 @dataclass(frozen=True)
@@ -131,20 +155,24 @@ def _per_step(grid: np.ndarray, t: np.ndarray, values: np.ndarray, var: np.ndarr
     return steps, mean, var_mean
 
 
-def _measurements(grid: np.ndarray, sensors: MotionSensors, scale_std: float) -> dict[int, list]:
+def _measurements(grid: np.ndarray, sensors: MotionSensors, gyro_noise: GyroNoise,
+                  odometry_noise: OdometryNoise) -> dict[int, list]:
     """Return, per grid step, the gyro and odometry measurements ``(kind, z, R)`` applied there."""
     out: dict[int, list] = {}
     if sensors.t_gyro is not None:
         wz = np.asarray(sensors.wz, float)[:, None]
-        std = np.full(wz.shape, GYRO_STD_RAD_S) if sensors.wz_std is None else np.asarray(sensors.wz_std, float)[:, None]
-        std = np.where(np.isfinite(std) & (std > 0), std, GYRO_STD_RAD_S)
+        assumed = gyro_noise.rate_std_rad_s
+        std = np.full(wz.shape, assumed) if sensors.wz_std is None else np.asarray(sensors.wz_std, float)[:, None]
+        std = np.where(np.isfinite(std) & (std > 0), std, assumed)
         for k, z, var in zip(*_per_step(grid, np.asarray(sensors.t_gyro, float), wz, std ** 2)):
             out.setdefault(int(k), []).append(("gyro", z, np.diag(var)))
     if sensors.t_odometry is not None:
         vo = np.asarray(sensors.v_omega, float).reshape(-1, 2)
-        std = np.broadcast_to(ODOMETRY_STD, vo.shape) if sensors.v_omega_std is None \
+        assumed = np.array([odometry_noise.v_std_m_s, odometry_noise.omega_std_rad_s])
+        std = np.broadcast_to(assumed, vo.shape) if sensors.v_omega_std is None \
             else np.asarray(sensors.v_omega_std, float).reshape(-1, 2)
-        std = np.where(np.isfinite(std) & (std > 0), std, ODOMETRY_STD)
+        std = np.where(np.isfinite(std) & (std > 0), std, assumed)
+        scale_std = odometry_noise.scale_std
         for k, z, var_k in zip(*_per_step(grid, np.asarray(sensors.t_odometry, float), vo, std ** 2)):
             # the scale error is common to the samples averaged: it does not shrink with their number
             out.setdefault(int(k), []).append(("odometry", z, np.diag(var_k + (scale_std * z) ** 2)))
@@ -152,9 +180,8 @@ def _measurements(grid: np.ndarray, sensors: MotionSensors, scale_std: float) ->
 
 
 def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gate_prob: float = GATE_PROB,
-                   lateral: LateralConstraint | None = None, bias_std_rad_s: float = BIAS_STD_RAD_S,
-                   bias_walk_rad_s_sqrt_s: float = BIAS_WALK_RAD_S_SQRT_S,
-                   odometry_scale_std: float = ODOMETRY_SCALE_STD) -> MotionEkfResult:
+                   lateral: LateralConstraint | None = None, gyro_noise: GyroNoise = GyroNoise(),
+                   odometry_noise: OdometryNoise = OdometryNoise()) -> MotionEkfResult:
     """Return the estimates of one run by the EKF fusing GNSS (``run.gnss``), gyro and odometry.
 
     Parameters
@@ -163,9 +190,10 @@ def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gat
     run : grid, held inputs, initial six-state estimate and GNSS (or None), as for
         :func:`sindy_ekf.estimation.ekf.run_ekf_batch`; every fix valid on the grid.
     sensors : gyro and/or odometry samples on the grid's time base (:class:`MotionSensors`).
-    bias_std_rad_s, bias_walk_rad_s_sqrt_s : prior std (about zero) and random-walk density of the
-        gyro bias; used only when the gyro is fused.
-    odometry_scale_std : relative std added to the odometry's stated noise (module docstring).
+    gyro_noise : a gyro sample's std where the IMU states none, the prior std (about zero) and the
+        random-walk density of the gyro bias; used only when the gyro is fused.
+    odometry_noise : the odometry's std where it states none, and the relative std added to it
+        (module docstring).
 
     Raises
     ------
@@ -186,23 +214,16 @@ def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gat
     M = np.zeros((n, N_Z, N_Z))
     Z[0, :N_X] = run.x0
     P[0, :N_X, :N_X] = run.P0
-    P[0, I_BIAS, I_BIAS] = bias_std_rad_s ** 2 if with_gyro else 1.0  # unobserved without a gyro: inert
-    q_bias = bias_walk_rad_s_sqrt_s ** 2 if with_gyro else 0.0
-    meas = _measurements(t, sensors, odometry_scale_std)
+    P[0, I_BIAS, I_BIAS] = gyro_noise.bias_std_rad_s ** 2 if with_gyro else 1.0  # unobserved without a gyro: inert
+    q_bias = gyro_noise.bias_walk_rad_s_sqrt_s ** 2 if with_gyro else 0.0
+    meas = _measurements(t, sensors, gyro_noise, odometry_noise)
     repairs: dict = {}
     fixes: dict[int, list] = {}
     lever = np.zeros(2)
     if run.gnss is not None:
         gnss, repairs = check_gnss(run.gnss, f"{run.name} GNSS")
-        inside = (gnss.t_valid >= t[0] - GRID_TOL_S) & (gnss.t_valid <= t[-1] + GRID_TOL_S)
-        kv = np.minimum(np.searchsorted(t, gnss.t_valid[inside] - GRID_TOL_S), n - 1)
-        if np.any(np.abs(t[kv] - gnss.t_valid[inside]) > GRID_TOL_S):
-            raise InputError(f"{run.name}: GNSS times of validity are not on the estimation grid "
-                             "(build it with ekf.estimation_grid)")
-        ka = np.minimum(np.searchsorted(t, gnss.t_arrival[inside] - GRID_TOL_S), n - 1)
-        for j in np.argsort(ka, kind="stable").tolist():
-            fixes.setdefault(int(ka[j]), []).append((int(kv[j]), gnss.p_local[inside][j, :2],
-                                                     np.diag(gnss.std[inside][j, :2] ** 2)))
+        for kv, ka, z, std in zip(*fixes_on_grid(gnss, t, run.name)):
+            fixes.setdefault(int(ka), []).append((int(kv), z, np.diag(std ** 2)))
         lever = np.asarray(gnss.lever_arm_body, float)[:2]
     gate_nis = float(chi2.ppf(gate_prob, GATE_DOF)) if gate_prob < 1 else np.inf
     nis, nis_t, accepted = [], [], []

@@ -20,7 +20,8 @@ The Python factor costs most: on the first evaluation at a new set of values it 
 step at once (one vectorised model call) and caches the result, so each factor call is a table
 look-up. Batch smoothing runs gtsam's Levenberg-Marquardt; :func:`smooth_isam2` adds the states
 and fixes as they arrive and updates iSAM2 (fixes attach to the state at their time of validity,
-so latency needs no special handling).
+so latency needs no special handling), and with each state whatever a :class:`StepFactors` gives
+(:mod:`sindy_ekf.estimation.graph_motion`: gyro bias, gyro and odometry).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import gtsam
 import numpy as np
@@ -315,9 +317,20 @@ def smooth_batch(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
     return GraphResult(name, t, x, P, runtime, iterations, float(err0), float(err1))
 
 
+class StepFactors(Protocol):
+    """More factors and variables for :func:`smooth_isam2`, step by step (e.g. graph_motion's gyro)."""
+
+    def at_step(self, k: int) -> tuple[list, dict, dict]:
+        """Return the factors of step ``k``, the new variables' initial values and the variables'
+        timestamps (s from the run's start; a later one replaces an earlier one)."""
+
+    def updated(self, estimate: gtsam.Values) -> None:
+        """Take the smoother's estimate after an update."""
+
+
 def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarray, P0: np.ndarray,
                  gnss=None, robust: str | None = "huber", update_every: int = 10, lag_s: float = 3.0,
-                 name: str = "sindy_isam2") -> GraphResult:
+                 name: str = "sindy_isam2", more: StepFactors | None = None) -> GraphResult:
     """Return the incremental (iSAM2) estimates of one run, as they were known in real time.
 
     ``gtsam.IncrementalFixedLagSmoother`` (iSAM2 with states older than ``lag_s`` marginalised
@@ -327,7 +340,8 @@ def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
     the latest estimate), their dynamics factors and the fixes that have arrived (attached to
     the state at their time of validity, which must lie within the lag) are added. ``x[k]`` is
     the estimate of step ``k`` right after the update that added it; ``P[k]`` (pose and velocity
-    blocks) its marginal covariance then, at the updated steps only (NaN elsewhere).
+    blocks) its marginal covariance then, at the updated steps only (NaN elsewhere). ``more``: the
+    factors and variables it adds with each state (:class:`StepFactors`).
     """
     start = time.perf_counter()
     t = np.asarray(t, float)
@@ -357,15 +371,21 @@ def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
     P_rt = np.full((n, N_X, N_X), np.nan)
     x_last = np.asarray(x0, float).copy()
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+    stamps: dict[int, float] = {}  # key -> time, gathered until the update (a map keeps a key's first)
     for f in _prior_factors(x0, P0):
         graph.add(f)
 
     def add_state(k: int, x: np.ndarray) -> None:
         values.insert(X(k), gtsam.Pose2(*x[:3]))
         values.insert(V(k), x[3:].copy())
-        stamps.insert((X(k), t[k] - t[0]))
-        stamps.insert((V(k), t[k] - t[0]))
+        stamps[X(k)] = stamps[V(k)] = t[k] - t[0]
+        if more is not None:
+            factors, initial, times = more.at_step(k)
+            for f in factors:
+                graph.add(f)
+            for key, value in initial.items():
+                values.insert(key, value)
+            stamps.update(times)
 
     add_state(0, x_last)
     j, k_done, n_updates = 0, 0, 0
@@ -381,11 +401,15 @@ def smooth_isam2(model: ProcessModel, t: np.ndarray, u: np.ndarray, x0: np.ndarr
             j += 1
         if k % update_every and k < n:
             continue
-        smoother.update(graph, values, stamps)
+        stamp_map = gtsam.FixedLagSmootherKeyTimestampMap()
+        for key, ts in stamps.items():
+            stamp_map.insert((key, ts))
+        smoother.update(graph, values, stamp_map)
         n_updates += 1
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
         est = smoother.calculateEstimate()
+        if more is not None:
+            more.updated(est)
         for i in range(k_done, last + 1):
             p_i = est.atPose2(X(i))
             x_rt[i] = [p_i.x(), p_i.y(), p_i.theta(), *est.atVector(V(i))]

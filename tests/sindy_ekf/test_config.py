@@ -16,6 +16,7 @@ from simulation.gnss import OUTAGE_DURATIONS_S, GnssProfile
 from sindy_ekf.benchmark.run import ESTIMATORS, LATERAL_EVERY, OPTIONAL_ESTIMATORS, P0_STD
 from sindy_ekf.config import config_from_dict, defaults_text, load_config
 from sindy_ekf.estimation.ekf import GATE_PROB
+from sindy_ekf.estimation.ekf_motion import GyroNoise, OdometryNoise
 
 SHIPPED = Path(__file__).resolve().parents[2] / "sindy_ekf" / "data" / "filters.yaml"
 
@@ -41,6 +42,9 @@ def test_the_shipped_defaults_are_the_code_constants():
         assert e.lateral is None or (e.lateral.every == LATERAL_EVERY and e.lateral.vy_std_m_s is None
                                      and e.lateral.enabled == e.name.endswith("_lateral"))
         assert e.sensors in (None, ("gnss",))
+        # the gyro / odometry noise of every estimator that can fuse them: the former constants
+        assert e.imu in (None, GyroNoise()) and e.odometry in (None, OdometryNoise()), e.name
+        assert (e.imu is None) == (e.odometry is None) == (e.sensors is None), e.name
     # a factor graph has no gate, dead reckoning no sensor and no constraint
     assert c.estimator("sindy_graph").gate_prob is None and c.estimator("sindy_isam2").lateral is None
     assert c.estimator("dead_reckoning").sensors is None and not c.estimator("dead_reckoning").fuses_gnss
@@ -59,6 +63,19 @@ def test_a_file_changes_only_what_it_gives(tmp_path):
     assert load_config(_write(tmp_path, "", "empty.yaml")).estimators == d.estimators  # empty: nothing changed
 
 
+def test_sensor_noise_changes_only_the_values_given():
+    c = config_from_dict({"estimators": {"sindy_ekf": {"imu": {"rate_std_rad_s": 0.5}},
+                                         "sindy_graph": {"odometry": {"scale_std": 0, "v_std_m_s": 2}}}}, "f")
+    assert c.estimator("sindy_ekf").imu == GyroNoise(rate_std_rad_s=0.5)
+    assert c.estimator("sindy_ekf").odometry == OdometryNoise()
+    assert c.estimator("sindy_graph").odometry == OdometryNoise(v_std_m_s=2.0, scale_std=0.0)
+    assert c.estimator("sindy_ekf_lateral").imu == GyroNoise()  # per estimator
+    isam2 = config_from_dict({"estimators": {"sindy_isam2": {"sensors": ["gnss", "imu", "odometry"],
+                                                             "imu": {"bias_std_rad_s": 0.1}}}}, "f")
+    assert isam2.estimator("sindy_isam2").motion_sensors == ("imu", "odometry")
+    assert isam2.estimator("sindy_isam2").imu == GyroNoise(bias_std_rad_s=0.1)
+
+
 def test_process_noise_forms_give_the_density_matrix():
     std = [0.01, 0.02, 0.003, 0.4, 0.5, 0.06]
     q = np.diag(np.square(std)) + 1e-5 * (np.ones((6, 6)) - np.eye(6))
@@ -72,7 +89,8 @@ def test_the_recorded_settings_load_back_equal():
     custom = {"name": "mybox", "rate_hz": 2, "std_m": 0.4, "std_up_m": 0.8, "latency_s": 0.3,
               "latency_jitter_s": 0.0, "outlier_m": [1, 2]}
     data = {"gnss": {"profile": custom, "seed": 4, "outages": {"durations_s": []}},
-            "estimators": {"sindy_ekf": {"process_noise": np.eye(6).tolist(), "sensors": []},
+            "estimators": {"sindy_ekf": {"process_noise": np.eye(6).tolist(), "sensors": [],
+                                         "imu": {"bias_walk_rad_s_sqrt_s": 1e-3}, "odometry": {"scale_std": 0}},
                            "cv_ekf": {"process_noise": [1, 2, 3, 4, 5, 6]},
                            "sindy_graph": {"lateral": {"enabled": True, "vy_std_m_s": 0.07}}}}
     c = config_from_dict(data, "a.yaml")
@@ -116,12 +134,31 @@ BAD = [  # (file text, the dotted key the message must name, a fragment of the c
     ("estimators:\n  sindy_ekf:\n    lateral: {every: 2.5}\n", "estimators.sindy_ekf.lateral.every", "got 2.5"),
     ("estimators:\n  sindy_ekf:\n    lateral: {vy_std_m_s: -1}\n", "estimators.sindy_ekf.lateral.vy_std_m_s", "> 0"),
     ("estimators:\n  sindy_ekf:\n    lateral: {on: true}\n", "estimators.sindy_ekf.lateral", "key True is not a name"),
-    ("estimators:\n  sindy_isam2:\n    sensors: [gnss, imu]\n", "estimators.sindy_isam2.sensors",
-     "imu is fused by the EKFs and the batch graphs, not by iSAM2 yet"),
-    ("estimators:\n  sindy_isam2:\n    sensors: [odometry]\n", "estimators.sindy_isam2.sensors", "odometry"),
     ("estimators:\n  sindy_ekf:\n    sensors: [lidar]\n", "estimators.sindy_ekf.sensors", "unknown sensor 'lidar'"),
     ("estimators:\n  sindy_ekf:\n    sensors: gnss\n", "estimators.sindy_ekf.sensors", "a list"),
     ("estimators:\n  sindy_ekf:\n    sensors: [gnss, gnss]\n", "estimators.sindy_ekf.sensors", "twice"),
+    ("estimators:\n  sindy_ekf:\n    imu: {rate_std_rad_s: 0}\n", "estimators.sindy_ekf.imu.rate_std_rad_s",
+     "a number > 0, got 0"),
+    ("estimators:\n  sindy_ekf:\n    imu: {bias_std_rad_s: -0.01}\n", "estimators.sindy_ekf.imu.bias_std_rad_s",
+     "a number > 0"),
+    ("estimators:\n  sindy_graph:\n    imu: {bias_walk_rad_s_sqrt_s: slow}\n",
+     "estimators.sindy_graph.imu.bias_walk_rad_s_sqrt_s", "got 'slow'"),
+    ("estimators:\n  sindy_ekf:\n    imu: {bias_walk_rad_s_sqrt_s: .inf}\n",
+     "estimators.sindy_ekf.imu.bias_walk_rad_s_sqrt_s", "got inf"),
+    ("estimators:\n  sindy_ekf:\n    imu: {accel_std: 0.1}\n", "estimators.sindy_ekf.imu.accel_std",
+     "unknown key (imu takes rate_std_rad_s, bias_std_rad_s, bias_walk_rad_s_sqrt_s)"),
+    ("estimators:\n  sindy_ekf:\n    imu: 0.01\n", "estimators.sindy_ekf.imu", "a mapping"),
+    ("estimators:\n  cv_ekf:\n    odometry: {v_std_m_s: 0.0}\n", "estimators.cv_ekf.odometry.v_std_m_s", "> 0"),
+    ("estimators:\n  sindy_ekf:\n    odometry: {omega_std_rad_s: [0.1]}\n",
+     "estimators.sindy_ekf.odometry.omega_std_rad_s", "a number > 0"),
+    ("estimators:\n  sindy_ekf:\n    odometry: {scale_std: -0.05}\n", "estimators.sindy_ekf.odometry.scale_std",
+     "a number >= 0"),
+    ("estimators:\n  sindy_ekf:\n    odometry: {scale_std: true}\n", "estimators.sindy_ekf.odometry.scale_std",
+     "got True"),
+    ("estimators:\n  sindy_ekf:\n    odometry: {track_width: 0.5}\n", "estimators.sindy_ekf.odometry.track_width",
+     "unknown key (odometry takes v_std_m_s, omega_std_rad_s, scale_std)"),
+    ("estimators:\n  dead_reckoning:\n    imu: {rate_std_rad_s: 0.1}\n", "estimators.dead_reckoning.imu",
+     "unknown key"),
     ("gnss:\n  profile: galileo\n", "gnss.profile", "unknown GNSS profile 'galileo'"),
     ("gnss:\n  profile: [dgnss]\n", "gnss.profile", "a profile name"),
     ("gnss:\n  profile: {rate_hz: 2, std_m: 0.3}\n", "gnss.profile.std_up_m", "missing"),

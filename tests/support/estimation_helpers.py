@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from groundfloor.dynamics import N_U, N_X, Dynamics
-from sindy_ekf.estimation.process_models import StateSeries
+from sindy_ekf.estimation.process_models import ProcessModel, StateSeries
 
 ACCEL_STD = np.array([0.05, 0.02, 0.05])  # white acceleration noise density of the truth, SI/sqrt(s)
 
@@ -159,3 +159,17 @@ def nees_at_epochs(truth: StateSeries, res, epochs=NEES_EPOCHS) -> list[float]:
         e = res.x[k] - ref[k]
         out.append(float(e @ np.linalg.solve(res.P[k], e)))
     return out
+
+
+def linear_gaussian_model():
+    """Return the linear-Gaussian process model on which the graphs must equal the EKF: stable
+    body velocities with one coupling, two inputs, a fixed ``Q_rate_``."""
+    A = np.zeros((6, 6))
+    A[0, 3] = A[1, 4] = A[2, 5] = 1.0
+    A[3:, 3:] = -np.diag([1.0, 4.0, 2.0])
+    A[3, 5] = 0.3
+    B = np.zeros((6, 2))
+    B[3, 0], B[5, 1] = 1.0, 0.8
+    model = ProcessModel(LinearDynamics(A, B))
+    model.Q_rate_ = np.diag([1e-4, 1e-4, 1e-4, 1e-2, 1e-3, 1e-2])
+    return model

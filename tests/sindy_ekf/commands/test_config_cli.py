@@ -114,4 +114,4 @@ def test_config_of_a_bad_file_is_one_line(tmp_path, capsys):
     assert main(["config", str(path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == (f"sindy-ekf config: error: {path}: estimators.sindy_graph.gate_prob: unknown key "
-                   "(sindy_graph takes enabled, process_noise, initial_std, lateral, sensors)")
+                   "(sindy_graph takes enabled, process_noise, initial_std, lateral, sensors, imu, odometry)")

@@ -1,7 +1,7 @@
 """The command line end to end with a recorded IMU and wheel odometry (ROS1 bags): simulate --gnss
 --imu --odometry, preprocess (imu.csv / odometry.csv and their counts in its JSON), benchmark --gnss
 recorded --config with sensors [gnss, imu, odometry] for sindy_ekf and sindy_graph (scored against
-truth), and the one-line errors: --sensors-ros2 alone, iSAM2 asked for imu, imu asked for without imu.csv."""
+truth), and the one-line errors: --sensors-ros2 alone, a gyro noise of 0, imu asked for without imu.csv."""
 
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ def test_bad_flags_and_settings_are_one_line_errors(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--sensors-ros2: needs --imu or --odometry" in err[0]
     cfg = tmp_path / "f.yaml"
-    cfg.write_text("estimators:\n  sindy_isam2:\n    sensors: [gnss, imu]\n")
+    cfg.write_text("estimators:\n  sindy_isam2:\n    sensors: [gnss, imu]\n    imu: {rate_std_rad_s: 0}\n")
     assert cli.main(["config", str(cfg)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "estimators.sindy_isam2.sensors: imu is fused by the EKFs and the batch graphs" in err[0]
+    assert len(err) == 1 and "estimators.sindy_isam2.imu.rate_std_rad_s: expected a number > 0, got 0" in err[0]

@@ -17,6 +17,7 @@ from sindy_ekf.estimation.ekf_motion import (
     I_BIAS,
     N_Z,
     MotionSensors,
+    OdometryNoise,
     _joseph,
     h_gnss7,
     h_gyro,
@@ -136,7 +137,7 @@ def test_odometry_is_fused_and_keeps_the_filter_near_truth(oracle):
     sensors = MotionSensors(t_odometry=od.t_ns * 1e-9, v_omega=np.column_stack([od.v, od.omega]),
                             v_omega_std=np.tile(od.std, (od.v.size, 1)))
     run = EkfRun("r", t, u, truth.x6[0], P0, gnss)
-    res = run_ekf_motion(oracle, run, sensors, odometry_scale_std=0.0)
+    res = run_ekf_motion(oracle, run, sensors, odometry_noise=OdometryNoise(scale_std=0.0))
     plain = run_ekf_motion(oracle, run, MotionSensors())
     ref = truth_on(truth, t)
     v_err = np.sqrt(np.mean((res.x[:, 3] - ref[:, 3]) ** 2))

@@ -15,8 +15,8 @@ from sindy_ekf.estimation.ekf import estimation_grid, run_ekf
 from sindy_ekf.estimation.graph import DynamicsFactors, V, X, smooth_batch, smooth_isam2
 from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
 from tests.support.estimation_helpers import (
-    LinearDynamics,
     PolyBody,
+    linear_gaussian_model,
     simulate_truth,
     simulate_truths,
 )
@@ -39,14 +39,7 @@ def oracle():
 
 def test_graph_marginal_of_last_state_equals_the_ekf_on_a_linear_gaussian_case():
     rng = np.random.default_rng(11)
-    A = np.zeros((6, 6))
-    A[0, 3] = A[1, 4] = A[2, 5] = 1.0
-    A[3:, 3:] = -np.diag([1.0, 4.0, 2.0])
-    A[3, 5] = 0.3
-    B = np.zeros((6, 2))
-    B[3, 0], B[5, 1] = 1.0, 0.8
-    model = ProcessModel(LinearDynamics(A, B))
-    model.Q_rate_ = np.diag([1e-4, 1e-4, 1e-4, 1e-2, 1e-3, 1e-2])
+    model = linear_gaussian_model()
     truth = simulate_truth(model, 12.0, rng)
     prof = replace(PROFILES["dgnss"], outlier_prob=0.0, latency_jitter_s=0.01)
     gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2], prof, seed=1,
