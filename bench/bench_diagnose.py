@@ -218,11 +218,12 @@ def cause_lines(cause_calib, suite) -> list[str]:
             lines.append(f"| {r['campaign']} | {'yes' if r['null'] else 'no, reported'} | "
                          f"{r['delay_train_s']:+.3f} / {r['delay_test_s']:+.3f} | {r['eta2']:.3f} | {r['eta2_where']} |")
         m = cause_calib["max"]
+        reported = [r for r in cause_calib["rows"] if not r["null"]]
         lines += ["", f"Largest over the null: response lag {m['delay_s']:.3f} s, eta2 {m['eta2']:.3f}; the thresholds "
-                  "(`NULL_MAX` in `sindy_ekf/diagnose/cause.py`) are 2 x these. warthog-drive-cmd is reported, not "
-                  "in the null: its inputs are commands passed through the robot's velocity controller, whose "
-                  "latency is a real input-side mechanism the model lacks (and the diagnosis already names a "
-                  "family there).", ""]
+                  "(`NULL_MAX` in `sindy_ekf/diagnose/cause.py`) are 2 x these."
+                  + (" Reported, not in the null: " + ", ".join(r["campaign"] for r in reported) + " (warthog-drive-cmd's "
+                     "inputs are commands passed through the robot's velocity controller, whose latency is a real "
+                     "input-side mechanism)." if reported else ""), ""]
     if suite and "cause" in suite[0]:
         lag = [r for r in suite if r["verdict"] == "input_delay" and r.get("estimate", {}).get("evidence")]
         unexp = [r for r in suite if r["verdict"] == "unexplained"]
