@@ -145,3 +145,25 @@ def test_response_lag_names_the_delay_only_when_train_and_test_agree():
     # a family significant by its own out-of-sample gain keeps the first place
     out = named_by_response_lag([cause("deadband", 0.2, True), cause("input_delay", -0.01, False)], big, big)
     assert [c.name for c in out] == ["deadband", "input_delay"] and all(c.significant for c in out)
+
+
+def test_unexplained_structure_is_what_a_refit_of_the_models_own_terms_cannot_absorb():
+    from identification.sindy.model import model_from_terms
+    from sindy_ekf.diagnose.cause import beyond_own_terms
+    from sindy_ekf.diagnose.residuals import residual_structure
+
+    # the plant as a SINDy model, its omega damping off by half: residuals grow with omega itself
+    off = model_from_terms({"vx": {"vx": -A_1_S[0], "u1": B[0]}, "vy": {},
+                            "omega": {"omega": -0.5 * A_1_S[1], "u2": B[1]}}, "poly1")
+    tr, te = heading_split(0.0, 1), heading_split(0.0, 2)
+    raw = min(residual_structure(off, tr)["omega"]["omega"].eta2, residual_structure(off, te)["omega"]["omega"].eta2)
+    assert raw > threshold("eta2")  # what the statistic saw before the refit was taken out
+    assert unexplained_structure(off, tr, te)[0] < threshold("eta2")
+    # a heading push is no term of the model: it stays after the refit, the strongest structure by far
+    # (a push of 0.3 rad/s^2 keeps eta2 0.25, below the threshold recalibrated on variant 5's quick
+    # model, 0.51: the unexplained verdict needs it stronger there; issue 15, open)
+    clean = unexplained_structure(off, tr, te)[0]
+    eta2, eq, reg = unexplained_structure(off, heading_split(0.3, 1), heading_split(0.3, 2))
+    assert (eq, reg) == ("omega", "heading") and eta2 > 5 * clean and eta2 > 0.2
+    r_tr, r_te = beyond_own_terms(off, tr, te)
+    assert np.std(r_te[:, 2]) < 0.2 * np.std(te.delta_v[:, 2] / te.tau - te.integrate(off.f(te.v_body, te.u))[:, 2] / te.tau)
