@@ -270,10 +270,11 @@ def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,
     for e in range(3):
         coef[e, idx[e]] = sol[col:col + len(idx[e])]
         col += len(idx[e])
-    base = SindyModel(library=model.library, coef=coef, hyperparameters=dict(model.hyperparameters),
-                      envelope=dict(model.envelope),
-                      training={**model.training, "reidentified_with": family, "n_windows": int(p),
-                                "runs": list(train.names)})
+    # the model's input chain (dead time, input lag) and extrapolation stay: ``train`` holds the
+    # inputs as the model sees them (diagnose.data.model_split), so the refit is on those
+    base = replace(model.with_coefficients(coef), checks={},
+                   training={**model.training, "reidentified_with": family, "n_windows": int(p),
+                             "runs": list(train.names)})
     return ExtendedModel(base, family, theta, sol[n_xi:], dict(estimate or {}))
 
 

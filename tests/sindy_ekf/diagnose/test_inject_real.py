@@ -80,11 +80,6 @@ def test_injected_gain_decay_named_with_its_rate(wheels, model_file, tmp_path):
     assert d.ranked[0].score.estimate["decay_per_10min"] == pytest.approx(0.3, rel=0.25)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 15, open: the response lag reads the injected 0.15 s (0.158 s train, 0.110 s test, above the "
-    "recalibrated 0.044 s) and names input_delay, but the 5 s confirmation on the train runs "
-    "(pipeline.confirm_on_train, the model re-identified with and without the delay by the integral "
-    "regression) rejects it for the lag-structure model with input lags; why is not yet analysed"))
 def test_injected_delay_named_from_the_response_lag(wheels, model_file, tmp_path):
     # the model-fixed family sees only 0.075 s (the clean model already wants its inputs earlier,
     # bench/results/inject.md); the response lag, measured against the model's own response, reads
