@@ -30,6 +30,11 @@ LAG_GRID_S = 0.01
 HELD_LAG_GRID_S = 0.001
 
 
+def sees_recorded_inputs(dynamics) -> bool:
+    """Return whether ``dynamics`` sees the recorded inputs as they are (no dead time, no input lag)."""
+    return not np.any(getattr(dynamics, "dead_time_s", 0.0)) and not np.any(getattr(dynamics, "input_lag_s", 0.0))
+
+
 def first_order_lag(u: np.ndarray, step_s: float, lag_s, hold: str = "linear") -> np.ndarray:
     """Return the first-order lag ``T w' = u - w`` of ``u (n, 2)`` sampled every ``step_s``.
 

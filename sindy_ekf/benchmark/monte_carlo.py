@@ -32,6 +32,7 @@ from scipy.stats import chi2
 
 from groundfloor.angles import wrap_angle
 from groundfloor.errors import InputError
+from groundfloor.input_chain import sees_recorded_inputs
 from identification.preprocessing.states import body_states_from_poses
 from simulation.gnss import simulate_gnss
 from simulation.gnss_faults import FAULT_MIXES, GnssFaults, apply_gnss_faults, draw_gnss_faults
@@ -80,8 +81,7 @@ class McWindow:
 
     def inputs_for(self, dynamics) -> np.ndarray:
         """Return the inputs on the grid the model ``dynamics`` sees (``benchmark.run.held_inputs_for``)."""
-        if self.t_input is None or (not np.any(getattr(dynamics, "dead_time_s", 0.0))
-                                    and not np.any(getattr(dynamics, "input_lag_s", 0.0))):
+        if self.t_input is None or sees_recorded_inputs(dynamics):
             return self.u
         return held_inputs_for(dynamics, self.t_input, self.u_input, self.grid)
 

@@ -37,7 +37,7 @@ import numpy as np
 from groundfloor.angles import wrap_angle
 from groundfloor.errors import InputError
 from groundfloor.gnss import GnssSeries
-from groundfloor.input_chain import HELD_LAG_GRID_S, first_order_lag, lag_grid
+from groundfloor.input_chain import HELD_LAG_GRID_S, first_order_lag, lag_grid, sees_recorded_inputs
 from groundfloor.parallel import Workers, parallel_map
 from identification.preprocessing.preprocess import DEFAULT_SMOOTHING
 from identification.preprocessing.states import body_states_from_poses
@@ -182,7 +182,7 @@ class _TestRun:
 
     def inputs_for(self, dynamics) -> np.ndarray:
         """Return the inputs on the grid the model ``dynamics`` sees (:func:`held_inputs_for`)."""
-        if not np.any(getattr(dynamics, "dead_time_s", 0.0)) and not np.any(getattr(dynamics, "input_lag_s", 0.0)):
+        if sees_recorded_inputs(dynamics):
             return self.u
         return held_inputs_for(dynamics, self.t_in, self.u_in, self.grid)
 

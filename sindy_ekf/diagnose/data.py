@@ -18,6 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.errors import InputError
+from groundfloor.input_chain import sees_recorded_inputs
 from groundfloor.types import BodyStates
 from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
 from identification.sindy.reference import delayed_inputs
@@ -174,8 +175,7 @@ def model_split(model, states: Sequence[BodyStates], names: Sequence[str], tau: 
     that, so a mechanism is what the data hold beyond the model, not the model's own dead time
     found again (an identified wheels model with 84/141 ms read as an unexplained lag otherwise).
     """
-    dead = tuple(getattr(model, "dead_time_s", (0.0, 0.0)))
-    lag = tuple(getattr(model, "input_lag_s", (0.0, 0.0)))
-    shifted = delayed_inputs(states, dead, lag) if any(dead) or any(lag) else list(states)
+    shifted = list(states) if sees_recorded_inputs(model) else delayed_inputs(
+        states, getattr(model, "dead_time_s", (0.0, 0.0)), getattr(model, "input_lag_s", (0.0, 0.0)))
     return in_envelope(model, split_from_states(shifted, names, tau, what=what))
 
