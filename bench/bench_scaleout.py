@@ -35,7 +35,7 @@ import numpy as np
 from bench.publish import publish
 from groundfloor.parallel import Workers, parallel_map
 from identification.sindy.data import states_of_runs
-from identification.sindy.search import DEFAULT_GRID, fold_assignment, search
+from identification.sindy.search import DEFAULT_GRID, search
 from simulation.short_campaign import simulate_trajectory_runs
 
 HERE = Path(__file__).resolve().parent
@@ -50,11 +50,9 @@ def campaign_runs(minutes: float, seed: int):
 
 def payload_sizes(states_by_s, names, groups, grid) -> dict:
     """Return the pickled bytes of each grid task's payload and result (the scheduler's traffic)."""
-    from identification.sindy.search import _score_combo
+    from identification.sindy.search import _score_combo, grid_tasks
 
-    fold = fold_assignment(np.asarray(groups), grid.n_folds)
-    jobs = [(states_by_s[s], names, fold, s, tau, lib, grid)
-            for s in states_by_s for tau in grid.tau for lib in grid.library]
+    jobs = grid_tasks(states_by_s, grid, names, groups).jobs
     task_bytes = [len(pickle.dumps(j, protocol=pickle.HIGHEST_PROTOCOL)) for j in jobs]
     tic = time.perf_counter()
     result = _score_combo(jobs[0])
@@ -121,9 +119,12 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# Scale-out: identify's grid search on 1, 2 local processes and a 2-worker Dask cluster (issue 16)", "",
         f"Command: `.venv/bin/python -m bench.bench_scaleout{''.join(' ' + x for x in (sys.argv[1:] if argv is None else argv))}`"
-        f" (Python {platform.python_version()}, {os.cpu_count()} cores shared with other engineers' jobs; "
+        f" (Python {platform.python_version()}, {os.cpu_count()} cores; "
         f"load average (1 min) {', '.join(f'{x:.1f}' for x in load)} at the start, after jobs=1, after jobs=2 and "
-        "after the cluster: the speed-ups are what this shared machine gave, not what 2 free cores give).", "",
+        "after the cluster. "
+        + ("Nothing else ran: these are what 2 free cores give)." if max(load) < 2.5 else
+           "The machine was shared with other jobs: the speed-ups are what it gave, not what 2 free cores give).")
+        + "", "",
         f"Data: {args.minutes:g} min simulated (`simulate_trajectory_runs`, seed {args.seed}), the {len(train)} "
         f"train runs searched with `DEFAULT_GRID` ({DEFAULT_GRID.size} points, {DEFAULT_GRID.n_folds}-fold CV by "
         f"run): **{sizes['tasks']} tasks**, one per (s, tau, library), each scoring its "

@@ -166,6 +166,53 @@ def fold_assignment(groups: np.ndarray, n_folds: int) -> np.ndarray:
     return (np.arange(len(uniq)) % min(n_folds, len(uniq)))[inverse]
 
 
+@dataclass(frozen=True)
+class GridTasks:
+    """The grid search's independent tasks, one per ``(s, tau, library)``, and what they were built from."""
+
+    states_by_s: dict  # body states per s, inputs delayed by the dead time
+    names: tuple
+    folds: Folds
+    combos: list  # (s, tau, library) of each task
+    jobs: list  # the payload of each task, as :func:`_score_combo` takes it
+
+
+def grid_tasks(states_by_s: dict, grid: SearchGrid, names: Sequence[str] | None = None, groups: Sequence | None = None,
+               ref: Reference | None = None, folds: Folds | None = None, dead_time_s=(0.0, 0.0),
+               excluded: frozenset = frozenset()) -> GridTasks:
+    """Return the tasks of :func:`search` over ``states_by_s`` (its parameters), each scoring the
+    ``(alpha, T)`` points of one ``(s, tau, library)`` on the held-out windows of every fold."""
+    n_states = len(next(iter(states_by_s.values())))
+    if any(len(v) != n_states for v in states_by_s.values()):
+        raise InputError("hyperparameter search: the smoothing values split the runs into different segments")
+    names = tuple(names) if names is not None else tuple(f"#{i}" for i in range(n_states))
+    if np.any(dead_time_s):
+        states_by_s = {s: delayed_inputs(v, dead_time_s) for s, v in states_by_s.items()}
+    if ref is not None and len(ref.states) != n_states:
+        raise InputError("hyperparameter search: the reference states split the runs into other segments")
+    if folds is None:
+        if groups is None and ref is not None:
+            folds = cv_folds(ref.groups, ref.run_index, grid.n_folds)
+        else:
+            labels = np.arange(n_states) if groups is None else np.asarray(groups)
+            folds = cv_folds(labels, labels, grid.n_folds)
+    fold = folds.fold
+    n_folds = folds.n_folds
+    if ref is not None:
+        windows = ref.windows(grid.window_s, grid.overlap, grid.dt_eval)
+    else:
+        first = next(iter(states_by_s.values()))
+        windows = make_windows(first, grid.window_s, grid.overlap, grid.dt_eval, names)
+    held_windows = []
+    for f in range(n_folds):
+        keep = np.isin(windows.run, np.flatnonzero(fold == f))
+        held_windows.append(select_windows(windows, keep) if keep.any() else None)
+    combos = list(itertools.product(states_by_s, grid.tau, grid.library))
+    jobs = [(states_by_s[s_val], names, fold, s_val, tau, lib, grid, held_windows, tuple(dead_time_s), frozenset(excluded))
+            for s_val, tau, lib in combos]
+    return GridTasks(states_by_s, names, folds, combos, jobs)
+
+
 def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: SearchGrid = DEFAULT_GRID,
            runs: Sequence[TrajectoryRun] | None = None, names: Sequence[str] | None = None,
            groups: Sequence | None = None, n_top: int = 14, n_jobs: Workers | int = 1,
@@ -217,34 +264,9 @@ def search(states_by_s: dict[float, Sequence[BodyStates]] | None = None, grid: S
         states_by_s = {}
         for s in progress(grid.s, "body states per s"):
             states_by_s[float(s)], names, _ = states_of_runs(runs, s)
-    n_states = len(next(iter(states_by_s.values())))
-    if any(len(v) != n_states for v in states_by_s.values()):
-        raise InputError("hyperparameter search: the smoothing values split the runs into different segments")
-    names = tuple(names) if names is not None else tuple(f"#{i}" for i in range(n_states))
-    if np.any(dead_time_s):
-        states_by_s = {s: delayed_inputs(v, dead_time_s) for s, v in states_by_s.items()}
-    if ref is not None and len(ref.states) != n_states:
-        raise InputError("hyperparameter search: the reference states split the runs into other segments")
-    if folds is None:
-        if groups is None and ref is not None:
-            folds = cv_folds(ref.groups, ref.run_index, grid.n_folds)
-        else:
-            labels = np.arange(n_states) if groups is None else np.asarray(groups)
-            folds = cv_folds(labels, labels, grid.n_folds)
-    fold = folds.fold
-    n_folds = folds.n_folds
-    if ref is not None:
-        windows = ref.windows(grid.window_s, grid.overlap, grid.dt_eval)
-    else:
-        first = next(iter(states_by_s.values()))
-        windows = make_windows(first, grid.window_s, grid.overlap, grid.dt_eval, names)
-    held_windows = []
-    for f in range(n_folds):
-        keep = np.isin(windows.run, np.flatnonzero(fold == f))
-        held_windows.append(select_windows(windows, keep) if keep.any() else None)
-    combos = list(itertools.product(states_by_s, grid.tau, grid.library))
-    jobs = [(states_by_s[s_val], names, fold, s_val, tau, lib, grid, held_windows, tuple(dead_time_s), frozenset(excluded))
-            for s_val, tau, lib in combos]
+    tasks = grid_tasks(states_by_s, grid, names, groups, ref, folds, dead_time_s, excluded)
+    states_by_s, names, folds, combos, jobs = tasks.states_by_s, tasks.names, tasks.folds, tasks.combos, tasks.jobs
+    fold, n_folds = folds.fold, folds.n_folds
     parts = parallel_map(_score_combo, jobs, n_jobs, desc="grid (s, tau, library)",
                          names=[f"grid point s={s_val:g} tau={tau:g} library={lib}" for s_val, tau, lib in combos])
     table = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
