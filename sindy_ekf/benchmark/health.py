@@ -21,10 +21,12 @@ filter stays below it, and the tolerance leaves room for time-correlated GNSS er
 Step versus drift (:func:`fixes_stepped`): an alarm is not yet a lost filter. When the GNSS fixes
 jump (a multipath burst, a wrong ambiguity fix) the gate rejects them and the window alarms while
 the state is fine. Before any reset the innovations of the alarm window and of the window before
-it are fitted by a piecewise-constant offset with at most two change points (a step of the fixes
-and its end), the change-point model of Basseville and Nikiforov 1993 (ch. 2) with the change
-times found by exhaustive least squares; if that explains them within the chi-square bound of
-their covariances, the fixes agree with each other and with the filter's own dead reckoning over
+it are weighed between two hypotheses (Basseville and Nikiforov 1993, ch. 2 and 4): levels of
+the fixes with steps between them (up to :data:`MAX_LEVELS`, the fewest that pass the chi-square
+bound of their covariances, change times by optimal partitioning), or a filter drifting along a
+smooth curve (a quadratic in time); the levels must pass and win on the information criterion,
+and the first alarm of an episode must hold a step inside its window. Then the fixes agree with
+each other and with the filter's own dead reckoning over
 8 s, only offset: the fixes stepped, the filter is not reset (counted as ``fix_steps``) and the
 gate keeps rejecting them until they return or the state's growing covariance accepts them. A
 lost filter drifts or scatters; only then is it re-initialised. A step that lasts longer than
@@ -122,19 +124,70 @@ def _segment_rss(w: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.where(sw > 0, rss, 0.0)
 
 
-def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray,
-                  false_alarm: float = STEP_FALSE_ALARM) -> bool:
+MAX_LEVELS = 8  # levels of the fixes told apart in one test window: up to 7 steps in 8 s
+MIN_LEVEL_FIXES = 2  # a level held by one fix is an outlier, not a level
+# outliers are isolated by definition: a consistent series leaves about 1 in 1000 fixes beyond the
+# 0.999 quantile, a series scattering three times its stated std leaves half of them
+MAX_OUTLIER_SHARE = 0.2
+
+
+def _partitions(rss: np.ndarray, max_levels: int, min_len: int = MIN_LEVEL_FIXES) -> tuple[np.ndarray, np.ndarray]:
+    """Return the least residual sum of ``y[:n]`` in ``k`` levels for ``k = 0..max_levels`` and the
+    split points (optimal partitioning by dynamic programming, Jackson et al. 2005).
+
+    ``rss`` is :func:`_segment_rss`'s ``(n + 1, n + 1)`` table. ``cost[k]`` is the least sum over
+    partitions of all fixes into ``k`` levels of at least ``min_len`` fixes (inf where none),
+    ``arg[k, b]`` the start of the last level of the best partition of ``y[:b]``.
+    """
+    n = rss.shape[0] - 1
+    a, b = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    seg = np.where(b - a >= min_len, rss, np.inf)
+    cost = np.full((max_levels + 1, n + 1), np.inf)
+    cost[0, 0] = 0.0
+    arg = np.zeros((max_levels + 1, n + 1), int)
+    for k in range(1, max_levels + 1):
+        total = cost[k - 1][:, None] + seg
+        arg[k] = np.argmin(total, axis=0)
+        cost[k] = total[arg[k], np.arange(n + 1)]
+    return cost, arg
+
+
+def _drift_rss(w: np.ndarray, y: np.ndarray, t: np.ndarray) -> float:
+    """Return the weighted residual sum of ``y (n, 2)`` about a quadratic in ``t`` per coordinate."""
+    tau = (t - t.mean()) / max(float(np.ptp(t)), 1e-9)
+    A = np.column_stack([np.ones_like(tau), tau, tau ** 2]) * np.sqrt(w)[:, None]
+    yw = y * np.sqrt(w)[:, None]
+    coef = np.linalg.lstsq(A, yw, rcond=None)[0]
+    return float(np.sum((yw - A @ coef) ** 2))
+
+
+def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndarray | None = None,
+                  need_step: bool = False, false_alarm: float = STEP_FALSE_ALARM) -> bool:
     """Return whether the innovations ``(n, 2)`` are a piecewise-constant offset plus noise.
 
-    At most two change points (module docstring), weights ``2 / trace S`` per fix; isolated
-    outliers (farther than the chi2(2) 0.999 quantile from the median of their five neighbours)
-    are left out first. The minimum residual sum over all change points is tested against the
-    ``1 - false_alarm`` quantile of chi-square with ``2 n - 6`` degrees of freedom.
+    Two hypotheses about an alarm (Basseville and Nikiforov 1993, ch. 2 and 4), weights
+    ``2 / trace S`` per fix, isolated outliers (farther than the chi2(2) 0.999 quantile from the
+    median of their five neighbours) left out first:
+
+    - **the fixes stepped**: the innovations are levels with steps between them (the fewest
+      levels, at most :data:`MAX_LEVELS`, whose optimal partition passes the ``1 - false_alarm``
+      quantile of chi-square with ``2 n - 2 k`` degrees of freedom); overlapping multipath bursts
+      give several levels in a few seconds;
+    - **the filter drifts**: the innovations follow a smooth curve, a quadratic in time per
+      coordinate (a lost filter's position error grows with its velocity and heading error).
+
+    The fixes stepped when the levels pass their test and explain the window better than the
+    drift by the Bayesian information criterion (each level's mean and each step time against
+    the quadratic's six coefficients): a staircase can follow a drift, but only with more levels
+    than the curve has coefficients. With ``need_step`` (the first alarm of an episode) a step
+    must lie inside the window: a constant offset there is a filter that drifted off before it.
+    ``t`` are the fixes' times (default: evenly spaced).
     """
     y = np.asarray(innovation, float)
     S = np.asarray(innovation_cov, float)
-    ok = np.all(np.isfinite(y), axis=1) & np.all(np.isfinite(S), axis=(1, 2))
-    y, S = y[ok], S[ok]
+    t = np.arange(len(y), dtype=float) if t is None else np.asarray(t, float)
+    ok = np.all(np.isfinite(y), axis=1) & np.all(np.isfinite(S), axis=(1, 2)) & np.isfinite(t)
+    y, S, t = y[ok], S[ok], t[ok]
     n = len(y)
     if n < 8:
         return False
@@ -142,15 +195,26 @@ def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray,
     pad = np.concatenate([y[:1].repeat(2, 0), y, y[-1:].repeat(2, 0)])
     local = np.median(np.stack([pad[k:k + n] for k in range(5)]), axis=0)
     keep = np.sum((y - local) ** 2, axis=1) / var <= _OUTLIER_NIS
-    y, var = y[keep], var[keep]
+    if np.sum(~keep) > MAX_OUTLIER_SHARE * n:  # not isolated outliers: the fixes scatter beyond their covariance
+        return False
+    y, var, t = y[keep], var[keep], t[keep]
     n = len(y)
     if n < 8:
         return False
-    rss = _segment_rss(1.0 / var, y)
-    c1, c2 = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
-    total = rss[0][c1] + rss[c1, c2] + rss[c2, n]
-    best = float(np.min(np.where(c1 <= c2, total, np.inf)))
-    return best <= float(chi2.ppf(1.0 - false_alarm, 2 * n - 6))
+    w = 1.0 / var
+    cost, _ = _partitions(_segment_rss(w, y), min(MAX_LEVELS, n // MIN_LEVEL_FIXES))
+    levels = np.arange(cost.shape[0])
+    passes = np.isfinite(cost[:, n]) & (levels >= 1) & (
+        cost[:, n] <= chi2.ppf(1.0 - false_alarm, np.maximum(2 * n - 2 * levels, 1)))
+    if not passes.any():
+        return False
+    k = int(np.flatnonzero(passes)[0])  # the fewest levels that explain the window
+    if need_step and k < 2:
+        return False
+    log_n = math.log(n)
+    bic_steps = float(cost[k, n]) + (3 * k - 1) * log_n
+    bic_drift = _drift_rss(w, y, t) + 6 * log_n
+    return bic_steps < bic_drift
 
 
 def reset_state(x: np.ndarray, P0: np.ndarray, gnss, t_from: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -244,9 +308,9 @@ def _recover(model: ProcessModel, run: EkfRun, res: EkfResult, gate_prob: float,
         if i > 0 or step_since is None:  # not the window right after a step's: a new episode
             step_since = float(res.nis_t[j])
         coasting_s = float(res.nis_t[j]) - step_since
+        span = slice(max(0, j - NIS_WINDOW), j + NIS_WINDOW)
         if step_test and coasting_s <= MAX_COAST_S and len(res.innovation) == len(res.nis) and fixes_stepped(
-                res.innovation[max(0, j - NIS_WINDOW):j + NIS_WINDOW],
-                res.innovation_cov[max(0, j - NIS_WINDOW):j + NIS_WINDOW]):
+                res.innovation[span], res.innovation_cov[span], res.nis_t[span], need_step=coasting_s == 0.0):
             steps += 1  # the fixes stepped, the filter is not lost: no reset (module docstring)
             log.info("%s: NIS alarm at t=%.2f s explained by a step of the fixes; not reset", run.name,
                      res.nis_t[j] - run.t[0])
