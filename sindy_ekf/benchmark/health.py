@@ -180,7 +180,8 @@ def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndar
     drift by the Bayesian information criterion (each level's mean and each step time against
     the quadratic's six coefficients): a staircase can follow a drift, but only with more levels
     than the curve has coefficients. With ``need_step`` (the first alarm of an episode) a step
-    must lie inside the window: a constant offset there is a filter that drifted off before it.
+    must lie inside the window, from a first level that agrees with the filter (its mean inside
+    the gate): a constant offset there, or fixes that never agreed, is a filter off before it.
     ``t`` are the fixes' times (default: evenly spaced).
     """
     y = np.asarray(innovation, float)
@@ -202,15 +203,22 @@ def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndar
     if n < 8:
         return False
     w = 1.0 / var
-    cost, _ = _partitions(_segment_rss(w, y), min(MAX_LEVELS, n // MIN_LEVEL_FIXES))
+    cost, arg = _partitions(_segment_rss(w, y), min(MAX_LEVELS, n // MIN_LEVEL_FIXES))
     levels = np.arange(cost.shape[0])
     passes = np.isfinite(cost[:, n]) & (levels >= 1) & (
         cost[:, n] <= chi2.ppf(1.0 - false_alarm, np.maximum(2 * n - 2 * levels, 1)))
     if not passes.any():
         return False
     k = int(np.flatnonzero(passes)[0])  # the fewest levels that explain the window
-    if need_step and k < 2:
-        return False
+    if need_step:
+        if k < 2:
+            return False
+        end = n  # the first level: back along the best partition's level starts
+        for kk in range(k, 1, -1):
+            end = int(arg[kk, end])
+        first = np.sum(w[:end, None] * y[:end], axis=0) / np.sum(w[:end])
+        if float(first @ first) * float(np.mean(w[:end])) > _OUTLIER_NIS:
+            return False  # the fixes before the step did not agree with the filter either
     log_n = math.log(n)
     bic_steps = float(cost[k, n]) + (3 * k - 1) * log_n
     bic_drift = _drift_rss(w, y, t) + 6 * log_n

@@ -222,7 +222,7 @@ def test_step_test_takes_several_levels_and_tells_them_from_a_curved_drift():
     rng = np.random.default_rng(5)
     k = np.arange(40)[:, None]
     levels = np.where(k < 8, 0.0, np.where(k < 18, [0.4, 4.7], np.where(k < 27, [-1.9, 7.4], [-2.3, 2.7])))
-    hits = {"bursts": 0, "curve": 0, "offset_first": 0, "offset_later": 0}
+    hits = {"bursts": 0, "curve": 0, "offset_first": 0, "offset_later": 0, "never_agreed": 0, "agreed_later": 0}
     for _ in range(200):
         hits["bursts"] += fixes_stepped(*_innovations(levels, rng), need_step=True)
         hits["curve"] += fixes_stepped(*_innovations((k / 39) ** 2 * np.array([6.0, 3.0]), rng))
@@ -231,8 +231,13 @@ def test_step_test_takes_several_levels_and_tells_them_from_a_curved_drift():
         y, S = _innovations(np.full((40, 2), [1.2, 0.0]), rng)
         hits["offset_first"] += fixes_stepped(y, S, need_step=True)
         hits["offset_later"] += fixes_stepped(y, S, need_step=False)
-    assert hits["bursts"] >= 195 and hits["offset_later"] >= 195
-    assert hits["curve"] <= 5 and hits["offset_first"] == 0
+        # a step from fixes that were already 2 m (6.7 sigma) off the filter: the filter did not
+        # follow them before either (the start of Monte-Carlo run 734), unless the episode is older
+        y, S = _innovations(np.where(k < 15, [2.0, 0.0], [4.0, 2.0]), rng)
+        hits["never_agreed"] += fixes_stepped(y, S, need_step=True)
+        hits["agreed_later"] += fixes_stepped(y, S, need_step=False)
+    assert hits["bursts"] >= 195 and hits["offset_later"] >= 195 and hits["agreed_later"] >= 195
+    assert hits["curve"] <= 5 and hits["offset_first"] == 0 and hits["never_agreed"] == 0
 
 
 def test_partitions_match_an_exhaustive_search():
