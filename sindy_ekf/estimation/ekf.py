@@ -25,8 +25,8 @@ equation diverges without it (``bench/results/real.md``).
 
 Faults (issue 14): the stated GNSS covariance is scaled by the variance factor of
 :class:`sindy_ekf.estimation.adaptive.NoiseScaler` (covariance matching on the innovations'
-scatter), and the model is evaluated with the body velocities saturated at the model's envelope
-(:meth:`ProcessModel.velocity_bounds`) so that its cubic terms cannot run away; saturated steps
+scatter), and the state's body velocities are projected onto the model's envelope before the model
+is evaluated (:meth:`ProcessModel.velocity_bounds`) so that its cubic terms cannot run away; saturated steps
 are counted (``EkfResult.saturated_steps``).
 """
 
