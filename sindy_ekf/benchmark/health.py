@@ -180,8 +180,8 @@ def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndar
     drift by the Bayesian information criterion (each level's mean and each step time against
     the quadratic's six coefficients): a staircase can follow a drift, but only with more levels
     than the curve has coefficients. With ``need_step`` (the first alarm of an episode) a step
-    must lie inside the window, from a first level that agrees with the filter (its mean inside
-    the gate): a constant offset there, or fixes that never agreed, is a filter off before it.
+    must lie inside the window, and one level must agree with the filter (its mean inside the
+    gate): a constant offset there, or fixes that never agreed, is a filter off before it.
     ``t`` are the fixes' times (default: evenly spaced).
     """
     y = np.asarray(innovation, float)
@@ -213,12 +213,15 @@ def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndar
     if need_step:
         if k < 2:
             return False
-        end = n  # the first level: back along the best partition's level starts
-        for kk in range(k, 1, -1):
+        bounds, end = [n], n  # the levels, back along the best partition's level starts
+        for kk in range(k, 0, -1):
             end = int(arg[kk, end])
-        first = np.sum(w[:end, None] * y[:end], axis=0) / np.sum(w[:end])
-        if float(first @ first) * float(np.mean(w[:end])) > _OUTLIER_NIS:
-            return False  # the fixes before the step did not agree with the filter either
+            bounds.insert(0, end)
+        agrees = [float(m @ m) * float(np.mean(w[a:b])) <= _OUTLIER_NIS
+                  for a, b in zip(bounds[:-1], bounds[1:])
+                  for m in [np.sum(w[a:b, None] * y[a:b], axis=0) / np.sum(w[a:b])]]
+        if not any(agrees):
+            return False  # no level of the fixes agreed with the filter: it did not follow them either
     log_n = math.log(n)
     bic_steps = float(cost[k, n]) + (3 * k - 1) * log_n
     bic_drift = _drift_rss(w, y, t) + 6 * log_n

@@ -222,7 +222,8 @@ def test_step_test_takes_several_levels_and_tells_them_from_a_curved_drift():
     rng = np.random.default_rng(5)
     k = np.arange(40)[:, None]
     levels = np.where(k < 8, 0.0, np.where(k < 18, [0.4, 4.7], np.where(k < 27, [-1.9, 7.4], [-2.3, 2.7])))
-    hits = {"bursts": 0, "curve": 0, "offset_first": 0, "offset_later": 0, "never_agreed": 0, "agreed_later": 0}
+    hits = {"bursts": 0, "curve": 0, "offset_first": 0, "offset_later": 0, "never_agreed": 0, "agreed_later": 0,
+            "between_bursts": 0}
     for _ in range(200):
         hits["bursts"] += fixes_stepped(*_innovations(levels, rng), need_step=True)
         hits["curve"] += fixes_stepped(*_innovations((k / 39) ** 2 * np.array([6.0, 3.0]), rng))
@@ -236,7 +237,12 @@ def test_step_test_takes_several_levels_and_tells_them_from_a_curved_drift():
         y, S = _innovations(np.where(k < 15, [2.0, 0.0], [4.0, 2.0]), rng)
         hits["never_agreed"] += fixes_stepped(y, S, need_step=True)
         hits["agreed_later"] += fixes_stepped(y, S, need_step=False)
+        # the tail of one burst, the fixes back with the filter, the next burst (Monte-Carlo run 2):
+        # the first level is off, the middle one agrees
+        y, S = _innovations(np.where(k < 6, [-0.2, 2.3], np.where(k < 20, 0.0, [-2.2, 0.4])), rng)
+        hits["between_bursts"] += fixes_stepped(y, S, need_step=True)
     assert hits["bursts"] >= 195 and hits["offset_later"] >= 195 and hits["agreed_later"] >= 195
+    assert hits["between_bursts"] >= 195
     assert hits["curve"] <= 5 and hits["offset_first"] == 0 and hits["never_agreed"] == 0
 
 
