@@ -80,3 +80,22 @@ def test_time_passed_to_the_model_is_seconds_since_the_start_of_the_run():
     res = evaluate_model(_KnowsTheClock(), [st])
     assert res.n_windows == 7
     assert res.pos_err_5s_m < 1e-9  # RK4 is exact for a force linear in time
+
+
+def test_heading_error_is_wrapped_to_minus_pi_pi_and_a_diverged_prediction_is_infinite():
+    from identification.sindy.evaluate import Windows, errors_from_rollout, rms_over_windows
+
+    truth = np.zeros((2, 3, 3))
+    truth[0, :, 2] = [0.0, 1.0, -3.0]
+    windows = Windows(run=np.zeros(2, int), t0=np.zeros(2), x0=np.zeros((2, 6)), t_rel=np.array([0.0, 0.02, 0.04]),
+                      u_half=np.zeros((2, 5, 2)), pose_truth=truth)
+    pred = np.zeros((2, 3, 6))
+    pred[0, :, 0] = [0.0, 3.0, -1.0]
+    pred[0, :, 1] = [0.0, 4.0, 1.0]
+    pred[0, :, 2] = [0.1 + 2 * np.pi, 1.0 + 3.5, -3.0 - 3.5]  # by hand: 0.1, 3.5 - 2 pi, 2 pi - 3.5
+    pred[1, 2, :] = np.nan
+    eps_p, eps_h = errors_from_rollout(pred, windows)
+    np.testing.assert_allclose(eps_p[0], [0.0, 5.0, math.sqrt(2.0)], atol=1e-12)
+    np.testing.assert_allclose(eps_h[0], [0.1, 3.5 - 2 * np.pi, 2 * np.pi - 3.5], atol=1e-12)
+    assert np.isinf(eps_p[1, 2]) and np.isinf(eps_h[1, 2])
+    np.testing.assert_allclose(rms_over_windows(eps_p[:, :2]), [0.0, math.sqrt(25.0 / 2)], atol=1e-12)

@@ -151,3 +151,15 @@ def test_low_acceleration_subsampling_keeps_high_acceleration_windows(runs_by_se
     effect = subsampling_effect(model_from_terms(SPARSE_TERMS), problem, keep_fraction=0.1, seed=1)
     assert effect["after"]["n_windows"] == mask.sum()
     assert 0 < effect["after"]["max_abs_corr"] <= 1 and 0 < effect["before"]["max_abs_corr"] <= 1
+
+
+def test_defaults_are_poly3_tau_3_s_alpha_10_threshold_0_25_unnormalised(runs_by_seed):
+    runs = runs_by_seed[0]
+    default = fit_sindy(runs)
+    explicit = fit_sindy(runs, "poly3", tau=3.0, alpha=10.0, threshold=0.25, normalize=False)
+    np.testing.assert_array_equal(default.coef, explicit.coef)
+    assert default.training["n_windows"] == integral_problem(runs, "poly3", 3.0).n_windows
+    # the defaults decide the fit: other values of each give other coefficients
+    for kw in ({"tau": 2.0}, {"alpha": 20.0}, {"threshold": 0.5}, {"normalize": True}):
+        other = fit_sindy(runs, **{"tau": 3.0, "alpha": 10.0, "threshold": 0.25, **kw})
+        assert not np.array_equal(other.coef, default.coef), kw

@@ -52,3 +52,57 @@ def test_times_not_increasing_name_the_run_they_are_in():
     t[10] = t[9]
     with pytest.raises(InputError, match="run bad_run: state times are not strictly increasing"):
         one_step_residuals(model, [good, StateSeries("bad_run", t, bad.x6, bad.u)])
+
+
+class _ForcedBody(PolyBody):
+    """PolyBody plus a forward acceleration ``0.5 cos(2 t)`` in seconds since the run's start."""
+
+    def accel_and_jacobians(self, x6, u, t=0.0):
+        f, J_x, J_u = super().accel_and_jacobians(x6, u, t)
+        f = f.copy()
+        f[..., 0] += 0.5 * np.cos(2.0 * np.asarray(t, float))
+        return f, J_x, J_u
+
+
+def test_residuals_of_a_time_dependent_model_use_time_since_each_runs_start():
+    model = ProcessModel(_ForcedBody(), name="forced")
+    # series built by the model's own step at the time since its start: every residual is zero
+    a, _, _ = _series(model, "a", 4, n=60)
+    b, _, _ = _series(model, "b", 5, n=40)
+    exact = []
+    for s in (a, b):
+        x = s.x6.copy()
+        for k in range(len(s.t) - 1):
+            x[k + 1] = model.step(x[k], s.u[k], s.t[k] - s.t[0], s.t[k + 1] - s.t[k])
+        exact.append(StateSeries(s.name, s.t, x, s.u))
+    r, _ = one_step_residuals(model, exact)
+    np.testing.assert_allclose(r, 0.0, atol=1e-12)
+
+
+def test_heading_residuals_are_wrapped_to_minus_pi_pi():
+    model = ProcessModel(PolyBody(), name="poly")
+    s, r_true, _ = _series(model, "a", 6, n=40)
+    x = s.x6.copy()
+    x[20:, 2] += 2.0 * np.pi  # one turn added from sample 20 on: the same headings
+    x[30:, 2] -= 6.0 * np.pi
+    r, _ = one_step_residuals(model, [StateSeries("a", s.t, x, s.u)])
+    np.testing.assert_allclose(r, r_true, atol=1e-9)
+    # a residual of 3.5 rad is -2.78 rad (by hand: 3.5 - 2 pi)
+    y = s.x6.copy()
+    y[10, 2] = model.step(y[9], s.u[9], s.t[9] - s.t[0], s.t[10] - s.t[9])[2] + 3.5
+    r, _ = one_step_residuals(model, [StateSeries("a", s.t, y, s.u)])
+    assert r[9, 2] == pytest.approx(3.5 - 2.0 * np.pi, abs=1e-12)
+
+
+def test_step_of_a_time_dependent_model_is_classical_rk4_with_stage_times_t_t_half_t_half_t_plus_h():
+    model = ProcessModel(_ForcedBody(), name="forced")
+    f = model.dynamics.derivative
+    x = np.array([[1.0, -1.0, 0.3, 0.4, 0.05, 0.1], [0.0, 2.0, -2.0, -0.2, 0.0, 0.4]])
+    u = np.array([[0.5, -0.2], [0.1, 0.3]])
+    t, h = np.array([0.7, 2.1]), np.array([0.05, 0.2])
+    k1 = f(x, u, t)
+    k2 = f(x + h[:, None] / 2 * k1, u, t + h / 2)
+    k3 = f(x + h[:, None] / 2 * k2, u, t + h / 2)
+    k4 = f(x + h[:, None] * k3, u, t + h)
+    np.testing.assert_allclose(model.step(x, u, t, h), x + h[:, None] / 6 * (k1 + 2 * k2 + 2 * k3 + k4),
+                               rtol=1e-13, atol=1e-14)

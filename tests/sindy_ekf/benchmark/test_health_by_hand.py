@@ -1,0 +1,68 @@
+"""Health by hand: the reset's position with a lever arm at a general heading, which fix counts as
+"after" the alarm at the 1 us grid tolerance, and where a result is cut."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from groundfloor.gnss import GnssSeries
+from sindy_ekf.benchmark.health import RESET_INFLATION, _cut, reset_state
+from sindy_ekf.estimation.ekf import EkfResult
+
+P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
+
+
+def _gnss():
+    fixes = np.array([[10.0, 5.0, 0.0], [11.0, 5.5, 0.0], [12.0, 6.0, 0.0]])
+    std = np.array([[0.02, 0.03, 0.05], [0.04, 0.01, 0.05], [0.02, 0.02, 0.05]])
+    return GnssSeries("rtk", np.array([1.0, 2.0, 3.0]), np.array([1.1, 2.1, 3.1]), fixes, std,
+                      np.zeros(3, np.uint8), np.array([0.3, -0.2, 0.1]), np.empty((0, 2)))
+
+
+def test_reset_removes_the_lever_arm_rotated_by_a_general_heading():
+    x = np.array([0.0, 0.0, 0.7, 1.0, 0.1, 0.2])
+    x1, P1 = reset_state(x, P0, _gnss(), t_from=1.5)
+    c, s = math.cos(0.7), math.sin(0.7)
+    # by hand: antenna = body + R(psi) [0.3, -0.2]
+    lever_local = [0.3 * c + 0.2 * s, 0.3 * s - 0.2 * c]
+    np.testing.assert_allclose(x1[:2], [11.0 - lever_local[0], 5.5 - lever_local[1]], atol=1e-12)
+    np.testing.assert_allclose(x1[2:], x[2:], atol=0)
+    np.testing.assert_allclose(np.diag(P1)[:2], [0.04 ** 2, 0.01 ** 2] + RESET_INFLATION ** 2 * np.diag(P0)[:2])
+    np.testing.assert_allclose(np.diag(P1)[2:], RESET_INFLATION ** 2 * np.diag(P0)[2:])
+    assert np.count_nonzero(P1 - np.diag(np.diag(P1))) == 0
+
+
+@pytest.mark.parametrize("t_from, x_fix", [(2.0, 12.0), (2.0 - 0.5e-6, 12.0), (2.0 - 1.5e-6, 11.0),
+                                           (1.0, 11.0), (0.0, 10.0)])
+def test_the_fix_after_the_alarm_is_the_first_more_than_1_us_later(t_from, x_fix):
+    g = _gnss()
+    x = np.array([0.0, 0.0, 0.0, 1.0, 0.1, 0.2])  # heading 0: the lever arm is [0.3, -0.2] as it is
+    x1, _ = reset_state(x, P0, g, t_from)
+    assert x1[0] == pytest.approx(x_fix - 0.3, abs=1e-12)
+
+
+def _result():
+    t = np.round(np.arange(11) * 0.2, 12)
+    nis_t = np.array([0.2, 0.4, 1.0 - 1.5e-6, 1.0 - 0.5e-6, 1.0, 1.4])
+    m = len(nis_t)
+    return EkfResult("r", t, np.arange(11.0)[:, None] * np.ones(6), np.ones((11, 6, 6)), np.arange(m, dtype=float),
+                     nis_t, np.ones(m, bool), 13.8, 0, np.zeros(11, bool), 1.0, {},
+                     np.arange(2.0 * m).reshape(m, 2), np.ones((m, 2, 2)), np.arange(m, dtype=float) + 1.0)
+
+
+def test_a_result_cut_at_a_time_keeps_what_lies_more_than_1_us_before_it():
+    cut = _cut(_result(), 1.0)
+    np.testing.assert_array_equal(cut.t, np.round(np.arange(5) * 0.2, 12))  # up to 0.8 s, 1.0 s excluded
+    assert cut.x.shape == (5, 6) and cut.P.shape == (5, 6, 6) and cut.outside_envelope.shape == (5,)
+    # the fixes at 1.0 s and 0.5 us before it are the same instant: excluded; 1.5 us before: kept
+    np.testing.assert_array_equal(cut.nis, [0.0, 1.0, 2.0])
+    np.testing.assert_array_equal(cut.nis_t, [0.2, 0.4, 1.0 - 1.5e-6])
+    np.testing.assert_array_equal(cut.innovation, [[0.0, 1.0], [2.0, 3.0], [4.0, 5.0]])
+    np.testing.assert_array_equal(cut.r_scale, [1.0, 2.0, 3.0])
+    assert cut.accepted.shape == (3,) and cut.innovation_cov.shape == (3, 2, 2)
+    # half a tolerance past a grid time cuts there too
+    assert len(_cut(_result(), 1.0 + 0.5e-6).t) == 5
+    assert len(_cut(_result(), 1.0 + 1.5e-6).t) == 6

@@ -1,0 +1,83 @@
+"""EKF fixes at the edges where the 1 us grid tolerance decides, against a hand Kalman update.
+
+A fix valid at the first or the last grid time is applied there (the grid's ends are inclusive);
+1.5 us beyond either end it is outside the run and ignored; 0.5 us off a grid time it is that grid
+time. A fix arriving exactly at a grid time is applied at that step, 1.5 us later at the next one.
+The model is linear-Gaussian and there is no lever arm, so the update at a step is the textbook
+``K = P H^T (H P H^T + R)^-1`` with ``H = [I 0]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from groundfloor.gnss import GnssSeries
+from sindy_ekf.estimation.ekf import run_ekf
+from tests.support.estimation_helpers import linear_gaussian_model, simulate_truth
+
+P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
+STD = 0.03
+
+
+def _kalman(x, P, z):
+    H = np.eye(2, 6)
+    R = STD ** 2 * np.eye(2)
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    return x + K @ (z - H @ x)
+
+
+def _setup():
+    model = linear_gaussian_model()
+    truth = simulate_truth(model, 1.0, np.random.default_rng(7))
+    return model, truth.t, truth.u, truth.x6[0] + np.array([0.02, -0.03, 0.01, 0.02, 0.0, -0.01])
+
+
+def _gnss(t_valid, t_arrival, p):
+    m = len(t_valid)
+    return GnssSeries("dgnss", np.asarray(t_valid, float), np.asarray(t_arrival, float),
+                      np.column_stack([p, np.zeros(m)]), np.full((m, 3), STD), np.zeros(m, np.uint8),
+                      np.zeros(3), np.empty((0, 2)))
+
+
+def test_fixes_at_the_first_and_last_grid_time_are_applied_there():
+    model, t, u, x0 = _setup()
+    z = np.array([[x0[0] + 0.1, x0[1] - 0.05], [0.7, -0.4]])
+    res = run_ekf(model, t, u, x0, P0, _gnss([t[0], t[-1]], [t[0], t[-1]], z), gate_prob=1.0)
+    np.testing.assert_array_equal(res.nis_t, [t[0], t[-1]])
+    np.testing.assert_allclose(res.x[0], _kalman(x0, P0, z[0]), atol=1e-12)
+    first_only = run_ekf(model, t, u, x0, P0, _gnss([t[0]], [t[0]], z[:1]), gate_prob=1.0)
+    np.testing.assert_allclose(res.x[:-1], first_only.x[:-1], atol=1e-12)
+    np.testing.assert_allclose(res.x[-1], _kalman(first_only.x[-1], first_only.P[-1], z[1]), atol=1e-10)
+
+
+def test_fixes_half_a_tolerance_off_are_on_the_grid_one_and_a_half_beyond_the_ends_are_not():
+    model, t, u, x0 = _setup()
+    z = np.array([[x0[0] + 0.1, x0[1] - 0.05], [0.7, -0.4]])
+    near = run_ekf(model, t, u, x0, P0, _gnss([t[0] - 0.5e-6, t[-1] + 0.5e-6], [t[0], t[-1] + 0.5e-6], z),
+                   gate_prob=1.0)
+    exact = run_ekf(model, t, u, x0, P0, _gnss([t[0], t[-1]], [t[0], t[-1]], z), gate_prob=1.0)
+    np.testing.assert_allclose(near.x, exact.x, atol=1e-12)
+    beyond = run_ekf(model, t, u, x0, P0, _gnss([t[0] - 1.5e-6, t[-1] + 1.5e-6], [t[0], t[-1] + 1.5e-6], z),
+                     gate_prob=1.0)
+    assert beyond.nis.size == 0
+    dead = run_ekf(model, t, u, x0, P0, None)
+    np.testing.assert_allclose(beyond.x, dead.x, atol=1e-12)
+
+
+def test_a_fix_arriving_on_a_grid_time_is_applied_there_and_1_5_us_later_at_the_next_step():
+    model, t, u, x0 = _setup()
+    z = np.array([[0.3, -0.2]])
+    instant = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[5]], z), gate_prob=1.0)
+    dead = run_ekf(model, t, u, x0, P0, None)
+    np.testing.assert_allclose(instant.x[5], _kalman(dead.x[5], dead.P[5], z[0]), atol=1e-12)
+    on_time = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[20]], z), gate_prob=1.0)
+    np.testing.assert_allclose(on_time.x[:20], dead.x[:20], atol=1e-12)
+    # linear-Gaussian, one fix: the delayed update equals the update at the time of validity
+    np.testing.assert_allclose(on_time.x[20:], instant.x[20:], atol=1e-10)
+    later = run_ekf(model, t, u, x0, P0, replace(_gnss([t[5]], [t[20] + 1.5e-6], z)), gate_prob=1.0)
+    np.testing.assert_allclose(later.x[:21], dead.x[:21], atol=1e-12)
+    np.testing.assert_allclose(later.x[21:], instant.x[21:], atol=1e-10)
+    within = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[20] + 0.5e-6], z), gate_prob=1.0)
+    np.testing.assert_allclose(within.x, on_time.x, atol=1e-12)

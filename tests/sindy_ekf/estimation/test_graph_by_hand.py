@@ -1,0 +1,167 @@
+"""Factor graph by hand: Levenberg-Marquardt against a numpy implementation of its documented
+schedule on Rosenbrock's function (whose first Gauss-Newton steps increase the error, so the
+damping must grow), iSAM2's documented defaults seen in its output, its lag dropping late fixes at
+0.8 of the lag, and fixes at the grid's inclusive ends.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+import pytest
+
+from groundfloor.gnss import GnssSeries
+from sindy_ekf.estimation.graph import V, levenberg_marquardt, smooth_batch, smooth_isam2
+from tests.support.estimation_helpers import linear_gaussian_model, simulate_truth
+
+P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
+
+
+def _rosenbrock_residual(p):
+    return np.array([10.0 * (p[1] - p[0] ** 2), 1.0 - p[0]])
+
+
+def _rosenbrock_jacobian(p):
+    return np.array([[-20.0 * p[0], 10.0], [-1.0, 0.0]])
+
+
+def _rosenbrock_graph():
+    def error(this, values, H):
+        p = values.atVector(V(0))
+        if H is not None:
+            H[0] = _rosenbrock_jacobian(p)
+        return _rosenbrock_residual(p)
+
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), [V(0)], error))
+    return graph
+
+
+def _lm_numpy(p, max_iterations, rel_tol, lam):
+    """Levenberg-Marquardt as graph.levenberg_marquardt documents it: ``(J^T J + lambda I) dx = -J^T r``,
+    a step taken when it does not raise the error (then ``lambda / 10``, at least 1e-12), else
+    ``lambda x 10`` until 1e10; stop on a relative decrease below ``rel_tol`` or an error below 1e-9."""
+    def cost(q):
+        r = _rosenbrock_residual(q)
+        return 0.5 * r @ r
+
+    err0 = err = cost(p)
+    it, n_rejected = 0, 0
+    for it in range(1, max_iterations + 1):
+        J, r = _rosenbrock_jacobian(p), _rosenbrock_residual(p)
+        improved = False
+        while lam < 1e10:
+            dx = np.linalg.solve(J.T @ J + lam * np.eye(2), -J.T @ r)
+            err_trial = cost(p + dx)
+            if err_trial <= err:
+                improved, lam = True, max(lam / 10.0, 1e-12)
+                break
+            lam *= 10.0
+            n_rejected += 1
+        if not improved:
+            break
+        decrease = (err - err_trial) / err
+        p, err = p + dx, err_trial
+        if decrease < rel_tol or err < 1e-9:
+            break
+    return p, it, err0, err, n_rejected
+
+
+@pytest.mark.parametrize("max_iterations", [1, 2, 3, 40])
+def test_levenberg_marquardt_follows_its_damping_schedule_on_rosenbrock(max_iterations):
+    start = np.array([-1.2, 1.0])
+    values = gtsam.Values()
+    values.insert(V(0), start)
+    got, it, err0, err = levenberg_marquardt(_rosenbrock_graph(), values, max_iterations=max_iterations)
+    p, it_ref, err0_ref, err_ref, n_rejected = _lm_numpy(start, max_iterations, 1e-6, 1e-5)
+    assert n_rejected > 0  # steps that raised the error: the damping grew
+    np.testing.assert_allclose(got.atVector(V(0)), p, rtol=1e-9, atol=1e-12)
+    assert it == it_ref
+    assert err0 == pytest.approx(err0_ref, rel=1e-12)
+    assert err == pytest.approx(err_ref, rel=1e-9, abs=1e-15)
+
+
+def test_levenberg_marquardt_defaults_are_20_iterations_from_lambda_1e_5():
+    # from (-1.2, 1) the valley takes more than 20 iterations: the default limit decides the result
+    start = np.array([-1.2, 1.0])
+    values = gtsam.Values()
+    values.insert(V(0), start)
+    got, it, _, err = levenberg_marquardt(_rosenbrock_graph(), values)
+    p, it_ref, _, err_ref, _ = _lm_numpy(start, 20, 1e-6, 1e-5)
+    assert it == it_ref == 20
+    np.testing.assert_allclose(got.atVector(V(0)), p, rtol=1e-9, atol=1e-12)
+    assert err == pytest.approx(err_ref, rel=1e-9)
+    # and it converges to the minimum (1, 1) given the iterations
+    done, _, _, _ = levenberg_marquardt(_rosenbrock_graph(), values, max_iterations=200)
+    np.testing.assert_allclose(done.atVector(V(0)), [1.0, 1.0], atol=1e-3)
+
+
+def _short_run(duration_s=6.0, seed=3):
+    """A linear-Gaussian truth at 50 Hz and fixes every 0.2 s on its grid (no latency, no lever arm)."""
+    model = linear_gaussian_model()
+    truth = simulate_truth(model, duration_s, np.random.default_rng(seed))
+    t, u = truth.t, truth.u
+    k = np.arange(0, len(t), 10)
+    rng = np.random.default_rng(seed + 1)
+    p = np.column_stack([truth.x6[k, :2] + 0.05 * rng.standard_normal((len(k), 2)), np.zeros(len(k))])
+    gnss = GnssSeries("dgnss", t[k].copy(), t[k].copy(), p, np.full((len(k), 3), 0.05),
+                      np.zeros(len(k), np.uint8), np.zeros(3), np.empty((0, 2)))
+    return model, truth, t, u, gnss
+
+
+def _fixes(gnss, keep):
+    return replace(gnss, **{f: getattr(gnss, f)[keep] for f in ("t_valid", "t_arrival", "p_local", "std", "flags")})
+
+
+def test_isam2_updates_every_10_steps_by_default_and_defaults_are_huber_and_a_3_s_lag():
+    model, truth, t, u, gnss = _short_run(duration_s=3.0)
+    n = len(t)
+    got = smooth_isam2(model, t, u, truth.x6[0], P0, gnss)
+    # by hand: an update at every 10th step and at the last; its marginal is known only there
+    updated = sorted(set(range(10, n, 10)) | {n - 1})
+    assert got.iterations == len(updated)
+    np.testing.assert_array_equal(np.flatnonzero(np.isfinite(got.P[:, 0, 0])), updated)
+    explicit = smooth_isam2(model, t, u, truth.x6[0], P0, gnss, robust="huber", update_every=10, lag_s=3.0)
+    np.testing.assert_array_equal(got.x, explicit.x)
+
+
+@pytest.mark.parametrize("latency_s, used", [(2.3, True), (2.5, False)])
+def test_isam2_drops_a_fix_arriving_later_than_0_8_of_its_default_lag(latency_s, used):
+    model, truth, t, u, gnss = _short_run()
+    j = 10  # the fix valid at 2 s
+    late = replace(gnss, t_arrival=gnss.t_arrival.copy())
+    late.t_arrival[j] = gnss.t_valid[j] + latency_s  # on the grid: 115 or 125 steps later
+    late.t_arrival[j + 1:] = np.maximum(late.t_arrival[j + 1:], late.t_arrival[j])  # arrival order kept
+    without = _fixes(late, np.arange(len(gnss.t_valid)) != j)
+    got = smooth_isam2(model, t, u, truth.x6[0], P0, late, robust=None)
+    ref = smooth_isam2(model, t, u, truth.x6[0], P0, without, robust=None)
+    moved = np.abs(got.x - ref.x).max()
+    if used:  # 2.3 s < 0.8 x 3 s: the fix joins the window
+        assert moved > 1e-4, moved
+    else:  # 2.5 s > 2.4 s: dropped, as if it never came
+        assert moved < 1e-9, moved
+
+
+def test_graph_takes_fixes_at_both_ends_of_the_grid_and_none_beyond_them():
+    model, truth, t, u, gnss = _short_run(duration_s=2.0)
+    assert gnss.t_valid[0] == t[0]
+    end = replace(gnss, t_valid=np.append(gnss.t_valid, t[-1]), t_arrival=np.append(gnss.t_arrival, t[-1]),
+                  p_local=np.vstack([gnss.p_local, [*truth.x6[-1, :2], 0.0]]),
+                  std=np.vstack([gnss.std, gnss.std[:1]]), flags=np.append(gnss.flags, 0))
+    base = smooth_batch(model, t, u, truth.x6[0], P0, end, robust=None, marginal_stride=None)
+    for j, k in ((0, 0), (-1, -1)):  # a fix at the first and at the last grid time is a factor
+        p = end.p_local.copy()
+        p[j, 0] += 1.0
+        moved = smooth_batch(model, t, u, truth.x6[0], P0, replace(end, p_local=p), robust=None,
+                             marginal_stride=None)
+        assert moved.x[k, 0] - base.x[k, 0] > 0.05, j
+    # fixes 1.5 us beyond either end (more than the 1 us grid tolerance) are outside: left out
+    beyond = replace(end, t_valid=end.t_valid.copy(), t_arrival=end.t_arrival.copy())
+    beyond.t_valid[0] = beyond.t_arrival[0] = t[0] - 1.5e-6
+    beyond.t_valid[-1] = beyond.t_arrival[-1] = t[-1] + 1.5e-6
+    inner = _fixes(end, slice(1, -1))
+    got = smooth_batch(model, t, u, truth.x6[0], P0, beyond, robust=None, marginal_stride=None)
+    ref = smooth_batch(model, t, u, truth.x6[0], P0, inner, robust=None, marginal_stride=None)
+    np.testing.assert_allclose(got.x, ref.x, atol=1e-9)
