@@ -138,6 +138,7 @@ def test_a_jump_in_the_fixes_is_recovered_by_reinitialising_from_the_next_fix(ju
     model, truth, run, t_jump = jump
     [(res, status)] = guarded_ekf_batch(model, [run], step_test=False)
     assert status.status == "ok" and status.recoveries == 1
+    assert status.reason == "" and math.isnan(status.t_s)  # ok: no time, no reason
     assert len(res.t) == len(run.t)
     # after the reset the filter follows the (jumped) fixes again, with fixes accepted
     ref = truth_on(truth, res.t)

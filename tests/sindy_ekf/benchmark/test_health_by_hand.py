@@ -66,3 +66,27 @@ def test_a_result_cut_at_a_time_keeps_what_lies_more_than_1_us_before_it():
     # half a tolerance past a grid time cuts there too
     assert len(_cut(_result(), 1.0 + 0.5e-6).t) == 5
     assert len(_cut(_result(), 1.0 + 1.5e-6).t) == 6
+
+
+def test_eight_fixes_on_two_levels_are_a_step_and_seven_are_too_few_to_tell():
+    from sindy_ekf.benchmark.health import fixes_stepped
+
+    rng = np.random.default_rng(3)
+    y = np.zeros((8, 2)) + 0.01 * rng.standard_normal((8, 2))
+    y[4:, 0] += 1.0  # a 1 m step under 1 cm noise (innovation std 1 cm)
+    S = np.repeat(1e-4 * np.eye(2)[None], 8, axis=0)
+    assert fixes_stepped(y, S, need_step=True)
+    assert not fixes_stepped(y[1:], S[1:], need_step=True)  # fewer than 8 fixes: no test
+
+
+def test_combined_status_names_the_worst_run_and_counts_the_others():
+    from sindy_ekf.benchmark.health import RunStatus, combined_status
+
+    ok = RunStatus(recoveries=1, fix_steps=2)
+    bad = RunStatus("diverged", 3.0, "NIS alarm", 1)
+    worse = RunStatus("failed", 0.0, "ValueError: x")
+    got = combined_status({"a": ok, "b": bad, "c": bad, "d": worse})
+    assert got.status == "failed" and got.reason == "d: ValueError: x (and 2 other run(s))"
+    assert got.recoveries == 3 and got.fix_steps == 2
+    assert combined_status({"a": ok, "b": bad}).reason == "b: NIS alarm"  # no other run: no count
+    assert combined_status({"a": ok, "b": ok}) == RunStatus(recoveries=2, fix_steps=4)

@@ -81,3 +81,25 @@ def test_a_fix_arriving_on_a_grid_time_is_applied_there_and_1_5_us_later_at_the_
     np.testing.assert_allclose(later.x[21:], instant.x[21:], atol=1e-10)
     within = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[20] + 0.5e-6], z), gate_prob=1.0)
     np.testing.assert_allclose(within.x, on_time.x, atol=1e-12)
+
+
+def test_the_grid_splits_a_step_longer_than_dt_max_evenly_and_merges_stamps_within_1_us():
+    from sindy_ekf.estimation.ekf import estimation_grid
+
+    # by hand (steps of at most 25 ms): 0.04 s is two steps of 0.02, 0.06 s three, 0.05 s two of
+    # 0.025; 0.02 s stays one step; a fix 0.5 us after a pose is that pose's stamp
+    np.testing.assert_allclose(estimation_grid(np.array([0.0, 0.04, 0.06])), [0.0, 0.02, 0.04, 0.06], atol=1e-15)
+    np.testing.assert_allclose(estimation_grid(np.array([0.0, 0.06]), np.array([0.06 + 0.5e-6])),
+                               [0.0, 0.02, 0.04, 0.06], atol=1e-15)
+    np.testing.assert_allclose(estimation_grid(np.array([0.0, 0.05])), [0.0, 0.025, 0.05], atol=1e-15)
+    np.testing.assert_allclose(estimation_grid(np.array([0.0, 0.02, 0.04])), [0.0, 0.02, 0.04], atol=0)
+
+
+def test_a_fix_rejected_by_the_gate_leaves_the_estimate_as_predicted():
+    model, t, u, x0 = _setup()
+    dead = run_ekf(model, t, u, x0, P0, None)
+    z = np.array([dead.x[5, :2] + 0.02, [100.0, 100.0]])  # the second 100 m off: beyond the 0.999 gate
+    res = run_ekf(model, t, u, x0, P0, _gnss([t[5], t[10]], [t[5], t[10]], z))
+    np.testing.assert_array_equal(res.accepted, [True, False])
+    first = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[5]], z[:1]))
+    np.testing.assert_allclose(res.x, first.x, atol=1e-12)

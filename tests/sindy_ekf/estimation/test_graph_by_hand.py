@@ -165,3 +165,29 @@ def test_graph_takes_fixes_at_both_ends_of_the_grid_and_none_beyond_them():
     got = smooth_batch(model, t, u, truth.x6[0], P0, beyond, robust=None, marginal_stride=None)
     ref = smooth_batch(model, t, u, truth.x6[0], P0, inner, robust=None, marginal_stride=None)
     np.testing.assert_allclose(got.x, ref.x, atol=1e-9)
+
+
+def test_levenberg_marquardt_gives_up_when_no_damping_up_to_1e10_lowers_the_error():
+    # a factor whose Jacobian has the wrong sign: every step goes uphill, whatever the damping; by
+    # hand, trials at lambda = 1e-5, 1e-4, ..., 1e9 (15 of them), none at 1e10, then the start back
+    calls = []
+
+    def error(this, values, H):
+        p = values.atVector(V(0))
+        if H is not None:
+            H[0] = -np.eye(2)
+        else:
+            calls.append(p.copy())
+        return p
+
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(2), [V(0)], error))
+    values = gtsam.Values()
+    values.insert(V(0), np.array([1.0, -2.0]))
+    got, it, err0, err = levenberg_marquardt(graph, values)
+    np.testing.assert_array_equal(got.atVector(V(0)), [1.0, -2.0])
+    assert it == 1 and err == err0 == pytest.approx(2.5)
+    trials = calls[1:]  # the first evaluation is the starting error
+    assert len(trials) == 15
+    # the step at lambda is (1 + 1 / (1 + lambda)) times the start: the last at 1e9
+    np.testing.assert_allclose(trials[-1], np.array([1.0, -2.0]) * (1.0 + 1.0 / (1.0 + 1e9)), rtol=1e-12)
