@@ -78,3 +78,22 @@ def test_windows_give_each_model_its_delayed_inputs_and_their_rates():
     np.testing.assert_allclose(stacked[1], got, atol=1e-12)
     np.testing.assert_allclose(stacked[0], w.u_half, atol=1e-12)
     assert w.inputs_for(np.zeros((3, 2))).shape == (3,) + w.u_half.shape
+
+
+def test_windows_hold_recorded_inputs_from_their_own_stamps():
+    from groundfloor.types import InputSeries
+
+    t = 100.0 + np.arange(301) * 0.02  # 6 s of states, one 5 s window
+    z = np.zeros_like(t)
+    st = BodyStates(t=t, vx=z, vy=z, omega=z, u1=z, u2=z, x=z, y=z, yaw=z)
+    # commands at 10 Hz, stamped 0.05 s off the states': u1 = 0.1 k at 100.05 + 0.1 k (held)
+    t_cmd = 100.05 + np.arange(60) * 0.1
+    cmd = InputSeries(t=t_cmd, u1=0.1 * np.arange(60), u2=-0.2 * np.arange(60))
+    w = make_windows([st], inputs=[cmd])
+    assert w.n_windows == 1 and w.t0_run[0] == 0.0
+    # by hand at t = 100.5 s (half-step 50): the command of 100.45 s (k = 4), 0.05 s from a change
+    np.testing.assert_allclose(w.u_half[0, 50], [0.4, -0.8], atol=1e-9)
+    # before the first command the first one holds; at 100.25 s (a command's stamp) the average over
+    # [100.24, 100.26] is half k = 1, half k = 2
+    np.testing.assert_allclose(w.u_half[0, 0], [0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(w.u_half[0, 25], [0.15, -0.3], atol=1e-9)

@@ -103,3 +103,21 @@ def test_a_fix_rejected_by_the_gate_leaves_the_estimate_as_predicted():
     np.testing.assert_array_equal(res.accepted, [True, False])
     first = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[5]], z[:1]))
     np.testing.assert_allclose(res.x, first.x, atol=1e-12)
+
+
+def test_the_filterpy_predict_propagates_by_the_model_and_f_p_ft_plus_q():
+    from sindy_ekf.estimation.ekf import ModelEKF
+
+    model, t, u, x0 = _setup()
+    ekf = ModelEKF(model, x0, P0)
+    x_next = model.step(x0, u[0], 0.3, 0.05)
+    F = np.empty((6, 6))
+    for j in range(6):  # central differences of the step: the linear model's exact Jacobian
+        e = np.zeros(6)
+        e[j] = 1e-6
+        F[:, j] = (model.step(x0 + e, u[0], 0.3, 0.05) - model.step(x0 - e, u[0], 0.3, 0.05)) / 2e-6
+    ekf.predict(u[0], 0.3, 0.05)
+    np.testing.assert_allclose(ekf.x, x_next, atol=1e-14)
+    np.testing.assert_allclose(ekf.P, F @ P0 @ F.T + 0.05 * model.Q_rate_, rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(ekf.F, F, atol=1e-8)
+    assert ekf.pd_repairs == 0

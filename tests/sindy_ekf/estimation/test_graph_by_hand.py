@@ -191,3 +191,10 @@ def test_levenberg_marquardt_gives_up_when_no_damping_up_to_1e10_lowers_the_erro
     assert len(trials) == 15
     # the step at lambda is (1 + 1 / (1 + lambda)) times the start: the last at 1e9
     np.testing.assert_allclose(trials[-1], np.array([1.0, -2.0]) * (1.0 + 1.0 / (1.0 + 1e9)), rtol=1e-12)
+
+
+def test_isam2_without_fixes_is_dead_reckoning():
+    # priors and dynamics alone: the most probable trajectory is the model's own from x0
+    model, truth, t, u, _ = _short_run(duration_s=1.0)
+    got = smooth_isam2(model, t, u, truth.x6[0], P0, None)
+    np.testing.assert_allclose(got.x, model.propagate(truth.x6[0], u, t - t[0]), atol=1e-9)
