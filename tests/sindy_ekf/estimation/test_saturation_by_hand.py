@@ -1,7 +1,7 @@
 """The model's velocity envelope and the saturated step by hand (process_models): the bounds are the
 envelope widened by 10 % of its width on both sides, a velocity on the bound is inside, and a
-velocity beyond it is held over the step, its column of ``F`` the unit column (central differences
-of the documented map ``x + step(clip(x)) - clip(x)``)."""
+state beyond it is projected onto it before the step (``step(clip(x))``), the projected velocity's
+column of ``F`` the unit column and every other column the map's central differences."""
 
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ def test_outside_bounds_is_strictly_beyond_a_bound(v, outside):
     assert outside_bounds(x, lo, hi) is outside
 
 
-def test_a_velocity_beyond_the_envelope_is_held_over_the_step():
+def test_a_velocity_beyond_the_envelope_is_projected_onto_it_and_its_covariance_carried_over():
     model = ProcessModel(PolyBody())
     bounds = model.velocity_bounds()
     x = np.array([[0.5, -0.2, 0.3, 2.0, 0.1, -0.4],     # vx beyond 1.2
@@ -49,17 +49,23 @@ def test_a_velocity_beyond_the_envelope_is_held_over_the_step():
     x_next, F, held = model.saturated_step_and_jac(x, u, t, dt, bounds)
     np.testing.assert_array_equal(held, [True, True, False])
 
-    def g(x_in):  # the documented map
+    def g(x_in):  # the documented map: the step from the state projected onto the envelope
         x_sat = x_in.copy()
         x_sat[:, 3:] = np.clip(x_in[:, 3:], *bounds)
-        return x_in + model.step(x_sat, u, t, dt) - x_sat
+        return model.step(x_sat, u, t, dt)
 
-    np.testing.assert_allclose(x_next, g(x), atol=1e-14)
+    # by hand: the projected states
+    x_sat = x.copy()
+    x_sat[0, 3], x_sat[1, 4], x_sat[1, 5] = 1.2, -0.36, 1.2
+    np.testing.assert_allclose(x_next, model.step(x_sat, u, t, dt), atol=1e-14)
     h = 1e-6
+    projected = {(0, 3), (1, 4), (1, 5)}
     for j in range(6):
         e = np.zeros(6)
         e[j] = h
-        np.testing.assert_allclose(F[:, :, j], (g(x + e) - g(x - e)) / (2 * h), atol=1e-7, err_msg=str(j))
-    np.testing.assert_array_equal(F[0, :, 3], np.eye(6)[3])  # the held velocity: its unit column
-    np.testing.assert_array_equal(F[1, :, 4], np.eye(6)[4])
-    np.testing.assert_array_equal(F[1, :, 5], np.eye(6)[5])
+        fd = (g(x + e) - g(x - e)) / (2 * h)  # central differences of the map
+        for i in range(3):
+            if (i, j) in projected:  # not the map's derivative (zero): the unit column, covariance kept
+                np.testing.assert_array_equal(F[i, :, j], np.eye(6)[j])
+            else:
+                np.testing.assert_allclose(F[i, :, j], fd[i], atol=1e-7, err_msg=f"{i}, {j}")
