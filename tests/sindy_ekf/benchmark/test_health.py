@@ -20,13 +20,12 @@ from sindy_ekf.benchmark.health import (
     MAX_COAST_S,
     NIS_WINDOW,
     RESET_INFLATION,
-    _segment_rss,
-    fixes_stepped,
     guarded,
     guarded_ekf_batch,
     nis_alarm,
     reset_state,
 )
+from sindy_ekf.benchmark.step_test import _segment_rss, fixes_stepped
 from sindy_ekf.cli import main
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
 from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
@@ -250,7 +249,7 @@ def test_step_test_takes_several_levels_and_tells_them_from_a_curved_drift():
 def test_partitions_match_an_exhaustive_search():
     from itertools import combinations
 
-    from sindy_ekf.benchmark.health import _partitions
+    from sindy_ekf.benchmark.step_test import _partitions
 
     rng = np.random.default_rng(6)
     y, w = rng.normal(size=(11, 2)), rng.uniform(0.5, 2.0, 11)

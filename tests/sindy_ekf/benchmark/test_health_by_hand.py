@@ -69,7 +69,7 @@ def test_a_result_cut_at_a_time_keeps_what_lies_more_than_1_us_before_it():
 
 
 def test_eight_fixes_on_two_levels_are_a_step_and_seven_are_too_few_to_tell():
-    from sindy_ekf.benchmark.health import fixes_stepped
+    from sindy_ekf.benchmark.step_test import fixes_stepped
 
     rng = np.random.default_rng(3)
     y = np.zeros((8, 2)) + 0.01 * rng.standard_normal((8, 2))
