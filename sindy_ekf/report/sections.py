@@ -219,13 +219,24 @@ def section_poses(sec: Section, chain: ChainResult) -> None:
     sec.figures(items)
 
 
+def _hyperparameter(key: str, value) -> str:
+    """Return a hyperparameter as a reader wants it: times (``*_s``) in ms, other numbers as %g."""
+    if isinstance(value, bool) or isinstance(value, str):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        if key.endswith("_s"):
+            return "[" + ", ".join(f"{1e3 * float(v):.0f}" for v in value) + "] ms"
+        return "[" + ", ".join(f"{float(v):g}" for v in value) + "]"
+    if isinstance(value, (int, float)):
+        return f"{1e3 * float(value):.0f} ms" if key.endswith("_s") else f"{value:g}"
+    return str(value)
+
+
 @_builds("identification", needs=("identification",))
 def section_identification(sec: Section, chain: ChainResult) -> None:
     """Write the identification: grid search, selected model's equations, term prevalence."""
     model = chain.model
-    # numbers as %g; the library name, the lag structure's name and the dead times as they are
-    hp = ", ".join(f"{k} = {v:g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else f"{k} = {v}"
-                   for k, v in model.hyperparameters.items())
+    hp = ", ".join(f"{k} = {_hyperparameter(k, v)}" for k, v in model.hyperparameters.items())
     src = f"loaded from {chain.model_path}" if chain.search is None else f"selected by the grid search ({hp})"
     sec.note(f"Integral SINDy (eqs. 5.55 to 5.59), library {model.library.name}, {model.complexity} active "
              f"terms, {src}.")
@@ -235,8 +246,13 @@ def section_identification(sec: Section, chain: ChainResult) -> None:
     res = chain.search
     tb = res.table
     n, n_finite = len(tb["s"]), int(np.isfinite(tb["pos_err_5s_m"]).sum())
+    chosen = res.row(res.selected) if res.selected < n else None
+    kept = ("" if chosen is None or int(chosen["complexity"]) == model.complexity else
+            f" The table counts the terms of each grid point's regression; the selected one's "
+            f"{int(chosen['complexity'])} became the model's {model.complexity} after its refinement (terms "
+            "without a significant coefficient dropped, docs/identification.md).")
     sec.note(f"{n} grid points, {n_finite} with a finite cross-validated 5 s error; the selected model is the "
-             "sparsest admissible one within one standard error of the best.")
+             f"sparsest admissible one within one standard error of the best.{kept}")
     rows = [[i, f"{r['s']:g}", f"{r['tau']:g}", f"{r['alpha']:g}", f"{r['T']:g}", f"{r['complexity']:.0f}",
              f"{100 * r['pos_err_5s_m']:.2f}", f"{r['yaw_err_5s_deg']:.2f}", f"{100 * r.get('diverged_frac', 0.0):.0f}",
              "selected" if i - 1 == res.selected else ""] for i, r in enumerate(res.ranking(8), 1)]
