@@ -13,8 +13,11 @@ import math
 import numpy as np
 from scipy.stats import chi2
 
+from sindy_ekf.estimation.ekf import GATE_PROB
+
 STEP_FALSE_ALARM = 1e-3  # of the step model's residual test
 _OUTLIER_NIS = float(chi2.ppf(0.999, 2))  # a fix this far from its neighbours' median is an outlier
+_GATE_NIS = float(chi2.ppf(GATE_PROB, 2))  # a level of the fixes inside the filter's gate agrees with it
 
 
 def _segment_rss(w: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -120,14 +123,14 @@ def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndar
     if need_step:
         if k < 2:
             return False
-        bounds, end = [n], n  # the levels, back along the best partition's level starts
+        starts, end = [], n  # the levels' starts, back along the best partition
         for kk in range(k, 0, -1):
             end = int(arg[kk, end])
-            bounds.insert(0, end)
-        agrees = [float(m @ m) * float(np.mean(w[a:b])) <= _OUTLIER_NIS
-                  for a, b in zip(bounds[:-1], bounds[1:])
-                  for m in [np.sum(w[a:b, None] * y[a:b], axis=0) / np.sum(w[a:b])]]
-        if not any(agrees):
+            starts.insert(0, end)
+        sw = np.add.reduceat(w, starts)
+        means = np.add.reduceat(w[:, None] * y, starts, axis=0) / sw[:, None]
+        mean_w = sw / np.diff([*starts, n])
+        if not np.any(np.sum(means ** 2, axis=1) * mean_w <= _GATE_NIS):
             return False  # no level of the fixes agreed with the filter: it did not follow them either
     log_n = math.log(n)
     bic_steps = float(cost[k, n]) + (3 * k - 1) * log_n

@@ -221,7 +221,7 @@ def section_poses(sec: Section, chain: ChainResult) -> None:
 
 def _hyperparameter(key: str, value) -> str:
     """Return a hyperparameter as a reader wants it: times (``*_s``) in ms, other numbers as %g."""
-    if isinstance(value, bool) or isinstance(value, str):
+    if isinstance(value, (bool, str)):
         return str(value)
     if isinstance(value, (list, tuple)):
         if key.endswith("_s"):
