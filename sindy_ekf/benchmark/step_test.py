@@ -71,13 +71,26 @@ def _drift_rss(w: np.ndarray, y: np.ndarray, t: np.ndarray) -> float:
     return float(np.sum((yw - A @ coef) ** 2))
 
 
+NEIGHBOURS = 5  # fixes of the running median an outlier is measured from (itself among them)
+
+
+def _local_median(y: np.ndarray, width: int = NEIGHBOURS) -> np.ndarray:
+    """Return per row of ``y (n, 2)`` the median of the ``width`` consecutive rows centred on it,
+    the window shifted inward at the ends (not padded with the end row: a padded end row would be
+    most of its own window, so an outlier at the window's edge would be its own median)."""
+    n = len(y)
+    width = min(width, n)
+    lo = np.clip(np.arange(n) - width // 2, 0, n - width)
+    return np.median(y[lo[:, None] + np.arange(width)], axis=1)
+
+
 def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndarray | None = None,
                   need_step: bool = False, false_alarm: float = STEP_FALSE_ALARM) -> bool:
     """Return whether the innovations ``(n, 2)`` are a piecewise-constant offset plus noise.
 
     Two hypotheses about an alarm (Basseville and Nikiforov 1993, ch. 2 and 4), weights
     ``2 / trace S`` per fix, isolated outliers (farther than the chi2(2) 0.999 quantile from the
-    median of their five neighbours) left out first:
+    running median of five fixes, :func:`_local_median`) left out first:
 
     - **the fixes stepped**: the innovations are levels with steps between them (the fewest
       levels, at most :data:`MAX_LEVELS`, whose optimal partition passes the ``1 - false_alarm``
@@ -103,9 +116,7 @@ def fixes_stepped(innovation: np.ndarray, innovation_cov: np.ndarray, t: np.ndar
     if n < 8:
         return False
     var = 0.5 * (S[:, 0, 0] + S[:, 1, 1])
-    pad = np.concatenate([y[:1].repeat(2, 0), y, y[-1:].repeat(2, 0)])
-    local = np.median(np.stack([pad[k:k + n] for k in range(5)]), axis=0)
-    keep = np.sum((y - local) ** 2, axis=1) / var <= _OUTLIER_NIS
+    keep = np.sum((y - _local_median(y)) ** 2, axis=1) / var <= _OUTLIER_NIS
     if np.sum(~keep) > MAX_OUTLIER_SHARE * n:  # not isolated outliers: the fixes scatter beyond their covariance
         return False
     y, var, t = y[keep], var[keep], t[keep]

@@ -25,7 +25,7 @@ from sindy_ekf.benchmark.health import (
     nis_alarm,
     reset_state,
 )
-from sindy_ekf.benchmark.step_test import _segment_rss, fixes_stepped
+from sindy_ekf.benchmark.step_test import _local_median, _segment_rss, fixes_stepped
 from sindy_ekf.cli import main
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
 from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
@@ -212,6 +212,32 @@ def test_step_test_tells_steps_of_the_fixes_from_a_drifting_filter():
         hits["scatter"] += fixes_stepped(*_innovations(rng.normal(0, 1.0, (40, 2)), rng))
     assert hits["step"] >= 195 and hits["burst"] >= 195 and hits["burst_outlier"] >= 190
     assert hits["drift"] <= 5 and hits["noisy"] == 0 and hits["scatter"] == 0
+
+
+def test_an_outlier_at_either_end_of_the_window_is_left_out_like_one_inside():
+    # Monte-Carlo run 41 (bench/results/monte_carlo.md): a multipath burst ran to the alarm
+    # window's last fix, and that fix was an outlier 9 m off. Padding the running median with the
+    # end fix made the outlier 3 of its own 5 neighbours, so it stayed in, the window was "not a
+    # step", and the filter was reset onto the burst.
+    rng = np.random.default_rng(7)
+    k = np.arange(40)[:, None]
+    hits = {"last": 0, "first": 0}
+    for _ in range(100):
+        y, S = _innovations(np.where(k >= 20, [2.5, -1.0], 0.0), rng)
+        y[-1] = [4.4, -8.6]
+        hits["last"] += fixes_stepped(y, S, need_step=True)
+        y, S = _innovations(np.where(k < 20, [2.5, -1.0], 0.0), rng)
+        y[0] = [-6.0, 7.0]
+        hits["first"] += fixes_stepped(y, S, need_step=True)
+    assert hits["last"] >= 95 and hits["first"] >= 95
+
+
+def test_running_median_of_five_shifts_inward_at_the_ends():
+    y = np.array([[1.0, 0.0], [9.0, 1.0], [3.0, 2.0], [7.0, 3.0], [5.0, 4.0], [100.0, 5.0]])
+    # by hand: rows 0-2 take rows 0-4 (x 1 9 3 7 5 -> 5), row 3 rows 1-5 (9 3 7 5 100 -> 7), and
+    # so do rows 4 and 5; y the same windows: 2, 3, 3, 3
+    np.testing.assert_array_equal(_local_median(y), [[5, 2], [5, 2], [5, 2], [7, 3], [7, 3], [7, 3]])
+    np.testing.assert_array_equal(_local_median(y[:3]), np.repeat([[3.0, 1.0]], 3, axis=0))
 
 
 def test_step_test_takes_several_levels_and_tells_them_from_a_curved_drift():
