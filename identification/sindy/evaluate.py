@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -59,6 +60,10 @@ class InputTrack:
     hold: str = "linear"
     width_s: float = 0.02
 
+    # The tables below depend on the samples only: cached, since an output-error fit asks for the
+    # inputs at new dead times and lags a few hundred times (cached_property writes the instance's
+    # __dict__ directly, which a frozen dataclass allows).
+    @cached_property
     def _cumulative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Return knots, the integral of the held inputs at the knots (both padded far out) and the held values."""
         pad = 1e4  # seconds beyond both ends: the end values hold there
@@ -74,8 +79,19 @@ class InputTrack:
         lag = np.asarray(lag_s, dtype=float)
         if not np.any(lag > 0.0) or len(self.t) < 2:
             return self
+        grid, u_grid = self._on_lag_grid
+        return InputTrack(grid, first_order_lag(u_grid, float(grid[1] - grid[0]), lag), "linear")
+
+    @cached_property
+    def _on_lag_grid(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return the uniform grid of :meth:`lagged` and the inputs on it (before any lag)."""
         grid = lag_grid(self.t)
-        return InputTrack(grid, first_order_lag(self.at(grid), float(grid[1] - grid[0]), lag), "linear")
+        return grid, self.at(grid)
+
+    @cached_property
+    def _slope(self) -> np.ndarray:
+        """Return the slopes ``(m - 1, 2)`` of the straight lines between the samples."""
+        return np.diff(self.u, axis=0) / np.diff(self.t)[:, None]
 
     def at(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
         """Return the inputs ``u_i(t - d_i)`` ``(*t_query.shape, 2)``; ``delay_s`` is ``(2,)`` or
@@ -93,7 +109,7 @@ class InputTrack:
             return np.stack([self._eval(tq, row, rate) for row in d])
         out = np.empty(tq.shape + (2,))
         if self.hold == "linear":
-            slope = np.diff(self.u, axis=0) / np.diff(self.t)[:, None]
+            slope = self._slope
             for i in range(2):
                 q = tq - d[i]
                 if rate:
@@ -103,7 +119,7 @@ class InputTrack:
                 else:
                     out[..., i] = np.interp(q, self.t, self.u[:, i])
             return out
-        knots, integral, held = self._cumulative()
+        knots, integral, held = self._cumulative
         h = 0.5 * self.width_s
         for i in range(2):
             q = tq - d[i]

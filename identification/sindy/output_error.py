@@ -38,6 +38,7 @@ from groundfloor.dynamics import Dynamics
 from identification.sindy.evaluate import Windows
 from identification.sindy.library import LIBRARY_STATE_NAMES, FeatureLibrary
 from identification.sindy.model import SindyModel
+from identification.sindy.sensitivity_rollout import sensitivity_rollout
 
 log = logging.getLogger(__name__)
 
@@ -108,6 +109,9 @@ class SindyStructure(ParametricModel):
         self.all_eq, self.all_sub_col = all_eq, np.array([cols.index(j) for j in all_col], dtype=int)
         self.all_col = all_col
         self.sub_linear = model.linear_columns[cols]
+        # the compiled rollout's view: each parameter's feature as atom-table columns (FeatureLibrary._index)
+        self.factors = model.library._index[0][col]
+        self.linear = model.linear_columns[col]
         self.bounds = model._clamp_bounds()
         self.lower = np.full(len(eq), -np.inf)
         self.upper = np.full(len(eq), np.inf)
@@ -200,20 +204,26 @@ def lag_sensitivity(windows: Windows, delay_s, lag_s) -> np.ndarray:
 
 
 def rollout_with_sensitivities(dynamics: Dynamics, model: ParametricModel, windows: Windows,
-                               fit_dead_time: bool = True, fit_input_lag: bool = False
+                               fit_dead_time: bool = True, fit_input_lag: bool = False, compiled: bool = True
                                ) -> tuple[np.ndarray, np.ndarray]:
     """Return predicted states ``(W, n, 6)`` and their sensitivities ``(W, n, 6, P)``.
 
     Classical RK4 with the inputs at the step's start, middle and end, exactly as
     :func:`identification.sindy.evaluate.rollout`; ``P`` is the number of model parameters plus
     the two dead times when ``fit_dead_time`` plus the two input lags when ``fit_input_lag``
-    (``d f / d T_i = J_f_u[:, i] d u_i / d T_i``, :func:`lag_sensitivity`).
+    (``d f / d T_i = J_f_u[:, i] d u_i / d T_i``, :func:`lag_sensitivity`). A SINDy structure
+    is integrated in one compiled pass when ``compiled``
+    (:func:`identification.sindy.sensitivity_rollout.sensitivity_rollout`); otherwise, and for
+    other models, by the numpy recursion below.
     """
     delay = np.asarray(dynamics.dead_time_s, dtype=float)
     lag = np.asarray(getattr(dynamics, "input_lag_s", (0.0, 0.0)), dtype=float)
     u_half = windows.inputs_for(delay, lag_s=lag)
     u_rate = windows.inputs_for(delay, rate=True, lag_s=lag) if fit_dead_time else None
     u_dlag = lag_sensitivity(windows, delay, lag) if fit_input_lag else None
+    if compiled and isinstance(model, SindyStructure):
+        return sensitivity_rollout(dynamics._active_terms(), model.eq, model.factors, model.linear, windows.x0,
+                                   u_half, windows.t_rel[1] - windows.t_rel[0], len(windows.t_rel), u_rate, u_dlag)
     p = model.n_params
     n_d = 2 if fit_dead_time else 0
     n_par = p + n_d + (2 if fit_input_lag else 0)
