@@ -182,14 +182,18 @@ class Windows:
             return self.u_half if d.ndim == 1 else np.broadcast_to(self.u_half, d.shape[:1] + self.u_half.shape)
         if not self.tracks:
             raise InputError("windows without input tracks cannot apply an input dead time or lag")
-        t0 = self.t0_run if self.t0_run is not None else np.zeros_like(self.t0)
         out = np.empty(d.shape[:-1] + self.u_half.shape)
-        for r in np.unique(self.run):
-            sel = self.run == r
-            tq = t0[sel][:, None] + self.t_half[None, :]
+        for r, sel, tq in self.run_queries:
             track = self.tracks[r].lagged(lag)
             out[..., sel, :, :] = track.rate(tq, d) if rate else track.at(tq, d)
         return out
+
+    @cached_property
+    def run_queries(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Return per run index its windows (indices) and their :attr:`t_half` times since the run's start."""
+        t0 = self.t0_run if self.t0_run is not None else np.zeros_like(self.t0)
+        return [(r, sel, t0[sel][:, None] + self.t_half[None, :])
+                for r in np.unique(self.run) for sel in [np.flatnonzero(self.run == r)]]
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from groundfloor.dynamics import Dynamics
+from groundfloor.errors import InputError
 from identification.sindy.evaluate import Windows
 from identification.sindy.library import LIBRARY_STATE_NAMES, FeatureLibrary
 from identification.sindy.model import SindyModel
@@ -193,13 +194,18 @@ def lag_sensitivity(windows: Windows, delay_s, lag_s) -> np.ndarray:
     """Return ``d u_seen / d T_i`` ``(W, 2n - 1, 2)`` of the inputs a model sees (input ``i`` on
     its own lag ``T_i``), by central differences of the lagged tracks (forward at ``T_i = 0``)."""
     lag = np.asarray(lag_s, dtype=float)
+    d = np.asarray(delay_s, dtype=float)
+    if not windows.tracks:
+        raise InputError("windows without input tracks cannot apply an input dead time or lag")
     out = np.empty(windows.u_half.shape)
     for i in range(2):
         eps = max(1e-3, 0.02 * lag[i])
         lo, hi = lag.copy(), lag.copy()
         lo[i], hi[i] = max(lag[i] - eps, 0.0), lag[i] + eps
-        out[..., i] = (windows.inputs_for(delay_s, lag_s=hi)[..., i]
-                       - windows.inputs_for(delay_s, lag_s=lo)[..., i]) / (hi[i] - lo[i])
+        # Windows.inputs_for's values, in one pass over the runs (the fits' inner loop)
+        for r, sel, tq in windows.run_queries:
+            track = windows.tracks[r]
+            out[sel, :, i] = (track.lagged(hi).at(tq, d)[..., i] - track.lagged(lo).at(tq, d)[..., i]) / (hi[i] - lo[i])
     return out
 
 
@@ -269,13 +275,14 @@ def pose_residuals(pred: np.ndarray, windows: Windows) -> np.ndarray:
 
 def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Windows, dead_time0=(0.0, 0.0),
                      fit_dead_time: bool = True, max_nfev: int = 40, input_lag0=(0.0, 0.0),
-                     fit_input_lag: bool = False) -> OutputErrorFit:
+                     fit_input_lag: bool = False, compiled: bool = True) -> OutputErrorFit:
     """Return the output-error least-squares fit of ``model``'s parameters (and dead times, and
     first-order input lags) on ``windows``.
 
     ``windows`` should not overlap (the covariance takes windows as independent clusters).
     Windows whose prediction diverges count :data:`DIVERGED_RESIDUAL_M` per residual with a zero
     Jacobian, so the optimiser steps back from parameters that make a window run away.
+    ``compiled`` as in :func:`rollout_with_sensitivities`.
     """
     theta0 = np.asarray(theta0, dtype=float)
     p = len(theta0)
@@ -307,7 +314,7 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
         if key not in cache:
             cache.clear()
             dyn = model.build(x[:p], *chain(x))
-            pred, sens = rollout_with_sensitivities(dyn, model, windows, fit_dead_time, fit_input_lag)
+            pred, sens = rollout_with_sensitivities(dyn, model, windows, fit_dead_time, fit_input_lag, compiled)
             r = pose_residuals(pred, windows)
             J = sens[:, 1:, :3, :].copy()
             J[..., 2, :] *= HEADING_WEIGHT_M
