@@ -205,7 +205,7 @@ def lag_sensitivity(windows: Windows, delay_s, lag_s) -> np.ndarray:
         # Windows.inputs_for's values, in one pass over the runs (the fits' inner loop)
         for r, sel, tq in windows.run_queries:
             track = windows.tracks[r]
-            out[sel, :, i] = (track.lagged(hi).at(tq, d)[..., i] - track.lagged(lo).at(tq, d)[..., i]) / (hi[i] - lo[i])
+            out[sel, :, i] = (track.lagged_at(i, hi, tq, d) - track.lagged_at(i, lo, tq, d)) / (hi[i] - lo[i])
     return out
 
 
