@@ -247,6 +247,36 @@ def _terms_into(out: np.ndarray, table: np.ndarray, z: np.ndarray, n_out: int, m
 
 
 @njit(cache=True)
+def _accel_into(acc: np.ndarray, table: np.ndarray, z: np.ndarray, zc: np.ndarray, want_g: bool, monomials: bool,
+                prod_rows: np.ndarray, prod_f0: np.ndarray, prod_f1: np.ndarray, index: np.ndarray,
+                rows: np.ndarray, weight: np.ndarray, frozen: bool, lo: np.ndarray, hi: np.ndarray,
+                lin_b: np.ndarray, lin_W: np.ndarray) -> None:
+    """Write the accelerations, ``J_a_x`` and (if ``want_g``) ``J_a_u`` at ``z = [v_body, u] (5,)``
+    into ``acc`` (the :data:`N_OUT` columns of :class:`ActiveTerms`); ``zc (5,)`` is scratch.
+
+    With ``frozen`` the nonlinear terms see the body velocities clamped to ``[lo, hi]`` and the
+    linear part ``lin_b + lin_W z`` is added (:class:`ActiveTerms`).
+    """
+    n_out = N_OUT if want_g else N_OUT_X
+    if not frozen:
+        _terms_into(acc, table, z, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
+        return
+    for v in range(5):
+        zc[v] = min(max(z[v], lo[v]), hi[v]) if v < 3 else z[v]
+    _terms_into(acc, table, zc, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
+    for e in range(3):
+        acc[e] += lin_b[e]
+        for v in range(5):
+            acc[e] += lin_W[e, v] * z[v]
+        for v in range(3):
+            c_ev = 3 + 6 * e + 3 + v
+            acc[c_ev] = (acc[c_ev] if zc[v] == z[v] else 0.0) + lin_W[e, v]
+        if want_g:
+            acc[21 + 2 * e] += lin_W[e, 3]
+            acc[22 + 2 * e] += lin_W[e, 4]
+
+
+@njit(cache=True)
 def _rk4_steps(x: np.ndarray, u: np.ndarray, dt: np.ndarray, want_g: bool, n_table: int, monomials: bool,
                prod_rows: np.ndarray, prod_f0: np.ndarray, prod_f1: np.ndarray, index: np.ndarray,
                rows: np.ndarray, weight: np.ndarray, frozen: bool, lo: np.ndarray, hi: np.ndarray,
@@ -258,9 +288,8 @@ def _rk4_steps(x: np.ndarray, u: np.ndarray, dt: np.ndarray, want_g: bool, n_tab
     rotated by ``psi``, accelerations from :func:`_terms_into`) with its Jacobians ``A_s``,
     ``B_s``; the step's Jacobians follow the chain rule ``D_s = A_s (I + c_s h D_{s-1})``.
     With ``frozen`` the nonlinear terms see the body velocities clamped to ``[lo, hi]`` and the
-    linear part ``lin_b + lin_W z`` is added (:class:`ActiveTerms`).
+    linear part ``lin_b + lin_W z`` is added (:func:`_accel_into`).
     """
-    n_out = N_OUT if want_g else N_OUT_X
     table = np.empty(n_table)
     acc = np.empty(N_OUT)
     z = np.empty(5)
@@ -283,22 +312,8 @@ def _rk4_steps(x: np.ndarray, u: np.ndarray, dt: np.ndarray, want_g: bool, n_tab
             for j in range(N_X):
                 xs[j] = x[i, j] + (c * k[s - 1, j] if s > 0 else 0.0)
             z[0], z[1], z[2], z[3], z[4] = xs[3], xs[4], xs[5], u[i, 0], u[i, 1]
-            if frozen:
-                for v in range(5):
-                    zc[v] = min(max(z[v], lo[v]), hi[v]) if v < 3 else z[v]
-                _terms_into(acc, table, zc, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
-                for e in range(3):
-                    acc[e] += lin_b[e]
-                    for v in range(5):
-                        acc[e] += lin_W[e, v] * z[v]
-                    for v in range(3):
-                        c_ev = 3 + 6 * e + 3 + v
-                        acc[c_ev] = (acc[c_ev] if zc[v] == z[v] else 0.0) + lin_W[e, v]
-                    if want_g:
-                        acc[21 + 2 * e] += lin_W[e, 3]
-                        acc[22 + 2 * e] += lin_W[e, 4]
-            else:
-                _terms_into(acc, table, z, n_out, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight)
+            _accel_into(acc, table, z, zc, want_g, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight,
+                        frozen, lo, hi, lin_b, lin_W)
             cp, sp = math.cos(xs[2]), math.sin(xs[2])
             k[s, 0] = cp * xs[3] - sp * xs[4]
             k[s, 1] = sp * xs[3] + cp * xs[4]

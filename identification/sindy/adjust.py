@@ -24,7 +24,7 @@ import numpy as np
 from groundfloor.errors import InputError
 from identification.sindy.library import LIBRARY_STATE_NAMES
 from identification.sindy.model import SindyModel
-from identification.sindy.regression import IntegralProblem, condition_number
+from identification.sindy.regression import IntegralProblem
 
 
 @dataclass(frozen=True)
@@ -88,17 +88,19 @@ def adjust_coefficients(model: SindyModel, problem: IntegralProblem, rows: np.nd
         a = theta[:, active]
         if len(a) <= len(active):
             raise InputError(f"adjustment: equation {eq}: {len(a)} windows for {len(active)} active terms")
-        # lstsq on A rather than inverting A^T A: A is badly conditioned (the thesis's finding)
-        xi, *_ = np.linalg.lstsq(a, dx[:, i], rcond=None)
+        # least squares on A's SVD rather than inverting A^T A: A is badly conditioned (the thesis's
+        # finding); one SVD gives the solution (lstsq's, its default cutoff), (A^T A)^-1 and the condition
+        us, sv, vt = np.linalg.svd(a, full_matrices=False)
+        kept = sv > np.finfo(float).eps * max(a.shape) * sv[0]
+        xi = vt[kept].T @ ((us[:, kept].T @ dx[:, i]) / sv[kept])
         v = a @ xi - dx[:, i]
         s0 = float(np.sqrt(v @ v / (len(a) - len(active))))
-        _, sv, vt = np.linalg.svd(a, full_matrices=False)
-        n_inv = (vt.T / sv**2) @ vt  # (A^T A)^-1 from the SVD, stable where the normal matrix is not
+        n_inv = (vt.T / sv**2) @ vt  # stable where the normal matrix is not
         terms += [(eq, model.library.feature_names[j]) for j in active]
         coefs.append(xi)
         blocks.append(s0**2 * n_inv)
         sigma0[eq] = s0
-        cond[eq] = condition_number(a)
+        cond[eq] = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")  # regression.condition_number
     if not terms:
         raise InputError("adjustment: the model has no active terms")
     p = len(terms)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -33,88 +34,11 @@ from scipy.integrate import solve_ivp
 
 from groundfloor.dynamics import Dynamics, pose_rate, rk4_rollout_step
 from groundfloor.errors import InputError
-from groundfloor.input_chain import first_order_lag, lag_grid
 from groundfloor.types import BodyStates, InputSeries, PoseTrack
 from identification.sindy.data import gap_threshold_s, states_of_runs
+from identification.sindy.input_track import InputTrack
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class InputTrack:
-    """The recorded inputs of one run as a function of time, for any input dead time.
-
-    ``hold="zoh"``: each sample holds until the next (what a robot does with its command
-    messages; before the first sample the first one holds), averaged over ``width_s`` around
-    the query time, so that a prediction is continuous, and differentiable, in the dead time
-    (the average over the integration step of what the motors see). ``hold="linear"``: straight
-    lines between the samples, the thesis's choice and the right one for inputs that are
-    themselves samples at the pose times (:class:`~groundfloor.types.BodyStates`: a change
-    between two samples happened on average half-way). Times ``t`` are relative to the start of
-    the window's run (the windows' ``t0_run`` base).
-    """
-
-    t: np.ndarray  # (m,) strictly increasing sample times, s
-    u: np.ndarray  # (m, 2)
-    hold: str = "linear"
-    width_s: float = 0.02
-
-    def _cumulative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Return knots, the integral of the held inputs at the knots (both padded far out) and the held values."""
-        pad = 1e4  # seconds beyond both ends: the end values hold there
-        knots = np.concatenate([[self.t[0] - pad], self.t, [self.t[-1] + pad]])
-        held = np.vstack([self.u[:1], self.u])  # value on [knots[i], knots[i + 1])
-        integral = np.vstack([np.zeros((1, 2)), np.cumsum(held * np.diff(knots)[:, None], axis=0)])
-        return knots, integral, held
-
-    def lagged(self, lag_s) -> "InputTrack":
-        """Return the track of what the motors see through first-order lags ``lag_s (2,)``
-        (:func:`groundfloor.input_chain.first_order_lag` of this track's held inputs on a uniform
-        grid, joined by straight lines); the track itself when both lags are zero."""
-        lag = np.asarray(lag_s, dtype=float)
-        if not np.any(lag > 0.0) or len(self.t) < 2:
-            return self
-        grid = lag_grid(self.t)
-        return InputTrack(grid, first_order_lag(self.at(grid), float(grid[1] - grid[0]), lag), "linear")
-
-    def at(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
-        """Return the inputs ``u_i(t - d_i)`` ``(*t_query.shape, 2)``; ``delay_s`` is ``(2,)`` or
-        ``(M, 2)`` (then ``(M, *t_query.shape, 2)``)."""
-        return self._eval(t_query, delay_s, rate=False)
-
-    def rate(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
-        """Return the time derivative of :meth:`at` (same shape): what a dead time's sensitivity needs."""
-        return self._eval(t_query, delay_s, rate=True)
-
-    def _eval(self, t_query, delay_s, rate: bool) -> np.ndarray:
-        d = np.asarray(delay_s, dtype=float)
-        tq = np.asarray(t_query, dtype=float)
-        if d.ndim == 2:
-            return np.stack([self._eval(tq, row, rate) for row in d])
-        out = np.empty(tq.shape + (2,))
-        if self.hold == "linear":
-            slope = np.diff(self.u, axis=0) / np.diff(self.t)[:, None]
-            for i in range(2):
-                q = tq - d[i]
-                if rate:
-                    k = np.searchsorted(self.t, q, side="right") - 1
-                    inside = (k >= 0) & (k < len(self.t) - 1)
-                    out[..., i] = np.where(inside, slope[np.clip(k, 0, len(slope) - 1), i], 0.0) if len(slope) else 0.0
-                else:
-                    out[..., i] = np.interp(q, self.t, self.u[:, i])
-            return out
-        knots, integral, held = self._cumulative()
-        h = 0.5 * self.width_s
-        for i in range(2):
-            q = tq - d[i]
-            if rate:
-                k_hi = np.clip(np.searchsorted(knots, q + h, side="right") - 1, 0, len(held) - 1)
-                k_lo = np.clip(np.searchsorted(knots, q - h, side="right") - 1, 0, len(held) - 1)
-                out[..., i] = (held[k_hi, i] - held[k_lo, i]) / self.width_s
-            else:
-                out[..., i] = (np.interp(q + h, knots, integral[:, i]) - np.interp(q - h, knots, integral[:, i])) \
-                    / self.width_s
-        return out
 
 
 @dataclass(frozen=True)
@@ -166,14 +90,18 @@ class Windows:
             return self.u_half if d.ndim == 1 else np.broadcast_to(self.u_half, d.shape[:1] + self.u_half.shape)
         if not self.tracks:
             raise InputError("windows without input tracks cannot apply an input dead time or lag")
-        t0 = self.t0_run if self.t0_run is not None else np.zeros_like(self.t0)
         out = np.empty(d.shape[:-1] + self.u_half.shape)
-        for r in np.unique(self.run):
-            sel = self.run == r
-            tq = t0[sel][:, None] + self.t_half[None, :]
+        for r, sel, tq in self.run_queries:
             track = self.tracks[r].lagged(lag)
             out[..., sel, :, :] = track.rate(tq, d) if rate else track.at(tq, d)
         return out
+
+    @cached_property
+    def run_queries(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """Return per run index its windows (indices) and their :attr:`t_half` times since the run's start."""
+        t0 = self.t0_run if self.t0_run is not None else np.zeros_like(self.t0)
+        return [(r, sel, t0[sel][:, None] + self.t_half[None, :])
+                for r in np.unique(self.run) for sel in [np.flatnonzero(self.run == r)]]
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from groundfloor.errors import InputError
 from groundfloor.parallel import Workers, parallel_map
@@ -286,6 +287,14 @@ def _refined(start: SindyModel, hp: dict | None, windows: Windows, excluded) -> 
 
 def _fold_job(job) -> dict:
     """Return the scores of every candidate (and of the lag baseline) on one fold."""
+    # Small SVDs and least squares (the adjustments, the output-error steps): multi-threaded BLAS
+    # on a loaded 2-core machine made each about 30 times slower (measured); parallelism is per process.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _fold_job_serial(job)
+
+
+def _fold_job_serial(job) -> dict:
+    """Return :func:`_fold_job`'s scores."""
     f, ref, fold, specs, result, excluded, oe_windows, score_windows, accel_max = job
     train = np.flatnonzero(fold != f)
     keep_held = ~np.isin(score_windows.run, train)
@@ -310,6 +319,28 @@ def _fold_job(job) -> dict:
     return out
 
 
+def _final(candidates, chosen: int, order, result: SearchResult, excluded, lag: LagModel, ref: Reference,
+           oe_windows: Windows, accel_max) -> tuple[int, SindyModel, OutputErrorFit | None, dict]:
+    """Return the index, model, output-error fit and checks of the first candidate (``chosen``,
+    then the others that passed by CV error) that passes the checks refitted on all train runs."""
+    all_oe = thin_windows(oe_windows, OE_MAX_WINDOWS)
+    cache: dict = {}
+    for i in [chosen] + [j for j in order if j != chosen and candidates[j].passed]:
+        c = candidates[i]
+        try:
+            start, adj = _initial(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states)
+        except InputError as exc:  # more active terms than independent windows: significance unjudgeable
+            log.warning("identification: candidate %s refitted on all train runs: %s; trying the next", c.label, exc)
+            continue
+        model, fit = _refined(start, c.hyperparameters, all_oe, excluded)
+        checks = run_checks(model, ref.states, *_significance(adj), accel_max)
+        if checks["passed"]:
+            return i, model, fit, checks
+        log.warning("identification: candidate %s refitted on all train runs fails the checks (%s); trying the next",
+                    c.label, ", ".join(k for k, v in checks.items() if isinstance(v, dict) and not v["passed"]))
+    raise InputError("identification: every candidate refitted on all train runs fails the well-posedness checks")
+
+
 def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_jobs: Workers | int = 1,
              n_candidates: int = N_CANDIDATES) -> Identification:
     """Return the identified model of ``runs`` (train runs) by the pipeline of the module docstring.
@@ -328,7 +359,8 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
         log.warning(msg)
         notes.append(msg)
     excluded = frozenset(LIBRARY_VARIABLE_NAMES.index(v) for v in quiet)
-    lag = fit_lag(ref)
+    with threadpool_limits(limits=1, user_api="blas"):  # as in _fold_job
+        lag = fit_lag(ref)
     result = search(runs=runs, grid=grid, n_jobs=n_jobs, ref=ref, folds=folds, dead_time_s=lag.dead_time_s,
                     excluded=excluded)
     oe_windows = ref.windows(OE_WINDOW_S, 0.0, OE_DT)
@@ -356,24 +388,9 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     lag_cv = collect("lag baseline", complexity=6.0)
     order = sorted(range(len(candidates)), key=lambda i: candidates[i].cv_pos_err_5s_m)
     chosen = select_candidate(candidates)
-    all_oe = thin_windows(oe_windows, OE_MAX_WINDOWS)
-    cache: dict = {}
-    for i in [chosen] + [j for j in order if j != chosen and candidates[j].passed]:
-        c = candidates[i]
-        try:
-            start, adj = _initial(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states)
-        except InputError as exc:  # more active terms than independent windows: significance unjudgeable
-            log.warning("identification: candidate %s refitted on all train runs: %s; trying the next", c.label, exc)
-            continue
-        model, fit = _refined(start, c.hyperparameters, all_oe, excluded)
-        checks = run_checks(model, ref.states, *_significance(adj), accel_max)
-        if checks["passed"]:
-            chosen = i
-            break
-        log.warning("identification: candidate %s refitted on all train runs fails the checks (%s); trying the next",
-                    c.label, ", ".join(k for k, v in checks.items() if isinstance(v, dict) and not v["passed"]))
-    else:
-        raise InputError("identification: every candidate refitted on all train runs fails the well-posedness checks")
+    with threadpool_limits(limits=1, user_api="blas"):  # as in _fold_job
+        chosen, model, fit, checks = _final(candidates, chosen, order, result, excluded, lag, ref, oe_windows,
+                                            accel_max)
     c = candidates[chosen]
     training = {**model.training, "runs": list(ref.names), "reference_smoothing": ref.smoothing,
                 "cv": {"kind": folds.kind, "note": folds.note, "held_out": [list(h) for h in folds.held_out],

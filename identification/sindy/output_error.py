@@ -35,9 +35,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from groundfloor.dynamics import Dynamics
+from groundfloor.errors import InputError
 from identification.sindy.evaluate import Windows
 from identification.sindy.library import LIBRARY_STATE_NAMES, FeatureLibrary
 from identification.sindy.model import SindyModel
+from identification.sindy.sensitivity_rollout import sensitivity_rollout
 
 log = logging.getLogger(__name__)
 
@@ -108,6 +110,9 @@ class SindyStructure(ParametricModel):
         self.all_eq, self.all_sub_col = all_eq, np.array([cols.index(j) for j in all_col], dtype=int)
         self.all_col = all_col
         self.sub_linear = model.linear_columns[cols]
+        # the compiled rollout's view: each parameter's feature as atom-table columns (FeatureLibrary._index)
+        self.factors = model.library._index[0][col]
+        self.linear = model.linear_columns[col]
         self.bounds = model._clamp_bounds()
         self.lower = np.full(len(eq), -np.inf)
         self.upper = np.full(len(eq), np.inf)
@@ -189,31 +194,42 @@ def lag_sensitivity(windows: Windows, delay_s, lag_s) -> np.ndarray:
     """Return ``d u_seen / d T_i`` ``(W, 2n - 1, 2)`` of the inputs a model sees (input ``i`` on
     its own lag ``T_i``), by central differences of the lagged tracks (forward at ``T_i = 0``)."""
     lag = np.asarray(lag_s, dtype=float)
+    d = np.asarray(delay_s, dtype=float)
+    if not windows.tracks:
+        raise InputError("windows without input tracks cannot apply an input dead time or lag")
     out = np.empty(windows.u_half.shape)
     for i in range(2):
         eps = max(1e-3, 0.02 * lag[i])
         lo, hi = lag.copy(), lag.copy()
         lo[i], hi[i] = max(lag[i] - eps, 0.0), lag[i] + eps
-        out[..., i] = (windows.inputs_for(delay_s, lag_s=hi)[..., i]
-                       - windows.inputs_for(delay_s, lag_s=lo)[..., i]) / (hi[i] - lo[i])
+        # Windows.inputs_for's values, in one pass over the runs (the fits' inner loop)
+        for r, sel, tq in windows.run_queries:
+            track = windows.tracks[r]
+            out[sel, :, i] = (track.lagged_at(i, hi, tq, d) - track.lagged_at(i, lo, tq, d)) / (hi[i] - lo[i])
     return out
 
 
 def rollout_with_sensitivities(dynamics: Dynamics, model: ParametricModel, windows: Windows,
-                               fit_dead_time: bool = True, fit_input_lag: bool = False
+                               fit_dead_time: bool = True, fit_input_lag: bool = False, compiled: bool = True
                                ) -> tuple[np.ndarray, np.ndarray]:
     """Return predicted states ``(W, n, 6)`` and their sensitivities ``(W, n, 6, P)``.
 
     Classical RK4 with the inputs at the step's start, middle and end, exactly as
     :func:`identification.sindy.evaluate.rollout`; ``P`` is the number of model parameters plus
     the two dead times when ``fit_dead_time`` plus the two input lags when ``fit_input_lag``
-    (``d f / d T_i = J_f_u[:, i] d u_i / d T_i``, :func:`lag_sensitivity`).
+    (``d f / d T_i = J_f_u[:, i] d u_i / d T_i``, :func:`lag_sensitivity`). A SINDy structure
+    is integrated in one compiled pass when ``compiled``
+    (:func:`identification.sindy.sensitivity_rollout.sensitivity_rollout`); otherwise, and for
+    other models, by the numpy recursion below.
     """
     delay = np.asarray(dynamics.dead_time_s, dtype=float)
     lag = np.asarray(getattr(dynamics, "input_lag_s", (0.0, 0.0)), dtype=float)
     u_half = windows.inputs_for(delay, lag_s=lag)
     u_rate = windows.inputs_for(delay, rate=True, lag_s=lag) if fit_dead_time else None
     u_dlag = lag_sensitivity(windows, delay, lag) if fit_input_lag else None
+    if compiled and isinstance(model, SindyStructure):
+        return sensitivity_rollout(dynamics._active_terms(), model.eq, model.factors, model.linear, windows.x0,
+                                   u_half, windows.t_rel[1] - windows.t_rel[0], len(windows.t_rel), u_rate, u_dlag)
     p = model.n_params
     n_d = 2 if fit_dead_time else 0
     n_par = p + n_d + (2 if fit_input_lag else 0)
@@ -259,13 +275,14 @@ def pose_residuals(pred: np.ndarray, windows: Windows) -> np.ndarray:
 
 def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Windows, dead_time0=(0.0, 0.0),
                      fit_dead_time: bool = True, max_nfev: int = 40, input_lag0=(0.0, 0.0),
-                     fit_input_lag: bool = False) -> OutputErrorFit:
+                     fit_input_lag: bool = False, compiled: bool = True) -> OutputErrorFit:
     """Return the output-error least-squares fit of ``model``'s parameters (and dead times, and
     first-order input lags) on ``windows``.
 
     ``windows`` should not overlap (the covariance takes windows as independent clusters).
     Windows whose prediction diverges count :data:`DIVERGED_RESIDUAL_M` per residual with a zero
     Jacobian, so the optimiser steps back from parameters that make a window run away.
+    ``compiled`` as in :func:`rollout_with_sensitivities`.
     """
     theta0 = np.asarray(theta0, dtype=float)
     p = len(theta0)
@@ -297,7 +314,7 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
         if key not in cache:
             cache.clear()
             dyn = model.build(x[:p], *chain(x))
-            pred, sens = rollout_with_sensitivities(dyn, model, windows, fit_dead_time, fit_input_lag)
+            pred, sens = rollout_with_sensitivities(dyn, model, windows, fit_dead_time, fit_input_lag, compiled)
             r = pose_residuals(pred, windows)
             J = sens[:, 1:, :3, :].copy()
             J[..., 2, :] *= HEADING_WEIGHT_M

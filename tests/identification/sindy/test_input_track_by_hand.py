@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from groundfloor.types import BodyStates
-from identification.sindy.evaluate import InputTrack, make_windows
+from identification.sindy.evaluate import make_windows
+from identification.sindy.input_track import InputTrack
 
 ZOH = InputTrack(np.array([0.0, 1.0, 2.0]), np.array([[1.0, 10.0], [3.0, 30.0], [5.0, 50.0]]), "zoh", 0.2)
 LINEAR = InputTrack(np.array([0.0, 1.0, 2.0]), np.array([[1.0, 10.0], [3.0, 30.0], [4.0, 20.0]]), "linear")

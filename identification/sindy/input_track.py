@@ -1,0 +1,134 @@
+"""The recorded inputs of one run as a function of time, for any input dead time and lag.
+
+The multi-step evaluation's windows (:class:`identification.sindy.evaluate.Windows`) carry one
+track per run, so that a model with input dead time or first-order input lags
+(:mod:`groundfloor.input_chain`) is fed what its motors see, including the history before a
+window's start. The tables that depend on the samples alone are cached on the track: an
+output-error fit asks for the inputs at new dead times and lags a few hundred times.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from functools import cached_property
+
+import numpy as np
+
+from groundfloor.input_chain import first_order_lag, lag_grid
+
+
+@dataclass(frozen=True)
+class InputTrack:
+    """The recorded inputs of one run as a function of time, for any input dead time.
+
+    ``hold="zoh"``: each sample holds until the next (what a robot does with its command
+    messages; before the first sample the first one holds), averaged over ``width_s`` around
+    the query time, so that a prediction is continuous, and differentiable, in the dead time
+    (the average over the integration step of what the motors see). ``hold="linear"``: straight
+    lines between the samples, the thesis's choice and the right one for inputs that are
+    themselves samples at the pose times (:class:`~groundfloor.types.BodyStates`: a change
+    between two samples happened on average half-way). Times ``t`` are relative to the start of
+    the window's run (the windows' ``t0_run`` base).
+    """
+
+    t: np.ndarray  # (m,) strictly increasing sample times, s
+    u: np.ndarray  # (m, 2)
+    hold: str = "linear"
+    width_s: float = 0.02
+
+    # The tables below depend on the samples only: cached, since an output-error fit asks for the
+    # inputs at new dead times and lags a few hundred times (cached_property writes the instance's
+    # __dict__ directly, which a frozen dataclass allows).
+    @cached_property
+    def _cumulative(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return knots, the integral of the held inputs at the knots (both padded far out) and the held values."""
+        pad = 1e4  # seconds beyond both ends: the end values hold there
+        knots = np.concatenate([[self.t[0] - pad], self.t, [self.t[-1] + pad]])
+        held = np.vstack([self.u[:1], self.u])  # value on [knots[i], knots[i + 1])
+        integral = np.vstack([np.zeros((1, 2)), np.cumsum(held * np.diff(knots)[:, None], axis=0)])
+        return knots, integral, held
+
+    def lagged(self, lag_s) -> "InputTrack":
+        """Return the track of what the motors see through first-order lags ``lag_s (2,)``
+        (:func:`groundfloor.input_chain.first_order_lag` of this track's held inputs on a uniform
+        grid, joined by straight lines); the track itself when both lags are zero."""
+        lag = np.asarray(lag_s, dtype=float)
+        if not np.any(lag > 0.0) or len(self.t) < 2:
+            return self
+        grid = self._on_lag_grid[0]
+        return InputTrack(grid, np.column_stack([self._lag_channel(i, float(lag[i])) for i in range(2)]), "linear")
+
+    def _lag_channel(self, i: int, lag_s: float) -> np.ndarray:
+        """Return input ``i`` on the lag grid through a first-order lag ``lag_s``, remembered: a fit
+        asks for each channel's lag again with the other channel's perturbed (the lag sensitivities)."""
+        memo = self.__dict__.setdefault("_lag_memo", {})
+        if (i, lag_s) not in memo:
+            if len(memo) >= 16:
+                memo.clear()
+            grid, u_grid = self._on_lag_grid
+            one = np.zeros(2)
+            one[i] = lag_s  # first_order_lag treats the inputs one by one: the other is left as it is
+            memo[(i, lag_s)] = first_order_lag(u_grid, float(grid[1] - grid[0]), one)[:, i]
+        return memo[(i, lag_s)]
+
+    def lagged_at(self, i: int, lag_s, t_query: np.ndarray, delay_s) -> np.ndarray:
+        """Return input ``i`` of ``self.lagged(lag_s).at(t_query, delay_s)``, the other input not evaluated."""
+        lag = np.asarray(lag_s, dtype=float)
+        if not np.any(lag > 0.0) or len(self.t) < 2:
+            return self.at(t_query, delay_s)[..., i]
+        return np.interp(np.asarray(t_query, float) - float(np.asarray(delay_s, float)[i]), self._on_lag_grid[0],
+                         self._lag_channel(i, float(lag[i])))
+
+    def __getstate__(self) -> dict:
+        """Return the fields alone (what is pickled): the cached tables are rebuilt where needed."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @cached_property
+    def _on_lag_grid(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return the uniform grid of :meth:`lagged` and the inputs on it (before any lag)."""
+        grid = lag_grid(self.t)
+        return grid, self.at(grid)
+
+    @cached_property
+    def _slope(self) -> np.ndarray:
+        """Return the slopes ``(m - 1, 2)`` of the straight lines between the samples."""
+        return np.diff(self.u, axis=0) / np.diff(self.t)[:, None]
+
+    def at(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
+        """Return the inputs ``u_i(t - d_i)`` ``(*t_query.shape, 2)``; ``delay_s`` is ``(2,)`` or
+        ``(M, 2)`` (then ``(M, *t_query.shape, 2)``)."""
+        return self._eval(t_query, delay_s, rate=False)
+
+    def rate(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
+        """Return the time derivative of :meth:`at` (same shape): what a dead time's sensitivity needs."""
+        return self._eval(t_query, delay_s, rate=True)
+
+    def _eval(self, t_query, delay_s, rate: bool) -> np.ndarray:
+        d = np.asarray(delay_s, dtype=float)
+        tq = np.asarray(t_query, dtype=float)
+        if d.ndim == 2:
+            return np.stack([self._eval(tq, row, rate) for row in d])
+        out = np.empty(tq.shape + (2,))
+        if self.hold == "linear":
+            slope = self._slope
+            for i in range(2):
+                q = tq - d[i]
+                if rate:
+                    k = np.searchsorted(self.t, q, side="right") - 1
+                    inside = (k >= 0) & (k < len(self.t) - 1)
+                    out[..., i] = np.where(inside, slope[np.clip(k, 0, len(slope) - 1), i], 0.0) if len(slope) else 0.0
+                else:
+                    out[..., i] = np.interp(q, self.t, self.u[:, i])
+            return out
+        knots, integral, held = self._cumulative
+        h = 0.5 * self.width_s
+        for i in range(2):
+            q = tq - d[i]
+            if rate:
+                k_hi = np.clip(np.searchsorted(knots, q + h, side="right") - 1, 0, len(held) - 1)
+                k_lo = np.clip(np.searchsorted(knots, q - h, side="right") - 1, 0, len(held) - 1)
+                out[..., i] = (held[k_hi, i] - held[k_lo, i]) / self.width_s
+            else:
+                out[..., i] = (np.interp(q + h, knots, integral[:, i]) - np.interp(q - h, knots, integral[:, i])) \
+                    / self.width_s
+        return out
