@@ -99,3 +99,34 @@ def test_heading_error_is_wrapped_to_minus_pi_pi_and_a_diverged_prediction_is_in
     np.testing.assert_allclose(eps_h[0], [0.1, 3.5 - 2 * np.pi, 2 * np.pi - 3.5], atol=1e-12)
     assert np.isinf(eps_p[1, 2]) and np.isinf(eps_h[1, 2])
     np.testing.assert_allclose(rms_over_windows(eps_p[:, :2]), [0.0, math.sqrt(25.0 / 2)], atol=1e-12)
+
+
+class _NoInputLagAttribute:
+    """A model that is no :class:`Dynamics` and has no ``input_lag_s`` (only ``dead_time_s``): it
+    sees the recorded inputs as they are. Driving straight along x with ``vx_dot = u1``."""
+
+    name = "no_input_lag_attribute"
+    dead_time_s = (0.0, 0.0)
+
+    def derivative(self, x6, u, t=0.0):
+        f = np.zeros(np.broadcast_shapes(np.shape(x6), np.shape(u)[:-1] + (6,)))
+        f[..., 0] = x6[..., 3]
+        f[..., 3] = u[..., 0]
+        return f
+
+
+def test_a_model_without_an_input_lag_attribute_sees_the_recorded_inputs():
+    from identification.sindy.evaluate import errors_from_rollout, evaluate_reference, make_windows, rollout
+
+    # u1 = C s, so vx = C s^2 / 2 and x = C s^3 / 6: exact for RK4 with the inputs interpolated
+    # linearly; a lag T of u1 leaves vx behind by C T (1 - exp(-s / T)) (0.12 m at a window's end for 1 s)
+    t = np.arange(int(round(DURATION / DT)) + 1) * DT + 100.0
+    s = t - t[0]
+    zeros = np.zeros_like(t)
+    st = BodyStates(t=t, vx=C * s ** 2 / 2, vy=zeros, omega=zeros, u1=C * s, u2=zeros,
+                    x=C * s ** 3 / 6, y=zeros, yaw=zeros)
+    windows = make_windows([st])
+    eps_p, _ = errors_from_rollout(rollout(_NoInputLagAttribute(), windows), windows)
+    assert eps_p.max() < 1e-9
+    ref = evaluate_reference(_NoInputLagAttribute(), [st])
+    assert ref.eps_p.max() < 1e-6

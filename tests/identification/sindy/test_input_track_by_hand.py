@@ -56,6 +56,19 @@ def test_a_first_order_lag_follows_one_minus_exp_after_a_step():
     np.testing.assert_allclose(one.at(np.array([3.3]))[0], [1.0 - math.exp(-1.0), 2.0], atol=5e-3)
 
 
+def test_a_track_of_two_samples_is_lagged_as_well():
+    # two samples joined by a straight line: a ramp from rest, whose lag is t - T (1 - exp(-t / T))
+    # (the lag's grid is exact for inputs linear between its points)
+    ramp = InputTrack(np.array([0.0, 1.0]), np.array([[0.0, 0.0], [1.0, 2.0]]), "linear")
+    lagged = ramp.lagged((0.2, 0.5))
+    for s in (0.5, 1.0):
+        np.testing.assert_allclose(lagged.at(np.array([s]))[0],
+                                   [s - 0.2 * (1 - math.exp(-s / 0.2)), 2 * (s - 0.5 * (1 - math.exp(-s / 0.5)))],
+                                   atol=1e-9)
+    one = InputTrack(np.array([0.0]), np.array([[1.0, 2.0]]), "linear")  # one sample: nothing to lag
+    assert one.lagged((0.2, 0.5)) is one
+
+
 def test_windows_give_each_model_its_delayed_inputs_and_their_rates():
     t = 100.0 + np.arange(601) * 0.02  # 12 s; inputs linear in the time since the start
     s = t - 100.0

@@ -1,5 +1,6 @@
 """Integral regression pieces against hand computations: the condition number of a diagonal
-matrix, the QR compression's normal equations, and a run too short for any window."""
+matrix, the QR compression's normal equations, a run too short for any window, and STLSQ's default
+of 20 rounds on a problem that drops one term per round."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from groundfloor.types import BodyStates
-from identification.sindy.regression import condition_number, integral_problem
+from identification.sindy.regression import condition_number, fit_stlsq, integral_problem
 
 
 def _states(duration_s: float, phase: float) -> BodyStates:
@@ -41,3 +42,22 @@ def test_a_run_shorter_than_the_window_adds_no_window_and_no_row():
     assert both.qt_targets[1].shape == (0, 3)
     np.testing.assert_array_equal(both.compressed()[0], alone.compressed()[0])
     np.testing.assert_array_equal(both.compressed()[1], alone.compressed()[1])
+
+
+def test_stlsq_stops_after_20_rounds_by_default():
+    # a problem that drops exactly one term per round (by hand): column j is ones on rows 0..j, so
+    # on the first m columns least squares gives xi_j = y_j - y_{j+1} for j < m - 1 and
+    # xi_{m-1} = y_{m-1}; with y alternating +-0.6 the differences are +-1.2 (kept by a threshold of
+    # 1) and only the last column's 0.6 falls under it. Of 30 columns, 20 rounds leave the first 10
+    # (then refitted by least squares on them); 21 would leave 9, and to convergence none.
+    n = 30
+    theta = np.triu(np.ones((n, n)))
+    y = 0.6 * (-1.0) ** np.arange(n)
+    expected = np.zeros(n)
+    expected[:9] = y[:9] - y[1:10]
+    expected[9] = y[9]
+    np.testing.assert_allclose(fit_stlsq(theta, y[:, None], threshold=1.0, alpha=0.0)[0], expected, atol=1e-9)
+    rounds_21 = np.zeros(n)
+    rounds_21[:8], rounds_21[8] = y[:8] - y[1:9], y[8]
+    np.testing.assert_allclose(fit_stlsq(theta, y[:, None], threshold=1.0, alpha=0.0, max_iter=21)[0], rounds_21,
+                               atol=1e-9)

@@ -2,7 +2,8 @@
 
 A fix valid at the first or the last grid time is applied there (the grid's ends are inclusive);
 1.5 us beyond either end it is outside the run and ignored; 0.5 us off a grid time it is that grid
-time. A fix arriving exactly at a grid time is applied at that step, 1.5 us later at the next one.
+time. A fix arriving exactly at a grid time is applied at that step, 1.5 us later at the next one,
+after the last grid time at the last step.
 The model is linear-Gaussian and there is no lever arm, so the update at a step is the textbook
 ``K = P H^T (H P H^T + R)^-1`` with ``H = [I 0]``.
 """
@@ -121,3 +122,18 @@ def test_the_filterpy_predict_propagates_by_the_model_and_f_p_ft_plus_q():
     np.testing.assert_allclose(ekf.P, F @ P0 @ F.T + 0.05 * model.Q_rate_, rtol=1e-8, atol=1e-14)
     np.testing.assert_allclose(ekf.F, F, atol=1e-8)
     assert ekf.pd_repairs == 0
+
+
+def test_a_fix_arriving_after_the_last_grid_time_is_applied_at_the_last_step():
+    # valid inside the run, arriving 0.5 s after its end (a late fix of a cut run): the last step is
+    # the last chance to apply it, so it is applied there, as if it had arrived on the last grid time
+    model, t, u, x0 = _setup()
+    z = np.array([[0.3, -0.2]])
+    dead = run_ekf(model, t, u, x0, P0, None)
+    instant = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[5]], z), gate_prob=1.0)
+    late = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[-1] + 0.5], z), gate_prob=1.0)
+    np.testing.assert_array_equal(late.nis_t, [t[5]])
+    np.testing.assert_allclose(late.x[:-1], dead.x[:-1], atol=1e-12)
+    # linear-Gaussian, one fix: the delayed update equals the update at the time of validity
+    np.testing.assert_allclose(late.x[-1], instant.x[-1], atol=1e-10)
+    assert np.abs(late.x[-1, :2] - dead.x[-1, :2]).max() > 1e-3  # the fix moved it
