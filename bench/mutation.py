@@ -180,6 +180,12 @@ EQUIVALENT: list[Equivalent] = [
                "the lower clip of a held input's index: ``held = vstack([u[:1], u])`` repeats the first sample, so "
                "rows 0 and 1 of ``held`` are equal and clipping the index to 1 instead of 0 reads the same value",
                source=r"k_(lo|hi) = np\.clip\(np\.searchsorted\(knots, "),
+    Equivalent("sindy_ekf/estimation/ekf.py", r"", r"0 -> 1",
+               "the EKF's test for the saturated step with the upper bound as the lower one: it only decides "
+               "which of two calls steps the batch, and for states inside the bounds the saturated step is the "
+               "plain one bit for bit (np.clip leaves them as they are, no row is held, the same step_and_jac "
+               "call follows); states outside take the saturated step either way",
+               source=r"outside_bounds\(x_k, bounds\[0\], bounds\[1\]\)"),
 ]
 
 

@@ -103,7 +103,7 @@ def test_heading_error_is_wrapped_to_minus_pi_pi_and_a_diverged_prediction_is_in
 
 class _NoInputLagAttribute:
     """A model that is no :class:`Dynamics` and has no ``input_lag_s`` (only ``dead_time_s``): it
-    sees the recorded inputs as they are. Driving straight along x with ``vx_dot = u1``."""
+    sees the recorded inputs as they are. ``x' = vx``, ``vx' = u1``, ``psi' = omega``, ``omega' = u2``."""
 
     name = "no_input_lag_attribute"
     dead_time_s = (0.0, 0.0)
@@ -111,22 +111,25 @@ class _NoInputLagAttribute:
     def derivative(self, x6, u, t=0.0):
         f = np.zeros(np.broadcast_shapes(np.shape(x6), np.shape(u)[:-1] + (6,)))
         f[..., 0] = x6[..., 3]
+        f[..., 2] = x6[..., 5]
         f[..., 3] = u[..., 0]
+        f[..., 5] = u[..., 1]
         return f
 
 
 def test_a_model_without_an_input_lag_attribute_sees_the_recorded_inputs():
     from identification.sindy.evaluate import errors_from_rollout, evaluate_reference, make_windows, rollout
 
-    # u1 = C s, so vx = C s^2 / 2 and x = C s^3 / 6: exact for RK4 with the inputs interpolated
-    # linearly; a lag T of u1 leaves vx behind by C T (1 - exp(-s / T)) (0.12 m at a window's end for 1 s)
+    # u1 = C s, so vx = C s^2 / 2 and x = C s^3 / 6 (u2, omega and psi the same with -2 C): exact for
+    # RK4 with the inputs interpolated linearly; a lag T of u1 leaves vx behind by C T (1 - exp(-s / T))
+    # (0.12 m at a window's end for 1 s)
     t = np.arange(int(round(DURATION / DT)) + 1) * DT + 100.0
     s = t - t[0]
     zeros = np.zeros_like(t)
-    st = BodyStates(t=t, vx=C * s ** 2 / 2, vy=zeros, omega=zeros, u1=C * s, u2=zeros,
-                    x=C * s ** 3 / 6, y=zeros, yaw=zeros)
+    st = BodyStates(t=t, vx=C * s ** 2 / 2, vy=zeros, omega=-C * s ** 2, u1=C * s, u2=-2 * C * s,
+                    x=C * s ** 3 / 6, y=zeros, yaw=-C * s ** 3 / 3)
     windows = make_windows([st])
-    eps_p, _ = errors_from_rollout(rollout(_NoInputLagAttribute(), windows), windows)
-    assert eps_p.max() < 1e-9
+    eps_p, eps_h = errors_from_rollout(rollout(_NoInputLagAttribute(), windows), windows)
+    assert eps_p.max() < 1e-9 and np.abs(eps_h).max() < 1e-9
     ref = evaluate_reference(_NoInputLagAttribute(), [st])
-    assert ref.eps_p.max() < 1e-6
+    assert ref.eps_p.max() < 1e-6 and np.abs(ref.eps_h).max() < 1e-6

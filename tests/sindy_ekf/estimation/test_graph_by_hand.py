@@ -198,3 +198,32 @@ def test_isam2_without_fixes_is_dead_reckoning():
     model, truth, t, u, _ = _short_run(duration_s=1.0)
     got = smooth_isam2(model, t, u, truth.x6[0], P0, None)
     np.testing.assert_allclose(got.x, model.propagate(truth.x6[0], u, t - t[0]), atol=1e-9)
+
+
+def test_without_iterations_the_smoother_returns_its_starting_trajectory():
+    # no LM iteration: the starting trajectory goes into the graph's values and comes back as it
+    # was (poses as x, y, heading; velocities as they are), at the error it starts from
+    model, truth, t, u, gnss = _short_run(duration_s=1.0)
+    x_init = truth.x6 + np.array([0.3, -0.2, 0.1, 0.05, -0.02, 0.04])  # x, y, heading all different
+    got = smooth_batch(model, t, u, truth.x6[0], P0, gnss, x_init=x_init, robust=None, marginal_stride=None,
+                       max_iterations=0)
+    np.testing.assert_allclose(got.x, x_init, atol=1e-12)
+    assert got.iterations == 0 and got.error_final == got.error_initial > 0.0
+
+
+def test_smooth_batch_runs_levenberg_marquardt_with_its_defaults(monkeypatch):
+    # the batch smoother's own defaults are LM's (20 iterations, stop below a relative decrease of
+    # 1e-6; test_levenberg_marquardt_defaults_are_20_iterations_from_lambda_1e_5): what it hands over
+    import sindy_ekf.estimation.graph as graph_module
+
+    seen = []
+    lm = graph_module.levenberg_marquardt
+
+    def spy(graph, values, max_iterations, rel_tol):
+        seen.append((max_iterations, rel_tol))
+        return lm(graph, values, max_iterations, rel_tol)
+
+    monkeypatch.setattr(graph_module, "levenberg_marquardt", spy)
+    model, truth, t, u, gnss = _short_run(duration_s=1.0)
+    smooth_batch(model, t, u, truth.x6[0], P0, gnss, marginal_stride=None)
+    assert seen == [(20, 1e-6)]
