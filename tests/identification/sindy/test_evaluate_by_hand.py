@@ -133,3 +133,31 @@ def test_a_model_without_an_input_lag_attribute_sees_the_recorded_inputs():
     assert eps_p.max() < 1e-9 and np.abs(eps_h).max() < 1e-9
     ref = evaluate_reference(_NoInputLagAttribute(), [st])
     assert ref.eps_p.max() < 1e-6 and np.abs(ref.eps_h).max() < 1e-6
+
+
+class _Damped(_NoInputLagAttribute):
+    """``vx' = u1 - vx``: not a polynomial in time, so RK45's step control (its tolerances) shows."""
+
+    def derivative(self, x6, u, t=0.0):
+        f = super().derivative(x6, u, t)
+        f[..., 3] -= x6[..., 3]
+        return f
+
+
+def test_the_reference_is_scipys_rk45_per_window_at_rtol_1e_8_atol_1e_10():
+    # a second implementation: scipy's RK45 over the one window of a 5 s run, the inputs joined by
+    # straight lines (np.interp), at the reference's documented tolerances
+    from scipy.integrate import solve_ivp
+
+    from identification.sindy.evaluate import evaluate_reference
+
+    t = np.arange(251) * DT
+    zeros = np.zeros_like(t)
+    u1 = np.sin(3.0 * t)
+    st = BodyStates(t=t, vx=zeros, vy=zeros, omega=zeros, u1=u1, u2=zeros, x=zeros, y=zeros, yaw=zeros)
+    ref = evaluate_reference(_Damped(), [st])
+    assert ref.eps_p.shape == (1, 251)
+    model = _Damped()
+    sol = solve_ivp(lambda tt, s: model.derivative(s, np.array([np.interp(tt, t, u1), 0.0]), tt), (0.0, 5.0),
+                    np.zeros(6), t_eval=t, rtol=1e-8, atol=1e-10, method="RK45")
+    np.testing.assert_allclose(ref.eps_p[0], np.abs(sol.y[0]), rtol=1e-12, atol=1e-15)

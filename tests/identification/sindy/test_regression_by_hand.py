@@ -1,14 +1,23 @@
 """Integral regression pieces against hand computations: the condition number of a diagonal
-matrix, the QR compression's normal equations, a run too short for any window, and STLSQ's default
-of 20 rounds on a problem that drops one term per round."""
+matrix, of one column and of a singular matrix, the warning above 1e8, the QR compression's normal
+equations, a run too short for any window, and STLSQ's default of 20 rounds on a problem that drops
+one term per round."""
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import pytest
 
 from groundfloor.types import BodyStates
-from identification.sindy.regression import condition_number, fit_stlsq, integral_problem
+from identification.sindy.regression import (
+    IllConditionedWarning,
+    check_conditioning,
+    condition_number,
+    fit_stlsq,
+    integral_problem,
+)
 
 
 def _states(duration_s: float, phase: float) -> BodyStates:
@@ -20,6 +29,22 @@ def _states(duration_s: float, phase: float) -> BodyStates:
 def test_condition_number_of_a_diagonal_matrix_is_its_largest_over_smallest_entry():
     assert condition_number(np.diag([0.5, 4.0, 2.0])) == pytest.approx(8.0, rel=1e-12)
     assert condition_number(np.array([[3.0, 0.0], [0.0, 0.0]])) == np.inf  # singular
+
+
+def test_condition_number_of_one_column_is_one_and_of_a_singular_matrix_infinite():
+    assert condition_number(np.array([[2.0]])) == 1.0
+    assert condition_number(np.array([[-3.0], [4.0]])) == 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # infinite by the guard, not by a division by zero
+        assert condition_number(np.diag([3.0, 2.0, 0.0])) == np.inf
+
+
+def test_a_condition_number_above_1e8_is_reported_ill_conditioned():
+    with pytest.warns(IllConditionedWarning, match=r"problem A: .*condition number 1\.5e\+08"):
+        assert check_conditioning(np.diag([1.0, 1.0 / 1.5e8]), "problem A") == pytest.approx(1.5e8, rel=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert check_conditioning(np.diag([2.0, 2.0 / 0.9e8]), "problem B") == pytest.approx(0.9e8, rel=1e-12)
 
 
 def test_compressed_problem_has_the_normal_equations_of_the_full_one():
