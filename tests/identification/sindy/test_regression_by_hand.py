@@ -86,3 +86,16 @@ def test_stlsq_stops_after_20_rounds_by_default():
     rounds_21[:8], rounds_21[8] = y[:8] - y[1:9], y[8]
     np.testing.assert_allclose(fit_stlsq(theta, y[:, None], threshold=1.0, alpha=0.0, max_iter=21)[0], rounds_21,
                                atol=1e-9)
+
+
+def test_by_default_windows_are_3_s_long_and_none_spans_a_step_longer_than_0_2_s():
+    # 10 s at 50 Hz with a hole from 5.0 to 5.3 s (a 0.3 s step): by hand, the windows [t0, t0 + 3 s]
+    # that lie on either side of the hole start at 0, 0.02, ..., 2.0 s and at 5.3, ..., 7.0 s
+    t = np.arange(501) * 0.02
+    t = t[(t < 5.0 + 1e-9) | (t > 5.3 - 1e-9)]
+    st = BodyStates(t=t, vx=np.sin(t), vy=0.1 * np.cos(2 * t), omega=0.3 * np.sin(0.5 * t),
+                    u1=np.cos(1.3 * t), u2=np.sin(0.7 * t) ** 2, x=t, y=t, yaw=t)
+    problem = integral_problem([st])
+    expected = np.concatenate([np.arange(101) * 0.02, 5.3 + np.arange(86) * 0.02])
+    np.testing.assert_allclose(problem.t_start, expected, atol=1e-9)
+    assert problem.tau == 3.0
