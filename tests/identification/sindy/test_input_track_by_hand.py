@@ -56,6 +56,13 @@ def test_a_first_order_lag_follows_one_minus_exp_after_a_step():
     np.testing.assert_allclose(one.at(np.array([3.3]))[0], [1.0 - math.exp(-1.0), 2.0], atol=5e-3)
 
 
+def test_held_samples_are_averaged_over_20_ms_by_default():
+    # a switch from 1 to 3 at 1 s; 5 ms after it the 20 ms around the query are a quarter before it
+    track = InputTrack(np.array([0.0, 1.0, 2.0]), np.array([[1.0, 10.0], [3.0, 30.0], [3.0, 30.0]]), "zoh")
+    np.testing.assert_allclose(track.at(np.array([1.005])), [[2.5, 25.0]], rtol=1e-9)
+    np.testing.assert_allclose(track.rate(np.array([1.005])), [[100.0, 1000.0]], rtol=1e-9)  # the jump / 20 ms
+
+
 def test_a_track_of_two_samples_is_lagged_as_well():
     # two samples joined by a straight line: a ramp from rest, whose lag is t - T (1 - exp(-t / T))
     # (the lag's grid is exact for inputs linear between its points)
