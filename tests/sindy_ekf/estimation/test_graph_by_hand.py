@@ -1,7 +1,8 @@
 """Factor graph by hand: Levenberg-Marquardt against a numpy implementation of its documented
 schedule on Rosenbrock's function (whose first Gauss-Newton steps increase the error, so the
 damping must grow), iSAM2's documented defaults seen in its output, its lag dropping late fixes at
-0.8 of the lag, and fixes at the grid's inclusive ends.
+0.8 of the lag, fixes at the grid's inclusive ends, the smoother's starting trajectory and its LM
+settings, and the dynamics factor's heading error across +-pi.
 """
 
 from __future__ import annotations
@@ -227,3 +228,25 @@ def test_smooth_batch_runs_levenberg_marquardt_with_its_defaults(monkeypatch):
     model, truth, t, u, gnss = _short_run(duration_s=1.0)
     smooth_batch(model, t, u, truth.x6[0], P0, gnss, marginal_stride=None)
     assert seen == [(20, 1e-6)]
+
+
+def test_the_dynamics_factor_wraps_the_heading_error_across_plus_minus_pi():
+    # from a heading of 3.13 rad turning at 0.5 rad/s the step ends past pi, where a Pose2 reads
+    # heading - 2 pi: that pose at exactly the predicted state is no error at all (by hand)
+    from sindy_ekf.estimation.graph import X, DynamicsFactors
+    from sindy_ekf.estimation.process_models import ProcessModel
+    from tests.support.estimation_helpers import PolyBody
+
+    model = ProcessModel(PolyBody())
+    u = np.array([[0.6, -0.3], [0.0, 0.0]])
+    x0 = np.array([1.0, 2.0, 3.13, 0.5, 0.05, 0.5])
+    pred = model.step(x0, u[0], 0.0, 0.04)
+    assert pred[2] > np.pi
+    factor = DynamicsFactors(model, np.array([0.0, 0.04]), u).factor(0, gtsam.noiseModel.Unit.Create(6))
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose2(*x0[:3]))
+    values.insert(V(0), x0[3:])
+    values.insert(X(1), gtsam.Pose2(*pred[:3]))
+    values.insert(V(1), pred[3:])
+    assert values.atPose2(X(1)).theta() == pytest.approx(pred[2] - 2 * np.pi, abs=1e-12)
+    np.testing.assert_allclose(factor.unwhitenedError(values), 0.0, atol=1e-12)
