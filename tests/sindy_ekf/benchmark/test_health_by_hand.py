@@ -1,6 +1,6 @@
 """Health by hand: the reset's position with a lever arm at a general heading, which fix counts as
-"after" the alarm at the 1 us grid tolerance, where a result is cut, and a whole recovery redone
-step by step from its description (the variance factor carried over)."""
+"after" the alarm at the 1 us grid tolerance, where a result is cut and how it is spliced, and a
+whole recovery redone step by step from its description (the variance factor carried over)."""
 
 from __future__ import annotations
 
@@ -67,6 +67,26 @@ def test_a_result_cut_at_a_time_keeps_what_lies_more_than_1_us_before_it():
     # half a tolerance past a grid time cuts there too
     assert len(_cut(_result(), 1.0 + 0.5e-6).t) == 5
     assert len(_cut(_result(), 1.0 + 1.5e-6).t) == 6
+
+
+def test_a_spliced_result_is_the_head_before_the_tail_then_the_tail_with_the_counts_added():
+    from dataclasses import replace
+
+    from sindy_ekf.benchmark.health import _splice
+
+    head = replace(_result(), pd_repairs=2, saturated_steps=5, runtime_s=1.5)
+    t_tail = np.round(1.0 + np.arange(3) * 0.2, 12)
+    tail = EkfResult("r", t_tail, np.full((3, 6), -1.0), np.zeros((3, 6, 6)), np.array([7.0]), np.array([1.2]),
+                     np.zeros(1, bool), 13.8, 1, np.ones(3, bool), 0.25, {}, np.full((1, 2), 9.0),
+                     np.full((1, 2, 2), 9.0), np.array([4.0]), saturated_steps=3)
+    got = _splice(head, tail)
+    np.testing.assert_array_equal(got.t, np.round(np.r_[np.arange(5) * 0.2, 1.0, 1.2, 1.4], 12))
+    np.testing.assert_array_equal(got.x[:, 0], [0.0, 1.0, 2.0, 3.0, 4.0, -1.0, -1.0, -1.0])
+    np.testing.assert_array_equal(got.nis, [0.0, 1.0, 2.0, 7.0])
+    np.testing.assert_array_equal(got.nis_t, [0.2, 0.4, 1.0 - 1.5e-6, 1.2])
+    np.testing.assert_array_equal(got.r_scale, [1.0, 2.0, 3.0, 4.0])
+    np.testing.assert_array_equal(got.outside_envelope, [False] * 5 + [True] * 3)
+    assert (got.pd_repairs, got.saturated_steps, got.runtime_s) == (3, 8, 1.75)
 
 
 def test_eight_fixes_on_two_levels_are_a_step_and_seven_are_too_few_to_tell():
