@@ -192,6 +192,11 @@ EQUIVALENT: list[Equivalent] = [
                "only when finite a and b of 1e308 overflow, a state 1e308 m off whose next prediction overflows "
                "(F P F^T) and raises the DivergenceError a step later",
                source=r"math\.isfinite\((ekf\.x\.sum\(\) \+ ekf\.P\.sum\(\)|x_next\.sum\(\) \+ P_max)\)"),
+    Equivalent("identification/preprocessing/clock_sync.py", r"", r"Add -> Sub",
+               "the clock offset's sign in the gap residuals whose spread sets the samples' matching tolerance: "
+               "``- d`` for ``+ d`` adds 2 d to every residual, and the spread is their median absolute deviation "
+               "about their median, which a common shift leaves unchanged",
+               source=r"res_gap = gaps_rpi\[ig\] - \(k \* \(gaps_tr\[jt\] - tau\) \+ d\)"),
 ]
 
 

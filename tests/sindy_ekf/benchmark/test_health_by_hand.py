@@ -100,6 +100,21 @@ def test_eight_fixes_on_two_levels_are_a_step_and_seven_are_too_few_to_tell():
     assert not fixes_stepped(y[1:], S[1:], need_step=True)  # fewer than 8 fixes: no test
 
 
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_an_isolated_outlier_on_either_side_is_left_out_of_the_step_test(sign):
+    # two levels of six fixes under 1 cm noise and one fix 5 m off (either way): its squared
+    # distance from the running median is 2.5e5 variances, beyond the 0.999 chi-square bound, so it is
+    # left out (one of 13, under the 20 % share) and the rest is a step
+    from sindy_ekf.benchmark.step_test import fixes_stepped
+
+    rng = np.random.default_rng(5)
+    y = 0.01 * rng.standard_normal((13, 2))
+    y[6:, 0] += 1.0
+    y[3] += sign * 5.0
+    S = np.repeat(1e-4 * np.eye(2)[None], 13, axis=0)
+    assert fixes_stepped(y, S, need_step=True)
+
+
 def test_combined_status_names_the_worst_run_and_counts_the_others():
     from sindy_ekf.benchmark.health import RunStatus, combined_status
 
