@@ -161,3 +161,28 @@ def test_the_reference_is_scipys_rk45_per_window_at_rtol_1e_8_atol_1e_10():
     sol = solve_ivp(lambda tt, s: model.derivative(s, np.array([np.interp(tt, t, u1), 0.0]), tt), (0.0, 5.0),
                     np.zeros(6), t_eval=t, rtol=1e-8, atol=1e-10, method="RK45")
     np.testing.assert_allclose(ref.eps_p[0], np.abs(sol.y[0]), rtol=1e-12, atol=1e-15)
+
+
+def test_the_two_step_method_evaluates_the_velocities_at_rk4_stage_times():
+    # euler2 (eqs. 5.72 to 5.74): the velocities by RK4 with the model's time at t, t + dt/2 (twice)
+    # and t + dt, exact for a force linear in time: vx = C s^2 / 2 at every step of every window
+    from identification.sindy.evaluate import make_windows, rollout
+
+    t = np.arange(int(round(DURATION / DT)) + 1) * DT + 100.0
+    s = t - t[0]
+    st = _states(t, C * s ** 3 / 6, np.zeros_like(t), np.zeros_like(t), C * s ** 2 / 2, np.zeros_like(t))
+    windows = make_windows([st])
+    pred = rollout(_KnowsTheClock(), windows, "euler2")
+    s_at = windows.t0_run[:, None] + windows.t_rel[None, :]
+    np.testing.assert_allclose(pred[..., 3], C * s_at ** 2 / 2, rtol=0, atol=1e-12)
+    # a batch of models (here two copies): each predicts what it predicts alone
+    batch = rollout(_KnowsTheClock(), windows, "euler2", batch_shape=(2,))
+    assert batch.shape == (2,) + pred.shape
+    np.testing.assert_allclose(batch, np.broadcast_to(pred, batch.shape), rtol=0, atol=1e-15)
+
+
+def test_a_result_is_named_after_its_model_unless_named():
+    t = np.arange(int(round(DURATION / DT)) + 1) * DT
+    st = _states(t, 0.5 * t, np.zeros_like(t), np.zeros_like(t), np.full_like(t, 0.5), np.zeros_like(t))
+    assert evaluate_model(ConstantVelocityModel(), [st]).name == ConstantVelocityModel().name
+    assert evaluate_model(ConstantVelocityModel(), [st], name="cv on the test runs").name == "cv on the test runs"
