@@ -98,6 +98,13 @@ def test_windows_give_each_model_its_delayed_inputs_and_their_rates():
     np.testing.assert_allclose(stacked[1], got, atol=1e-12)
     np.testing.assert_allclose(stacked[0], w.u_half, atol=1e-12)
     assert w.inputs_for(np.zeros((3, 2))).shape == (3,) + w.u_half.shape
+    # by default no dead time (and no lag): the recorded inputs and their slopes 1 and 2 as they are
+    assert w.inputs_for() is w.u_half
+    np.testing.assert_allclose(w.u_half[..., 0], 3.0 + tq, atol=1e-9)
+    default_rate = w.inputs_for(rate=True)
+    np.testing.assert_allclose(default_rate[..., 0][tq < 11.9], 1.0, atol=1e-9)
+    np.testing.assert_allclose(default_rate[..., 1][tq < 11.9], 2.0, atol=1e-9)
+    np.testing.assert_allclose(default_rate[..., 0][tq < 0.05], 1.0, atol=1e-9)  # from the run's start on
 
 
 def test_windows_hold_recorded_inputs_from_their_own_stamps():
