@@ -146,6 +146,9 @@ class Equivalent:
 EQUIVALENT: list[Equivalent] = [
     Equivalent("*", r"threadpool_limits\.limits", r".*",
                "the number of BLAS threads: changes the speed of a factorisation, not its result"),
+    Equivalent("*", r"njit\.cache", r".*",
+               "numba's on-disk cache of a compiled function: whether compiling is saved for the next process, "
+               "not what the function computes"),
     Equivalent("*", r"progress\.(total|desc|disable)", r".*",
                "the progress bar's display (its length, label): no result depends on it"),
     Equivalent("sindy_ekf/estimation/ekf.py", r"step_and_jac\.input_jacobian", r"False -> True",

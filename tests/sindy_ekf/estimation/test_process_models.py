@@ -80,6 +80,17 @@ class PoseTimeDynamics(PolyBody):
         return a, J, J_u
 
 
+def test_the_derivative_without_a_time_is_the_one_at_the_run_start():
+    # by hand: vx' of PoseTimeDynamics carries 0.05 x cos(0.5 t), 0.05 x at t = 0
+    x = np.array([2.0, -1.0, 0.4, 0.5, 0.1, -0.2])
+    u = np.array([0.3, -0.1])
+    model = ProcessModel(PoseTimeDynamics())
+    vx, vy, w, u1, u2 = 0.5, 0.1, -0.2, 0.3, -0.1
+    vx_dot = 2.0 * u1 - 3.0 * vx + 0.4 * w * vy - 0.2 * vx * u2 ** 2 + 0.3 * np.sin(0.4) + 0.05 * 2.0
+    assert model.f(x, u)[3] == pytest.approx(vx_dot, rel=1e-12)
+    assert model.f(x, u, 2.0)[3] == pytest.approx(vx_dot - 0.05 * 2.0 * (1.0 - np.cos(1.0)), rel=1e-12)
+
+
 def _models():
     A = np.random.default_rng(3).normal(size=(6, 6)) * 0.5
     B = np.random.default_rng(4).normal(size=(6, 2))
