@@ -96,7 +96,7 @@ def test_exact_stamps_leave_out_of_the_fit_a_sample_1_5_us_off():
     k, d = 1.0 - 25e-6, 0.125
     t_tracker = 500.0 + (s_trigger - d) / k
     t_tracker[200] += 1.5e-6
-    model, i_trig, j_tr = fit_clock_model("ltd800", s_trigger, t_tracker)
+    model, i_trig, _ = fit_clock_model("ltd800", s_trigger, t_tracker)
     assert i_trig.size == s_trigger.size and model.n_fit == s_trigger.size - 1
     assert model.drift_ppm == pytest.approx(-25.0, abs=1e-3)
     mapped = model.s_trigger_from_tracker(t_tracker) - s_trigger

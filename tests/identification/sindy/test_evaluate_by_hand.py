@@ -83,7 +83,11 @@ def test_time_passed_to_the_model_is_seconds_since_the_start_of_the_run():
 
 
 def test_heading_error_is_wrapped_to_minus_pi_pi_and_a_diverged_prediction_is_infinite():
-    from identification.sindy.evaluate import Windows, errors_from_rollout, rms_over_windows
+    from identification.sindy.evaluate import (
+        Windows,
+        errors_from_rollout,
+        rms_over_windows,
+    )
 
     truth = np.zeros((2, 3, 3))
     truth[0, :, 2] = [0.0, 1.0, -3.0]
@@ -118,7 +122,12 @@ class _NoInputLagAttribute:
 
 
 def test_a_model_without_an_input_lag_attribute_sees_the_recorded_inputs():
-    from identification.sindy.evaluate import errors_from_rollout, evaluate_reference, make_windows, rollout
+    from identification.sindy.evaluate import (
+        errors_from_rollout,
+        evaluate_reference,
+        make_windows,
+        rollout,
+    )
 
     # u1 = C s, so vx = C s^2 / 2 and x = C s^3 / 6 (u2, omega and psi the same with -2 C): exact for
     # RK4 with the inputs interpolated linearly; a lag T of u1 leaves vx behind by C T (1 - exp(-s / T))

@@ -138,9 +138,19 @@ def test_a_reset_carries_over_the_variance_factor_learnt_up_to_the_alarm_window(
 
     from simulation.gnss import PROFILES, simulate_gnss
     from sindy_ekf.benchmark.health import guarded_ekf_batch, nis_alarm
-    from sindy_ekf.estimation.ekf import GRID_TOL_S, EkfRun, estimation_grid, run_ekf_batch
+    from sindy_ekf.estimation.ekf import (
+        GRID_TOL_S,
+        EkfRun,
+        estimation_grid,
+        run_ekf_batch,
+    )
     from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
-    from tests.support.estimation_helpers import PolyBody, inputs_at, simulate_truth, simulate_truths
+    from tests.support.estimation_helpers import (
+        PolyBody,
+        inputs_at,
+        simulate_truth,
+        simulate_truths,
+    )
 
     oracle = ProcessModel(PolyBody(), name="oracle")
     model = fit_process_noise(oracle, simulate_truths(oracle, 30.0, np.random.default_rng(100), n_runs=4))

@@ -111,7 +111,7 @@ def test_a_fix_rejected_by_the_gate_leaves_the_estimate_as_predicted():
 def test_the_filterpy_predict_propagates_by_the_model_and_f_p_ft_plus_q():
     from sindy_ekf.estimation.ekf import ModelEKF
 
-    model, t, u, x0 = _setup()
+    model, _, u, x0 = _setup()
     ekf = ModelEKF(model, x0, P0)
     x_next = model.step(x0, u[0], 0.3, 0.05)
     F = np.empty((6, 6))
@@ -160,7 +160,7 @@ def test_a_covariance_that_is_not_positive_definite_has_its_eigenvalues_clipped_
 def test_the_filterpy_update_without_a_lever_arm_is_the_textbook_kalman_update_and_predict_defaults():
     from sindy_ekf.estimation.ekf import ModelEKF
 
-    model, t, u, x0 = _setup()
+    model, _, _, x0 = _setup()
     ekf = ModelEKF(model, x0, P0, gate_prob=1.0)  # no lever arm: the fix measures the body's x, y
     z = x0[:2] + np.array([0.05, -0.04])
     nis, ok, _ = ekf.update_delayed(z, STD ** 2 * np.eye(2), ekf.x, ekf.P)

@@ -16,7 +16,12 @@ import numpy as np
 import pytest
 
 from groundfloor.gnss import GnssSeries
-from sindy_ekf.estimation.graph import V, levenberg_marquardt, smooth_batch, smooth_isam2
+from sindy_ekf.estimation.graph import (
+    V,
+    levenberg_marquardt,
+    smooth_batch,
+    smooth_isam2,
+)
 from tests.support.estimation_helpers import linear_gaussian_model, simulate_truth
 
 P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
@@ -123,7 +128,7 @@ def test_levenberg_marquardt_stops_on_a_relative_decrease_below_1e_6_by_default(
     start = np.array([-1.2, 1.0])
     values = gtsam.Values()
     values.insert(V(0), start)
-    got, it, _, err = levenberg_marquardt(graph, values, max_iterations=200)
+    got, it, _, _ = levenberg_marquardt(graph, values, max_iterations=200)
     ref = _lm_numpy(start, 200, 1e-6, 1e-5, _off_rosenbrock_residual, _off_rosenbrock_jacobian)
     assert ref[1] != _lm_numpy(start, 200, 2e-6, 1e-5, _off_rosenbrock_residual, _off_rosenbrock_jacobian)[1]
     assert it == ref[1] < 200 and ref[3] > 1e-3
@@ -275,7 +280,7 @@ def test_smooth_batch_runs_levenberg_marquardt_with_its_defaults(monkeypatch):
 def test_the_dynamics_factor_wraps_the_heading_error_across_plus_minus_pi():
     # from a heading of 3.13 rad turning at 0.5 rad/s the step ends past pi, where a Pose2 reads
     # heading - 2 pi: that pose at exactly the predicted state is no error at all (by hand)
-    from sindy_ekf.estimation.graph import X, DynamicsFactors
+    from sindy_ekf.estimation.graph import DynamicsFactors, X
     from sindy_ekf.estimation.process_models import ProcessModel
     from tests.support.estimation_helpers import PolyBody
 

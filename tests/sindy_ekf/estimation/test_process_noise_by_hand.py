@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from groundfloor.errors import InputError
-from sindy_ekf.estimation.process_models import ProcessModel, StateSeries, fit_process_noise, one_step_residuals
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    StateSeries,
+    fit_process_noise,
+    one_step_residuals,
+)
 from tests.support.estimation_helpers import PolyBody
 
 
