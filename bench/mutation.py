@@ -101,7 +101,7 @@ TARGETS = {
 }
 # seeds whose surviving mutants tests were written against (the report says so: their score is
 # not an unbiased measure of the tests; a fresh seed is)
-WRITTEN_AGAINST = (14, 23, 31)
+WRITTEN_AGAINST = (5, 7, 14, 23, 31, 61)
 SWAP_BIN = {ast.Add: ast.Sub, ast.Sub: ast.Add, ast.Mult: ast.Div, ast.Div: ast.Mult, ast.Pow: ast.Mult}
 SWAP_CMP = {ast.Lt: ast.GtE, ast.GtE: ast.Lt, ast.Gt: ast.LtE, ast.LtE: ast.Gt, ast.Eq: ast.NotEq,
             ast.NotEq: ast.Eq}
@@ -146,6 +146,9 @@ class Equivalent:
 EQUIVALENT: list[Equivalent] = [
     Equivalent("*", r"threadpool_limits\.limits", r".*",
                "the number of BLAS threads: changes the speed of a factorisation, not its result"),
+    Equivalent("*", r"njit\.cache", r".*",
+               "numba's on-disk cache of a compiled function: whether compiling is saved for the next process, "
+               "not what the function computes"),
     Equivalent("*", r"progress\.(total|desc|disable)", r".*",
                "the progress bar's display (its length, label): no result depends on it"),
     Equivalent("sindy_ekf/estimation/ekf.py", r"step_and_jac\.input_jacobian", r"False -> True",
@@ -176,6 +179,27 @@ EQUIVALENT: list[Equivalent] = [
                "than a query's distance from the track (a few seconds of dead time and window) gives the same "
                "averages, up to round-off of the padded integral (1e-12)",
                source=r"pad = 1e4"),
+    Equivalent("identification/sindy/evaluate.py", r"", r"0 -> 1",
+               "the lower clip of a held input's index: ``held = vstack([u[:1], u])`` repeats the first sample, so "
+               "rows 0 and 1 of ``held`` are equal and clipping the index to 1 instead of 0 reads the same value",
+               source=r"k_(lo|hi) = np\.clip\(np\.searchsorted\(knots, "),
+    Equivalent("sindy_ekf/estimation/ekf.py", r"", r"0 -> 1",
+               "the EKF's test for the saturated step with the upper bound as the lower one: it only decides "
+               "which of two calls steps the batch, and for states inside the bounds the saturated step is the "
+               "plain one bit for bit (np.clip leaves them as they are, no row is held, the same step_and_jac "
+               "call follows); states outside take the saturated step either way",
+               source=r"outside_bounds\(x_k, bounds\[0\], bounds\[1\]\)"),
+    Equivalent("sindy_ekf/estimation/ekf.py", r"", r"Add -> Sub",
+               "one finiteness test of state and covariance together, ``isfinite(a + b)`` as ``isfinite(a - b)``: "
+               "both are False exactly when a or b is inf or NaN (inf - inf and inf + -inf are NaN); they differ "
+               "only when finite a and b of 1e308 overflow, a state 1e308 m off whose next prediction overflows "
+               "(F P F^T) and raises the DivergenceError a step later",
+               source=r"math\.isfinite\((ekf\.x\.sum\(\) \+ ekf\.P\.sum\(\)|x_next\.sum\(\) \+ P_max)\)"),
+    Equivalent("identification/preprocessing/clock_sync.py", r"", r"Add -> Sub",
+               "the clock offset's sign in the gap residuals whose spread sets the samples' matching tolerance: "
+               "``- d`` for ``+ d`` adds 2 d to every residual, and the spread is their median absolute deviation "
+               "about their median, which a common shift leaves unchanged",
+               source=r"res_gap = gaps_rpi\[ig\] - \(k \* \(gaps_tr\[jt\] - tau\) \+ d\)"),
 ]
 
 

@@ -57,6 +57,26 @@ def test_a_first_order_lag_follows_one_minus_exp_after_a_step():
     np.testing.assert_allclose(one.at(np.array([3.3]))[0], [1.0 - math.exp(-1.0), 2.0], atol=5e-3)
 
 
+def test_held_samples_are_averaged_over_20_ms_by_default():
+    # a switch from 1 to 3 at 1 s; 5 ms after it the 20 ms around the query are a quarter before it
+    track = InputTrack(np.array([0.0, 1.0, 2.0]), np.array([[1.0, 10.0], [3.0, 30.0], [3.0, 30.0]]), "zoh")
+    np.testing.assert_allclose(track.at(np.array([1.005])), [[2.5, 25.0]], rtol=1e-9)
+    np.testing.assert_allclose(track.rate(np.array([1.005])), [[100.0, 1000.0]], rtol=1e-9)  # the jump / 20 ms
+
+
+def test_a_track_of_two_samples_is_lagged_as_well():
+    # two samples joined by a straight line: a ramp from rest, whose lag is t - T (1 - exp(-t / T))
+    # (the lag's grid is exact for inputs linear between its points)
+    ramp = InputTrack(np.array([0.0, 1.0]), np.array([[0.0, 0.0], [1.0, 2.0]]), "linear")
+    lagged = ramp.lagged((0.2, 0.5))
+    for s in (0.5, 1.0):
+        np.testing.assert_allclose(lagged.at(np.array([s]))[0],
+                                   [s - 0.2 * (1 - math.exp(-s / 0.2)), 2 * (s - 0.5 * (1 - math.exp(-s / 0.5)))],
+                                   atol=1e-9)
+    one = InputTrack(np.array([0.0]), np.array([[1.0, 2.0]]), "linear")  # one sample: nothing to lag
+    assert one.lagged((0.2, 0.5)) is one
+
+
 def test_windows_give_each_model_its_delayed_inputs_and_their_rates():
     t = 100.0 + np.arange(601) * 0.02  # 12 s; inputs linear in the time since the start
     s = t - 100.0
@@ -79,6 +99,13 @@ def test_windows_give_each_model_its_delayed_inputs_and_their_rates():
     np.testing.assert_allclose(stacked[1], got, atol=1e-12)
     np.testing.assert_allclose(stacked[0], w.u_half, atol=1e-12)
     assert w.inputs_for(np.zeros((3, 2))).shape == (3,) + w.u_half.shape
+    # by default no dead time (and no lag): the recorded inputs and their slopes 1 and 2 as they are
+    assert w.inputs_for() is w.u_half
+    np.testing.assert_allclose(w.u_half[..., 0], 3.0 + tq, atol=1e-9)
+    default_rate = w.inputs_for(rate=True)
+    np.testing.assert_allclose(default_rate[..., 0][tq < 11.9], 1.0, atol=1e-9)
+    np.testing.assert_allclose(default_rate[..., 1][tq < 11.9], 2.0, atol=1e-9)
+    np.testing.assert_allclose(default_rate[..., 0][tq < 0.05], 1.0, atol=1e-9)  # from the run's start on
 
 
 def test_windows_hold_recorded_inputs_from_their_own_stamps():

@@ -138,6 +138,28 @@ def test_diverging_model_is_an_error_naming_the_time():
         run_ekf(model, t, np.ones((len(t), 2)), np.r_[0, 0, 0, 1.0, 0, 0], P0)
 
 
+def test_saturated_steps_counts_the_steps_that_start_outside_the_envelope():
+    # dead reckoning with the small body model (vx in [-1.2, 1.2] after the 10 % margin) and no
+    # input: vx decays as exp(-3 t). From vx = 1.5 only the first step starts outside (by hand:
+    # projected to 1.2, it ends near 1.2 exp(-0.06) = 1.13); from vx = 1.0 none does. The seven-state
+    # EKF steps its model as it is (no envelope) and counts none (nor records innovations).
+    from sindy_ekf.estimation.ekf_motion import MotionSensors, run_ekf_motion
+
+    model = ProcessModel(PolyBody())
+    model.Q_rate_ = np.eye(6) * 1e-4
+    t = np.arange(51) * 0.02
+    u = np.zeros((len(t), 2))
+    out = run_ekf(model, t, u, np.r_[0, 0, 0, 1.5, 0, 0], P0)
+    assert out.saturated_steps == 1
+    assert out.x[1, 3] == pytest.approx(1.2 * np.exp(-0.06), rel=1e-6)
+    assert run_ekf(model, t, u, np.r_[0, 0, 0, 1.0, 0, 0], P0).saturated_steps == 0
+    seven = run_ekf_motion(model, EkfRun("r", t, u, np.r_[0, 0, 0, 1.0, 0, 0], P0), MotionSensors())
+    assert seven.saturated_steps == 0
+    # without GNSS no fix was processed: no NIS, and no innovations (of their documented shapes)
+    assert seven.nis.shape == (0,) and seven.innovation.shape == (0, 2)
+    assert seven.innovation_cov.shape == (0, 2, 2) and seven.r_scale.shape == (0,)
+
+
 def test_model_evaluated_inside_its_envelope_stays_finite_and_counts_saturated_steps():
     # the same exploding model, with an envelope: projected onto it, the velocities stay within
     # one step of its edge

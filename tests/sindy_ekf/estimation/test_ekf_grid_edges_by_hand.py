@@ -2,9 +2,11 @@
 
 A fix valid at the first or the last grid time is applied there (the grid's ends are inclusive);
 1.5 us beyond either end it is outside the run and ignored; 0.5 us off a grid time it is that grid
-time. A fix arriving exactly at a grid time is applied at that step, 1.5 us later at the next one.
+time. A fix arriving exactly at a grid time is applied at that step, 1.5 us later at the next one,
+after the last grid time at the last step.
 The model is linear-Gaussian and there is no lever arm, so the update at a step is the textbook
-``K = P H^T (H P H^T + R)^-1`` with ``H = [I 0]``.
+``K = P H^T (H P H^T + R)^-1`` with ``H = [I 0]``. Also by hand: the filterpy object's update and
+its predict's defaults, and the eigenvalue clipping of a covariance that is not positive definite.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from groundfloor.gnss import GnssSeries
 from sindy_ekf.estimation.ekf import run_ekf
@@ -108,7 +111,7 @@ def test_a_fix_rejected_by_the_gate_leaves_the_estimate_as_predicted():
 def test_the_filterpy_predict_propagates_by_the_model_and_f_p_ft_plus_q():
     from sindy_ekf.estimation.ekf import ModelEKF
 
-    model, t, u, x0 = _setup()
+    model, _, u, x0 = _setup()
     ekf = ModelEKF(model, x0, P0)
     x_next = model.step(x0, u[0], 0.3, 0.05)
     F = np.empty((6, 6))
@@ -121,3 +124,69 @@ def test_the_filterpy_predict_propagates_by_the_model_and_f_p_ft_plus_q():
     np.testing.assert_allclose(ekf.P, F @ P0 @ F.T + 0.05 * model.Q_rate_, rtol=1e-8, atol=1e-14)
     np.testing.assert_allclose(ekf.F, F, atol=1e-8)
     assert ekf.pd_repairs == 0
+
+
+def test_a_fix_arriving_after_the_last_grid_time_is_applied_at_the_last_step():
+    # valid inside the run, arriving 0.5 s after its end (a late fix of a cut run): the last step is
+    # the last chance to apply it, so it is applied there, as if it had arrived on the last grid time
+    model, t, u, x0 = _setup()
+    z = np.array([[0.3, -0.2]])
+    dead = run_ekf(model, t, u, x0, P0, None)
+    instant = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[5]], z), gate_prob=1.0)
+    late = run_ekf(model, t, u, x0, P0, _gnss([t[5]], [t[-1] + 0.5], z), gate_prob=1.0)
+    np.testing.assert_array_equal(late.nis_t, [t[5]])
+    np.testing.assert_allclose(late.x[:-1], dead.x[:-1], atol=1e-12)
+    # linear-Gaussian, one fix: the delayed update equals the update at the time of validity
+    np.testing.assert_allclose(late.x[-1], instant.x[-1], atol=1e-10)
+    assert np.abs(late.x[-1, :2] - dead.x[-1, :2]).max() > 1e-3  # the fix moved it
+
+
+def test_a_covariance_that_is_not_positive_definite_has_its_eigenvalues_clipped_at_1e_12():
+    from sindy_ekf.estimation.ekf import repair_covariance
+
+    # by hand: eigenvectors (1, 1) / sqrt 2 and (1, -1) / sqrt 2 with eigenvalues 3 and -1; the
+    # negative one is clipped to 1e-12
+    P = np.array([[1.0, 2.0], [2.0, 1.0]])
+    repaired, done = repair_covariance(P)
+    v, w = np.array([1.0, 1.0]) / np.sqrt(2), np.array([1.0, -1.0]) / np.sqrt(2)
+    assert done
+    np.testing.assert_allclose(repaired, 3.0 * np.outer(v, v) + 1e-12 * np.outer(w, w), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(repaired @ w, 1e-12 * w, rtol=0, atol=1e-15)
+    same, done = repair_covariance(np.array([[2.0, 0.5], [0.5, 1.0]]))  # positive definite: only symmetrised
+    assert not done
+    np.testing.assert_array_equal(same, [[2.0, 0.5], [0.5, 1.0]])
+
+
+def test_the_filterpy_update_without_a_lever_arm_is_the_textbook_kalman_update_and_predict_defaults():
+    from sindy_ekf.estimation.ekf import ModelEKF
+
+    model, _, _, x0 = _setup()
+    ekf = ModelEKF(model, x0, P0, gate_prob=1.0)  # no lever arm: the fix measures the body's x, y
+    z = x0[:2] + np.array([0.05, -0.04])
+    nis, ok, _ = ekf.update_delayed(z, STD ** 2 * np.eye(2), ekf.x, ekf.P)
+    assert ok
+    np.testing.assert_allclose(ekf.x, _kalman(x0, P0, z), atol=1e-14)
+    S = P0[:2, :2] + STD ** 2 * np.eye(2)
+    assert nis == pytest.approx((z - x0[:2]) @ np.linalg.solve(S, z - x0[:2]), rel=1e-12)
+    # predict() without arguments: no input, time 0, a 20 ms step (50 Hz); a model that pushes vx
+    # by 0.5 t tells the time: by hand, RK4 is exact for x'' = 0.5 t
+    from sindy_ekf.estimation.process_models import ProcessModel
+    from tests.support.estimation_helpers import LinearDynamics
+
+    class Clock(LinearDynamics):
+        def derivative_and_jacobians(self, x6, u, t=0.0, input_jacobian=True):
+            f, J_x, J_u = super().derivative_and_jacobians(x6, u, t, input_jacobian)
+            f = f.copy()
+            f[..., 3] += 0.5 * np.asarray(t)
+            return f, J_x, J_u
+
+    A = np.zeros((6, 6))
+    A[0, 3] = 1.0  # x' = vx, vx' = 0.5 t + u1
+    clock = ProcessModel(Clock(A, np.eye(6, 2, -3)))
+    clock.Q_rate_ = np.eye(6) * 1e-4
+    ekf = ModelEKF(clock, np.array([0.0, 0.0, 0.0, 0.2, 0.0, 0.0]), P0)
+    ekf.predict()
+    h = 0.02  # from t = 0: vx gains 0.5 h^2 / 2, x gains 0.2 h + 0.5 h^3 / 6
+    np.testing.assert_allclose(ekf.x, [0.2 * h + 0.5 * h ** 3 / 6, 0.0, 0.0, 0.2 + 0.25 * h ** 2, 0.0, 0.0], atol=1e-15)
+    ekf.predict(np.array([1.0, 0.0]), 1.0, 0.1)  # from t = 1 s: vx gains 0.1 + 0.5 (1.1^2 - 1) / 2
+    np.testing.assert_allclose(ekf.x[3], 0.2 + 0.25 * h ** 2 + 0.1 + 0.0525, atol=1e-14)

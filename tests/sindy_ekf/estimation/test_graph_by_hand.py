@@ -1,7 +1,10 @@
 """Factor graph by hand: Levenberg-Marquardt against a numpy implementation of its documented
 schedule on Rosenbrock's function (whose first Gauss-Newton steps increase the error, so the
 damping must grow), iSAM2's documented defaults seen in its output, its lag dropping late fixes at
-0.8 of the lag, and fixes at the grid's inclusive ends.
+0.8 of the lag, fixes at the grid's inclusive ends, the smoother's starting trajectory and its LM
+settings, where marginals are computed, the lateral factor's free components, LM's stop on a relative
+decrease (a problem whose minimum error is not zero), and the dynamics factor's heading error
+across +-pi.
 """
 
 from __future__ import annotations
@@ -13,7 +16,12 @@ import numpy as np
 import pytest
 
 from groundfloor.gnss import GnssSeries
-from sindy_ekf.estimation.graph import V, levenberg_marquardt, smooth_batch, smooth_isam2
+from sindy_ekf.estimation.graph import (
+    V,
+    levenberg_marquardt,
+    smooth_batch,
+    smooth_isam2,
+)
 from tests.support.estimation_helpers import linear_gaussian_model, simulate_truth
 
 P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
@@ -39,18 +47,18 @@ def _rosenbrock_graph():
     return graph
 
 
-def _lm_numpy(p, max_iterations, rel_tol, lam):
+def _lm_numpy(p, max_iterations, rel_tol, lam, residual=_rosenbrock_residual, jacobian=_rosenbrock_jacobian):
     """Levenberg-Marquardt as graph.levenberg_marquardt documents it: ``(J^T J + lambda I) dx = -J^T r``,
     a step taken when it does not raise the error (then ``lambda / 10``, at least 1e-12), else
     ``lambda x 10`` until 1e10; stop on a relative decrease below ``rel_tol`` or an error below 1e-9."""
     def cost(q):
-        r = _rosenbrock_residual(q)
+        r = residual(q)
         return 0.5 * r @ r
 
     err0 = err = cost(p)
     it, n_rejected = 0, 0
     for it in range(1, max_iterations + 1):
-        J, r = _rosenbrock_jacobian(p), _rosenbrock_residual(p)
+        J, r = jacobian(p), residual(p)
         improved = False
         while lam < 1e10:
             dx = np.linalg.solve(J.T @ J + lam * np.eye(2), -J.T @ r)
@@ -96,6 +104,46 @@ def test_levenberg_marquardt_defaults_are_20_iterations_from_lambda_1e_5():
     # and it converges to the minimum (1, 1) given the iterations
     done, _, _, _ = levenberg_marquardt(_rosenbrock_graph(), values, max_iterations=200)
     np.testing.assert_allclose(done.atVector(V(0)), [1.0, 1.0], atol=1e-3)
+
+
+def _off_rosenbrock_residual(p):  # a third residual the other two contradict: the minimum error is not 0
+    return np.array([10.0 * (p[1] - p[0] ** 2), 1.0 - p[0], 0.5 * (p[0] + p[1]) - 0.3])
+
+
+def _off_rosenbrock_jacobian(p):
+    return np.array([[-20.0 * p[0], 10.0], [-1.0, 0.0], [0.5, 0.5]])
+
+
+def test_levenberg_marquardt_stops_on_a_relative_decrease_below_1e_6_by_default():
+    # the minimum error is not zero, so LM stops on the relative decrease: from (-1.2, 1) one
+    # iteration decreases the error by 1.4e-6, which a tolerance of 2e-6 would stop at
+    def error(this, values, H):
+        p = values.atVector(V(0))
+        if H is not None:
+            H[0] = _off_rosenbrock_jacobian(p)
+        return _off_rosenbrock_residual(p)
+
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), [V(0)], error))
+    start = np.array([-1.2, 1.0])
+    values = gtsam.Values()
+    values.insert(V(0), start)
+    got, it, _, _ = levenberg_marquardt(graph, values, max_iterations=200)
+    ref = _lm_numpy(start, 200, 1e-6, 1e-5, _off_rosenbrock_residual, _off_rosenbrock_jacobian)
+    assert ref[1] != _lm_numpy(start, 200, 2e-6, 1e-5, _off_rosenbrock_residual, _off_rosenbrock_jacobian)[1]
+    assert it == ref[1] < 200 and ref[3] > 1e-3
+    np.testing.assert_allclose(got.atVector(V(0)), ref[0], rtol=1e-9, atol=1e-12)
+
+
+def test_the_lateral_factor_leaves_vx_and_omega_free_with_sigma_1e4():
+    from sindy_ekf.estimation.graph import _lateral_factor
+    from sindy_ekf.estimation.lateral import LateralConstraint
+
+    lateral = LateralConstraint(vy_std_m_s=0.05, every=1)
+    values = gtsam.Values()
+    values.insert(V(3), np.array([3.0, 0.1, -2.0]))
+    np.testing.assert_allclose(_lateral_factor(3, lateral).whitenedError(values), [3.0 / 1e4, 0.1 / 0.05, -2.0 / 1e4],
+                               rtol=1e-12)
 
 
 def _short_run(duration_s=6.0, seed=3):
@@ -198,3 +246,66 @@ def test_isam2_without_fixes_is_dead_reckoning():
     model, truth, t, u, _ = _short_run(duration_s=1.0)
     got = smooth_isam2(model, t, u, truth.x6[0], P0, None)
     np.testing.assert_allclose(got.x, model.propagate(truth.x6[0], u, t - t[0]), atol=1e-9)
+
+
+def test_without_iterations_the_smoother_returns_its_starting_trajectory():
+    # no LM iteration: the starting trajectory goes into the graph's values and comes back as it
+    # was (poses as x, y, heading; velocities as they are), at the error it starts from
+    model, truth, t, u, gnss = _short_run(duration_s=1.0)
+    x_init = truth.x6 + np.array([0.3, -0.2, 0.1, 0.05, -0.02, 0.04])  # x, y, heading all different
+    got = smooth_batch(model, t, u, truth.x6[0], P0, gnss, x_init=x_init, robust=None, marginal_stride=None,
+                       max_iterations=0)
+    np.testing.assert_allclose(got.x, x_init, atol=1e-12)
+    assert got.iterations == 0 and got.error_final == got.error_initial > 0.0
+
+
+def test_smooth_batch_runs_levenberg_marquardt_with_its_defaults(monkeypatch):
+    # the batch smoother's own defaults are LM's (20 iterations, stop below a relative decrease of
+    # 1e-6; test_levenberg_marquardt_defaults_are_20_iterations_from_lambda_1e_5): what it hands over
+    import sindy_ekf.estimation.graph as graph_module
+
+    seen = []
+    lm = graph_module.levenberg_marquardt
+
+    def spy(graph, values, max_iterations, rel_tol):
+        seen.append((max_iterations, rel_tol))
+        return lm(graph, values, max_iterations, rel_tol)
+
+    monkeypatch.setattr(graph_module, "levenberg_marquardt", spy)
+    model, truth, t, u, gnss = _short_run(duration_s=1.0)
+    smooth_batch(model, t, u, truth.x6[0], P0, gnss, marginal_stride=None)
+    assert seen == [(20, 1e-6)]
+
+
+def test_the_dynamics_factor_wraps_the_heading_error_across_plus_minus_pi():
+    # from a heading of 3.13 rad turning at 0.5 rad/s the step ends past pi, where a Pose2 reads
+    # heading - 2 pi: that pose at exactly the predicted state is no error at all (by hand)
+    from sindy_ekf.estimation.graph import DynamicsFactors, X
+    from sindy_ekf.estimation.process_models import ProcessModel
+    from tests.support.estimation_helpers import PolyBody
+
+    model = ProcessModel(PolyBody())
+    u = np.array([[0.6, -0.3], [0.0, 0.0]])
+    x0 = np.array([1.0, 2.0, 3.13, 0.5, 0.05, 0.5])
+    pred = model.step(x0, u[0], 0.0, 0.04)
+    assert pred[2] > np.pi
+    factor = DynamicsFactors(model, np.array([0.0, 0.04]), u).factor(0, gtsam.noiseModel.Unit.Create(6))
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose2(*x0[:3]))
+    values.insert(V(0), x0[3:])
+    values.insert(X(1), gtsam.Pose2(*pred[:3]))
+    values.insert(V(1), pred[3:])
+    assert values.atPose2(X(1)).theta() == pytest.approx(pred[2] - 2 * np.pi, abs=1e-12)
+    np.testing.assert_allclose(factor.unwhitenedError(values), 0.0, atol=1e-12)
+
+
+def test_marginals_at_every_step_by_default_else_at_every_stride_th_and_the_last():
+    model, truth, t, u, gnss = _short_run(duration_s=0.54)  # 27 grid times
+    every = smooth_batch(model, t, u, truth.x6[0], P0, gnss, robust=None)
+    assert np.all(np.isfinite(every.P))
+    strided = smooth_batch(model, t, u, truth.x6[0], P0, gnss, robust=None, marginal_stride=3)
+    k = np.arange(len(t))
+    has = np.isfinite(strided.P).all(axis=(1, 2))
+    np.testing.assert_array_equal(has, (k % 3 == 0) | (k == len(t) - 1))
+    assert len(t) % 3 != 1  # the last step is not on the stride: it is there of its own
+    np.testing.assert_allclose(strided.P[has], every.P[has], rtol=1e-9, atol=1e-15)

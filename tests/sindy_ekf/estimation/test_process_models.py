@@ -80,6 +80,17 @@ class PoseTimeDynamics(PolyBody):
         return a, J, J_u
 
 
+def test_the_derivative_without_a_time_is_the_one_at_the_run_start():
+    # by hand: vx' of PoseTimeDynamics carries 0.05 x cos(0.5 t), 0.05 x at t = 0
+    x = np.array([2.0, -1.0, 0.4, 0.5, 0.1, -0.2])
+    u = np.array([0.3, -0.1])
+    model = ProcessModel(PoseTimeDynamics())
+    vx, vy, w, u1, u2 = 0.5, 0.1, -0.2, 0.3, -0.1
+    vx_dot = 2.0 * u1 - 3.0 * vx + 0.4 * w * vy - 0.2 * vx * u2 ** 2 + 0.3 * np.sin(0.4) + 0.05 * 2.0
+    assert model.f(x, u)[3] == pytest.approx(vx_dot, rel=1e-12)
+    assert model.f(x, u, 2.0)[3] == pytest.approx(vx_dot - 0.05 * 2.0 * (1.0 - np.cos(1.0)), rel=1e-12)
+
+
 def _models():
     A = np.random.default_rng(3).normal(size=(6, 6)) * 0.5
     B = np.random.default_rng(4).normal(size=(6, 2))
@@ -258,6 +269,52 @@ def test_unmodelled_states_are_the_zero_equations_another_one_depends_on():
     series = [_gm_series(0.5, 0.05, n=500)]
     assert unmodelled_states(ProcessModel(ZeroLateral()), series) == [4]
     assert unmodelled_states(ProcessModel(PolyBody()), series) == []
+
+
+class _HandAccel(Dynamics):
+    """Accelerations written out by hand, ``accel(vx, vy, omega, u1)``, with their Jacobians by
+    central differences (the rule needs only which entries are zero)."""
+
+    def __init__(self, accel):
+        self._accel = accel
+
+    def accel_and_jacobians(self, x6, u, t=0.0):
+        x6, u = np.asarray(x6, float), np.asarray(u, float)
+        a = self._accel(x6[..., 3], x6[..., 4], x6[..., 5], u[..., 0])
+        J_x, J_u = np.zeros(a.shape + (6,)), np.zeros(a.shape + (2,))
+        for j in range(3):
+            e = np.zeros(6)
+            e[3 + j] = 1e-6
+            J_x[..., 3 + j] = (self._accel(*(x6 + e)[..., 3:].T, u[..., 0]) -
+                               self._accel(*(x6 - e)[..., 3:].T, u[..., 0])) / 2e-6
+        J_u[..., 0] = (self._accel(*x6[..., 3:].T, u[..., 0] + 1e-6) - self._accel(*x6[..., 3:].T, u[..., 0] - 1e-6)) / 2e-6
+        return a, J_x, J_u
+
+
+def _accel(vx_dot, vy_dot, omega_dot):
+    return lambda vx, vy, w, u1: np.stack(np.broadcast_arrays(vx_dot(vx, vy, w, u1), vy_dot(vx, vy, w, u1),
+                                                              omega_dot(vx, vy, w, u1)), axis=-1)
+
+
+@pytest.mark.parametrize("name, accel, expected", [
+    # dvy/dt = 0 and the yaw rate depends on vy everywhere: the random walk of the cmd runs
+    ("coupled", _accel(lambda vx, vy, w, u1: u1 - vx, lambda *a: 0.0, lambda vx, vy, w, u1: 0.8 * vy - w), [4]),
+    # dvy/dt = 0 but no other equation depends on vy: vy does not matter, nothing to model
+    ("uncoupled", _accel(lambda vx, vy, w, u1: u1 - vx, lambda *a: 0.0, lambda vx, vy, w, u1: -w), []),
+    # zero on every sample by chance (u1 = 0 there), not identically: its input Jacobian is vy
+    ("zero by chance, input", _accel(lambda vx, vy, w, u1: -vx, lambda vx, vy, w, u1: u1 * vy,
+                                     lambda vx, vy, w, u1: 0.8 * vy - w), []),
+    # zero on every sample by chance (vx = 0 there): its Jacobian in vx is vy
+    ("zero by chance, state", _accel(lambda vx, vy, w, u1: -vx, lambda vx, vy, w, u1: vx * vy,
+                                     lambda vx, vy, w, u1: 0.8 * vy - w), []),
+    # dvx/dt = 0, the lateral equation depends on vx: vx is the unmodelled state
+    ("forward", _accel(lambda *a: 0.0, lambda vx, vy, w, u1: 0.5 * vx - vy, lambda vx, vy, w, u1: -w), [3]),
+])
+def test_unmodelled_states_by_hand(name, accel, expected):
+    # samples with vx = 0 and u1 = 0 (the chance zeros), vy and omega nonzero
+    series = [_gm_series(0.5, 0.05, n=200)]
+    series[0].x6[:, 5] = 0.1
+    assert unmodelled_states(ProcessModel(_HandAccel(accel)), series) == expected, name
 
 
 def test_mean_reversion_time_constant_and_noise_match_the_gauss_markov_reference():

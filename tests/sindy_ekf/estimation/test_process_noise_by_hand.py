@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from groundfloor.errors import InputError
-from sindy_ekf.estimation.process_models import ProcessModel, StateSeries, fit_process_noise, one_step_residuals
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    StateSeries,
+    fit_process_noise,
+    one_step_residuals,
+)
 from tests.support.estimation_helpers import PolyBody
 
 
@@ -106,3 +111,37 @@ def test_step_of_a_time_dependent_model_is_classical_rk4_with_stage_times_t_t_ha
     k4 = f(x + h[:, None] * k3, u, t + h)
     np.testing.assert_allclose(model.step(x, u, t, h), x + h[:, None] / 6 * (k1 + 2 * k2 + 2 * k3 + k4),
                                rtol=1e-13, atol=1e-14)
+
+
+class _NoInputChainAttributes:
+    """Dynamics that are no :class:`groundfloor.dynamics.Dynamics` and have neither ``dead_time_s``
+    nor ``input_lag_s``: they see the recorded inputs as they are. ``x' = vx``, ``vx' = u1``,
+    ``psi' = omega``, ``omega' = u2``."""
+
+    name = "no_input_chain_attributes"
+
+    def derivative(self, x6, u, t=0.0):
+        f = np.zeros(np.shape(x6))
+        f[..., 0] = x6[..., 3]
+        f[..., 2] = x6[..., 5]
+        f[..., 3] = u[..., 0]
+        f[..., 5] = u[..., 1]
+        return f
+
+
+def test_residuals_of_dynamics_without_dead_time_or_lag_attributes_use_the_recorded_inputs():
+    # by hand, the inputs held over each (uneven) step: vx gains u1 dt and x gains vx dt + u1 dt^2 / 2
+    # (exact, and exact for RK4), omega and psi likewise with u2; the inputs vary, so a dead time or a
+    # lag of either would leave residuals
+    rng = np.random.default_rng(4)
+    t = 20.0 + np.concatenate([[0.0], np.cumsum(rng.uniform(0.01, 0.03, 149))])
+    u = np.column_stack([np.sin(2.0 * t), np.cos(1.5 * t)])
+    x = np.zeros((len(t), 6))
+    x[0, 3], x[0, 5] = 0.5, -0.2
+    for k, dt in enumerate(np.diff(t)):
+        for pos, vel, i in ((0, 3, 0), (2, 5, 1)):
+            x[k + 1, vel] = x[k, vel] + u[k, i] * dt
+            x[k + 1, pos] = x[k, pos] + x[k, vel] * dt + u[k, i] * dt ** 2 / 2
+    r, dt = one_step_residuals(ProcessModel(_NoInputChainAttributes()), [StateSeries("held", t, x, u)])
+    np.testing.assert_allclose(dt, np.diff(t), rtol=1e-15)
+    np.testing.assert_allclose(r, 0.0, atol=1e-12)

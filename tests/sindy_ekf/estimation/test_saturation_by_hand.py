@@ -28,6 +28,18 @@ def test_velocity_bounds_are_the_envelope_widened_by_a_tenth_of_its_width():
     assert ProcessModel(linear_gaussian_model().dynamics).velocity_bounds() is None  # no envelope
 
 
+class _OneSided(PolyBody):
+    envelope = {"vx": [0.0, np.inf], "vy": [-np.inf, 0.3], "omega": [-1.0, 1.0], "u1": [-1, 1], "u2": [-1, 1]}
+
+
+def test_a_bound_with_an_unbounded_other_side_is_not_widened():
+    # the width of a one-sided envelope is infinite: no finite pad is a tenth of it, so the finite
+    # side stays where it is (SindyModel._outside's rule, np.where(isfinite(width), width, 0))
+    lo, hi = ProcessModel(_OneSided()).velocity_bounds()
+    np.testing.assert_array_equal(lo, [0.0, -np.inf, -1.2])
+    np.testing.assert_array_equal(hi, [np.inf, 0.3, 1.2])
+
+
 @pytest.mark.parametrize("v, outside", [([0.0, 0.0, 0.0], False), ([1.2, -0.36, 1.2], False),
                                         ([1.2 + 1e-9, 0.0, 0.0], True), ([0.0, -0.36 - 1e-9, 0.0], True),
                                         ([0.0, 0.0, 1.3], True), ([0.0, 0.0, -1.3], True)])
