@@ -82,6 +82,11 @@ TARGETS = {
                                          "tests/identification/sindy/test_evaluate.py",
                                          "tests/identification/sindy/test_windows_by_hand.py",
                                          "tests/identification/sindy/test_input_track_by_hand.py", FROZEN],
+    # InputTrack, split out of evaluate.py (same code, same tests)
+    "identification/sindy/input_track.py": ["tests/identification/sindy/test_evaluate_by_hand.py",
+                                            "tests/identification/sindy/test_evaluate.py",
+                                            "tests/identification/sindy/test_windows_by_hand.py",
+                                            "tests/identification/sindy/test_input_track_by_hand.py", FROZEN],
     "identification/sindy/regression.py": ["tests/identification/sindy/test_sindy.py",
                                            "tests/identification/sindy/test_stlsq_normalised.py",
                                            "tests/identification/sindy/test_regression_by_hand.py",
@@ -174,12 +179,12 @@ EQUIVALENT: list[Equivalent] = [
                "the gate's bound at probability 1: chi2.ppf(1, dof) is inf, the value of the else branch, and a "
                "gate probability is in (0, 1] (config.py checks it), so ``< 2`` takes the same value",
                source=r"if gate_prob < 1 else np\.inf"),
-    Equivalent("identification/sindy/evaluate.py", r"", r"10000\.0 -> 20000\.0",
+    Equivalent("identification/sindy/input_track.py", r"", r"10000\.0 -> 20000\.0",
                "the held inputs' padding beyond the track's ends (the end values hold there): any padding longer "
                "than a query's distance from the track (a few seconds of dead time and window) gives the same "
                "averages, up to round-off of the padded integral (1e-12)",
                source=r"pad = 1e4"),
-    Equivalent("identification/sindy/evaluate.py", r"", r"0 -> 1",
+    Equivalent("identification/sindy/input_track.py", r"", r"0 -> 1",
                "the lower clip of a held input's index: ``held = vstack([u[:1], u])`` repeats the first sample, so "
                "rows 0 and 1 of ``held`` are equal and clipping the index to 1 instead of 0 reads the same value",
                source=r"k_(lo|hi) = np\.clip\(np\.searchsorted\(knots, "),
