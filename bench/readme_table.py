@@ -272,6 +272,25 @@ def _real_diagnosis(r: Source) -> str:
     return "; ".join(parts)
 
 
+def _monte_carlo_q(r: Source) -> str:
+    runs = r.number(r"(\d+) of \d+ Monte-Carlo runs done")
+    return (f"Monte Carlo under GNSS faults ({runs:.0f} windows of outliers, multipath bursts, jumps, covariance "
+            "10x small, outages up to 60 s): runs diverged; position error at the end of 30 / 60 s outages")
+
+
+def _monte_carlo(r: Source) -> str:
+    header = "estimator | fault mix | runs | diverged"
+    ekf, graph = (r.row(header, name, "**all mixes**") for name in ("sindy_ekf", "sindy_graph"))
+    out = [r.row("estimator | fault mix | outage s", "sindy_ekf", "outage", str(s)) for s in (30, 60)]
+    return (f"SINDy EKF {ekf[3]} of {ekf[2]}, graph {graph[3]} of {graph[2]} (target 0); EKF median "
+            f"{out[0][4]} / {out[1][4]} m")
+
+
+_mutation = _filled(r"### seed (?P<seed>\d+) \(a fresh draw[^)]*\): \*\*(?P<killed>\d+) of (?P<n>\d+) mutants killed: "
+                    r"(?P<share>\d+) %\*\*",
+                    "{killed} of {n} killed, {share} % (fresh draw, seed {seed}; target 90 %)")
+
+
 _demo_wall = _filled(r"\*\*`sindy-ekf demo`: (?P<wall>\d+) s wall, (?P<cpu>\d+) s CPU\*\*.*?"
                      r"load average (?P<before>[\d.]+) before, (?P<after>[\d.]+) after",
                      "{wall} s wall, {cpu} s CPU (load average {before} before, {after} after, 2 cores)")
@@ -305,6 +324,9 @@ ROWS = (
         _real_cli, "-"),
     Row("real", "real Warthog data, diagnosis (verdict, 5 s error before -> after the extension)",
         _real_diagnosis, "-"),
+    Row("monte_carlo", _monte_carlo_q, _monte_carlo, "outlook only"),
+    Row("mutation", "tests against wrong changes: mutants of the numeric core killed (`bench/mutation.py`)",
+        _mutation, "-"),
     Row("demo", "`sindy-ekf demo`, whole chain and report", _demo_wall, "-"),
     Row("demo", "`make demo` on a fresh clone (venv, pinned `pip install`, demo)", _fresh_clone, "-",
         optional=True),
