@@ -190,3 +190,60 @@ def test_the_filterpy_update_without_a_lever_arm_is_the_textbook_kalman_update_a
     np.testing.assert_allclose(ekf.x, [0.2 * h + 0.5 * h ** 3 / 6, 0.0, 0.0, 0.2 + 0.25 * h ** 2, 0.0, 0.0], atol=1e-15)
     ekf.predict(np.array([1.0, 0.0]), 1.0, 0.1)  # from t = 1 s: vx gains 0.1 + 0.5 (1.1^2 - 1) / 2
     np.testing.assert_allclose(ekf.x[3], 0.2 + 0.25 * h ** 2 + 0.1 + 0.0525, atol=1e-14)
+
+
+def test_a_delayed_fix_sees_on_time_updates_between_its_validity_and_arrival_through_the_cross_covariance():
+    # fixes A1, A2 valid and arriving at steps 19 and 20; fix B valid at step 16, arriving at step 24
+    # (after A1 is valid: the module docstring's first-order case, the clone of step 16 is not
+    # updated by A1, A2). Two on-time updates in a row, so that M_18 and M_19 differ (the model is
+    # linear and time-invariant on a uniform grid: without them every M_k is the same F). By hand, a
+    # second implementation: the state augmented with a clone of x_16, propagated with
+    # blkdiag(F, I), each A applied with the gain [K_A; 0] (the clone left as it is) in Joseph form,
+    # which keeps the augmented covariance the true one of these errors; B then updates the
+    # augmented state with H = [0 I_2] and only the x block is kept. No products of M_k: the
+    # cross-covariance of x_24 and x_16 comes from the augmented covariance.
+    model, t, u, x0 = _setup()
+    z_on_time = {19: np.array([0.22, -0.12]), 20: np.array([0.25, -0.15])}
+    z_b = np.array([0.2, -0.1])
+    res = run_ekf(model, t, u, x0, P0, _gnss([t[16], t[19], t[20]], [t[24], t[19], t[20]],
+                                             [z_b, z_on_time[19], z_on_time[20]]), gate_prob=1.0)
+    np.testing.assert_array_equal(res.nis_t, [t[19], t[20], t[16]])
+    R = STD ** 2 * np.eye(2)
+    x, P = np.concatenate([x0, x0]), np.zeros((12, 12))
+    P[:6, :6] = P0
+    for k in range(24):
+        dt = t[k + 1] - t[k]
+        F = np.empty((6, 6))
+        for j in range(6):  # central differences of the step: the linear model's exact Jacobian
+            e = np.zeros(6)
+            e[j] = 1e-6
+            F[:, j] = (model.step(x[:6] + e, u[k], t[k] - t[0], dt)
+                       - model.step(x[:6] - e, u[k], t[k] - t[0], dt)) / 2e-6
+        F_aug = np.eye(12)
+        F_aug[:6, :6] = F
+        x[:6] = model.step(x[:6], u[k], t[k] - t[0], dt)
+        P = F_aug @ P @ F_aug.T
+        P[:6, :6] += dt * model.Q_rate_
+        if k + 1 == 16:  # the clone of the estimate at B's time of validity
+            x[6:] = x[:6]
+            P = np.block([[P[:6, :6], P[:6, :6]], [P[:6, :6], P[:6, :6]]])
+        if k + 1 in (19, 20, 24):
+            H = np.zeros((2, 12))
+            if k + 1 < 24:
+                H[:, :2] = np.eye(2)
+                K = np.zeros((12, 2))
+                K[:6] = P[:6] @ H.T @ np.linalg.inv(H @ P @ H.T + R)  # A's gain, none for the clone
+                zk = z_on_time[k + 1]
+            else:
+                H[:, 6:8] = np.eye(2)
+                K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+                zk = z_b
+            x = x + K @ (zk - H @ x)
+            IKH = np.eye(12) - K @ H
+            P = IKH @ P @ IKH.T + K @ R @ K.T
+            np.testing.assert_allclose(res.x[k + 1], x[:6], atol=1e-10)
+    np.testing.assert_allclose(res.P[24], P[:6, :6], rtol=1e-8, atol=1e-14)
+    # B moved the estimate at its arrival by more than the tolerance above
+    before = run_ekf(model, t, u, x0, P0, _gnss([t[19], t[20]], [t[19], t[20]], [z_on_time[19], z_on_time[20]]),
+                     gate_prob=1.0)
+    assert np.abs(before.x[24] - res.x[24]).max() > 1e-4
