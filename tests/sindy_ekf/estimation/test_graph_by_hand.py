@@ -3,8 +3,9 @@ schedule on Rosenbrock's function (whose first Gauss-Newton steps increase the e
 damping must grow), iSAM2's documented defaults seen in its output, its lag dropping late fixes at
 0.8 of the lag, fixes at the grid's inclusive ends, the smoother's starting trajectory and its LM
 settings, where marginals are computed, the lateral factor's free components, LM's stop on a relative
-decrease (a problem whose minimum error is not zero), and the dynamics factor's heading error
-across +-pi.
+decrease (a problem whose minimum error is not zero), the dynamics factor's heading error
+across +-pi, and iSAM2 adding a fix arriving exactly on a grid time at that step (against a Kalman
+update by hand).
 """
 
 from __future__ import annotations
@@ -309,3 +310,32 @@ def test_marginals_at_every_step_by_default_else_at_every_stride_th_and_the_last
     np.testing.assert_array_equal(has, (k % 3 == 0) | (k == len(t) - 1))
     assert len(t) % 3 != 1  # the last step is not on the stride: it is there of its own
     np.testing.assert_allclose(strided.P[has], every.P[has], rtol=1e-9, atol=1e-15)
+
+
+def test_isam2_adds_a_fix_arriving_exactly_on_a_grid_time_at_that_step_and_1_5_us_later_at_the_next():
+    # one fix valid and arriving at t_10, an update step: x[10] right after that update is, for the
+    # linear-Gaussian model without robust loss (up to the Pose2 retraction's curvature, 1e-6), the
+    # textbook Kalman update of the dead-reckoned
+    # x_10, P_10 (the EKF's dead reckoning, a second implementation); arriving 1.5 us later (more
+    # than the 1 us grid tolerance) it is added at step 11 and x[10] is dead reckoning
+    from sindy_ekf.estimation.ekf import run_ekf
+
+    model, truth, t, u, _ = _short_run(duration_s=1.0)
+    dead = run_ekf(model, t, u, truth.x6[0], P0, None)
+    z = dead.x[10, :2] + np.array([0.08, -0.06])
+    std = 0.05
+
+    def one_fix(t_arrival):
+        return GnssSeries("dgnss", t[10:11].copy(), np.array([t_arrival]), np.array([[*z, 0.0]]),
+                          np.full((1, 3), std), np.zeros(1, np.uint8), np.zeros(3), np.empty((0, 2)))
+
+    H = np.eye(2, 6)
+    P = dead.P[10]
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + std ** 2 * np.eye(2))
+    on_grid = smooth_isam2(model, t, u, truth.x6[0], P0, one_fix(t[10]), robust=None)
+    np.testing.assert_allclose(on_grid.x[10], dead.x[10] + K @ (z - dead.x[10, :2]), atol=1e-5)
+    for b in (slice(0, 3), slice(3, 6)):  # the marginals of pose and velocity (the cross block is not kept)
+        np.testing.assert_allclose(on_grid.P[10][b, b], (P - K @ H @ P)[b, b], rtol=1e-5, atol=1e-8)
+    later = smooth_isam2(model, t, u, truth.x6[0], P0, one_fix(t[10] + 1.5e-6), robust=None)
+    np.testing.assert_allclose(later.x[:11], dead.x[:11], atol=1e-8)
+    np.testing.assert_allclose(later.x[20], on_grid.x[20], atol=1e-5)  # by step 20 both have it
