@@ -100,6 +100,38 @@ def test_eight_fixes_on_two_levels_are_a_step_and_seven_are_too_few_to_tell():
     assert not fixes_stepped(y[1:], S[1:], need_step=True)  # fewer than 8 fixes: no test
 
 
+@pytest.mark.parametrize("n_levels, stepped", [(8, True), (9, False)])
+def test_eight_levels_of_four_fixes_are_a_step_and_nine_are_more_than_the_test_tells_apart(n_levels, stepped):
+    # levels alternating between 0 and 1 m in x (4 fixes each, 1 cm noise): no quadratic follows a
+    # zigzag, so the levels win whenever they pass their test; by the docstring at most eight
+    # levels are told apart (MAX_LEVELS), and any partition of nine levels into eight merges two
+    # levels 1 m apart, 1e4 variances off per fix, far beyond the chi-square bound
+    from sindy_ekf.benchmark.step_test import fixes_stepped
+
+    n = 4 * n_levels
+    rng = np.random.default_rng(11)
+    y = 0.01 * rng.standard_normal((n, 2))
+    y[:, 0] += np.repeat(np.arange(n_levels) % 2, 4) * 1.0
+    S = np.repeat(1e-4 * np.eye(2)[None], n, axis=0)
+    assert fixes_stepped(y, S) == stepped
+
+
+def test_segment_fit_of_fixes_with_weights_below_one_matches_a_direct_computation():
+    # weights 1 / var below one (innovation variances above 1 m^2, a poor fix): a segment whose
+    # weights sum to less than one is not empty, its residual sum is the direct one
+    from sindy_ekf.benchmark.step_test import _segment_rss
+
+    rng = np.random.default_rng(4)
+    y, w = rng.normal(size=(6, 2)), rng.uniform(0.05, 0.2, 6)
+    rss = _segment_rss(w, y)
+    for a in range(7):
+        assert rss[a, a] == 0.0  # empty
+        for b in range(a + 1, 7):
+            m = np.sum(w[a:b, None] * y[a:b], axis=0) / np.sum(w[a:b])
+            assert rss[a, b] == pytest.approx(np.sum(w[a:b, None] * (y[a:b] - m) ** 2), rel=1e-9, abs=1e-12)
+    assert rss[0, 6] > 0.1  # the whole series scatters: not the zero of an empty segment
+
+
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_an_isolated_outlier_on_either_side_is_left_out_of_the_step_test(sign):
     # two levels of six fixes under 1 cm noise and one fix 5 m off (either way): its squared
