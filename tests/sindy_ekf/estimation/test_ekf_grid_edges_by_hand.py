@@ -247,3 +247,34 @@ def test_a_delayed_fix_sees_on_time_updates_between_its_validity_and_arrival_thr
     before = run_ekf(model, t, u, x0, P0, _gnss([t[19], t[20]], [t[19], t[20]], [z_on_time[19], z_on_time[20]]),
                      gate_prob=1.0)
     assert np.abs(before.x[24] - res.x[24]).max() > 1e-4
+
+
+def test_a_run_that_ended_is_no_longer_propagated_while_a_longer_one_of_its_batch_goes_on():
+    # an unstable linear model (vx' = 5 vx): fine over the 0.2 s of the short run and the 2 s of
+    # the long one, but a finished run propagated further on the batch's padding (steps of 1 s,
+    # growth 65 per RK4 step) would overflow within 90 steps and raise a DivergenceError. By the
+    # docstring the runs are filtered independently: the short run's estimates are those of the
+    # run alone, whose mean is the model's propagation from x0 by hand (dead reckoning)
+    from sindy_ekf.estimation.ekf import EkfRun, run_ekf_batch
+    from sindy_ekf.estimation.process_models import ProcessModel
+    from tests.support.estimation_helpers import LinearDynamics
+
+    A = np.zeros((6, 6))
+    A[0, 3] = A[1, 4] = A[2, 5] = 1.0
+    A[3, 3] = 5.0
+    model = ProcessModel(LinearDynamics(A, np.eye(6, 2, -3)))
+    model.Q_rate_ = np.eye(6) * 1e-4
+    t = np.arange(101) * 0.02
+    x0 = np.array([0.0, 0.0, 0.0, 0.1, 0.0, 0.0])
+    long_run = EkfRun("long", t, np.zeros((101, 2)), x0, P0)
+    short_run = EkfRun("short", t[:11], np.zeros((11, 2)), x0, P0)
+    long_res, short_res = run_ekf_batch(model, [long_run, short_run])
+    # by hand: RK4 of vx' = 5 vx, x' = vx over a step h multiplies vx by g = 1 + 5h + (5h)^2 / 2
+    # + (5h)^3 / 6 + (5h)^4 / 24 and adds (g - 1) / 5 of vx to x (exact for this linear pair)
+    h = 0.02
+    g = 1 + 5 * h + (5 * h) ** 2 / 2 + (5 * h) ** 3 / 6 + (5 * h) ** 4 / 24
+    vx = 0.1 * g ** np.arange(11)
+    np.testing.assert_allclose(short_res.x[:, 3], vx, rtol=1e-12)
+    np.testing.assert_allclose(short_res.x[:, 0], (vx - 0.1) / 5, rtol=1e-10, atol=1e-15)
+    np.testing.assert_allclose(long_res.x[:11], short_res.x, rtol=1e-12, atol=1e-15)
+    assert np.all(np.isfinite(short_res.P)) and short_res.saturated_steps == 0
