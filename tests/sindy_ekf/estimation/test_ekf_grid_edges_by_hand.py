@@ -7,6 +7,9 @@ after the last grid time at the last step.
 The model is linear-Gaussian and there is no lever arm, so the update at a step is the textbook
 ``K = P H^T (H P H^T + R)^-1`` with ``H = [I 0]``. Also by hand: the filterpy object's update and
 its predict's defaults, and the eigenvalue clipping of a covariance that is not positive definite.
+A delayed fix after on-time updates inside its latency is checked against an augmented-state filter
+by hand, and a finished run of a batch against the model's propagation by hand (it is no longer
+propagated on the batch's padding).
 """
 
 from __future__ import annotations
