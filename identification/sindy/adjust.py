@@ -24,7 +24,7 @@ import numpy as np
 from groundfloor.errors import InputError
 from identification.sindy.library import LIBRARY_STATE_NAMES
 from identification.sindy.model import SindyModel
-from identification.sindy.regression import IntegralProblem
+from identification.sindy.regression import IntegralProblem, condition_from_singular_values
 
 
 @dataclass(frozen=True)
@@ -100,7 +100,7 @@ def adjust_coefficients(model: SindyModel, problem: IntegralProblem, rows: np.nd
         coefs.append(xi)
         blocks.append(s0**2 * n_inv)
         sigma0[eq] = s0
-        cond[eq] = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")  # regression.condition_number
+        cond[eq] = condition_from_singular_values(sv)
     if not terms:
         raise InputError("adjustment: the model has no active terms")
     p = len(terms)

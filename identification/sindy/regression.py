@@ -177,7 +177,11 @@ def integral_problem(states: Sequence[BodyStates], library: FeatureLibrary | str
 
 def condition_number(r: np.ndarray) -> float:
     """Return the 2-norm condition number of a regression matrix (or of its R factor)."""
-    s = np.linalg.svd(r, compute_uv=False)
+    return condition_from_singular_values(np.linalg.svd(r, compute_uv=False))
+
+
+def condition_from_singular_values(s: np.ndarray) -> float:
+    """Return the 2-norm condition number from a matrix's singular values ``s`` (descending)."""
     return float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
 
 
