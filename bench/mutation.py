@@ -236,6 +236,11 @@ EQUIVALENT: list[Equivalent] = [
                "disagreed, all with |lambda_min| < 4e-16 ||P||, where neither answer is more right and the "
                "repair moves P by at most min_eig = 1e-12",
                source=r"if potrf\(P, lower=True, clean=False\)\[1\] == 0:"),
+    Equivalent("sindy_ekf/benchmark/step_test.py", r"", r"1 -> 2",
+               "the floor of the levels' chi-square degrees of freedom, ``np.maximum(2 n - 2 k, 1)``, as 2: it never "
+               "binds, since the levels are at most ``n // MIN_LEVEL_FIXES = n // 2`` and the test runs on n >= 8 "
+               "fixes only (``if n < 8: return False`` above it), so 2 n - 2 k >= n >= 8",
+               source=r"np\.maximum\(2 \* n - 2 \* levels, 1\)"),
 ]
 
 

@@ -1,8 +1,10 @@
 """The health monitor's bookkeeping by hand: ``fix_steps`` counts exactly the alarms the step test
 explains (none on a quiet run), the first alarm of an episode asks for a step inside its window and
-the next, right after it, does not (module docstring); the reset's heading and velocity std are
-ten times P0's; a run's score cut short keeps the outages that ended by its last estimated pose,
-including one ending exactly on it."""
+the next, right after it, does not, and each sees the alarm's window and the one before (module
+docstring); the reset's heading and velocity std are ten times P0's, its time the window's first
+fix beyond the gate (its start if none is), its fixes' variance factor the one learnt before the
+alarm (1 at the first fix); a run's score cut short keeps the outages that ended by its last
+estimated pose, including one ending exactly on it."""
 
 from __future__ import annotations
 
@@ -11,11 +13,21 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 import sindy_ekf.benchmark.health as health
 from groundfloor.gnss import GnssSeries
-from sindy_ekf.benchmark.health import RunStatus, _recover, reset_state, score_partial
+from sindy_ekf.benchmark.health import (
+    NIS_FALSE_ALARM,
+    NIS_TOLERANCE,
+    NIS_WINDOW,
+    RunStatus,
+    _recover,
+    reset_state,
+    score_partial,
+)
 from sindy_ekf.benchmark.result import Estimate
+from sindy_ekf.estimation.ekf import EkfResult, EkfRun
 
 GATE_NIS = 13.8
 
@@ -91,3 +103,90 @@ def test_a_score_cut_short_keeps_the_outages_that_ended_by_its_last_pose():
     assert score.outage_pos_err_m == {"1": pytest.approx(1.0), "5": pytest.approx(1.0)}
     assert score.ate_pos_m == pytest.approx(1.0)
     assert math.isclose(curves["5"][-1, 0], 5.0, abs_tol=1e-9)
+
+
+def test_the_step_test_sees_the_alarm_window_and_the_window_before_it(monkeypatch):
+    # every fix at the gate from the first on: alarms at fixes 0, 20, 40, 60 and 80 (each explained
+    # one moves the check a window on); each step test gets the fixes of the window before the
+    # alarm's (none before fix 0) and of the alarm's: [0, 20), [0, 40), [20, 60), [40, 80), [60, 100)
+    calls = []
+
+    def fake_fixes_stepped(innovation, innovation_cov, t, need_step=False):
+        assert len(innovation) == len(innovation_cov) == len(t)
+        calls.append((round(float(t[0]), 9), len(t)))
+        return True
+
+    monkeypatch.setattr(health, "fixes_stepped", fake_fixes_stepped)
+    res = _res(np.full(100, GATE_NIS))
+    _, status = _recover(None, SimpleNamespace(name="r", t=np.array([100.0])), res, 0.999, None, recover=False)
+    assert calls == [(100.0, 20), (100.0, 40), (104.0, 40), (108.0, 40), (112.0, 40)]
+    assert status == RunStatus(fix_steps=5)
+
+
+# -- a reset by hand: a run of 20 s on a 50 Hz grid, fixes at 5 Hz, the EKF's tail run stubbed --------
+
+def _ekf_result(nis: np.ndarray, r_scale: np.ndarray) -> EkfResult:
+    t = 100.0 + 0.02 * np.arange(1001)
+    m = len(nis)
+    return EkfResult("r", t, np.zeros((len(t), 6)), np.repeat(P0[None], len(t), 0), nis, 100.0 + 0.2 * np.arange(m),
+                     np.ones(m, bool), GATE_NIS, 0, np.zeros(len(t), bool), 1.0,
+                     innovation=np.zeros((m, 2)), innovation_cov=np.repeat(np.eye(2)[None], m, 0), r_scale=r_scale)
+
+
+def _reset_run(nis: np.ndarray, r_scale: np.ndarray, monkeypatch):
+    m = len(nis)
+    t_fix = 100.0 + 0.2 * np.arange(m)
+    p = np.column_stack([np.arange(m, dtype=float), np.zeros(m), np.zeros(m)])
+    gnss = GnssSeries("rtk", t_fix, t_fix.copy(), p, np.full((m, 3), 0.02), np.zeros(m, np.uint8), np.zeros(3),
+                      np.empty((0, 2)))
+    res = _ekf_result(nis, r_scale)
+    run = EkfRun("r", res.t, np.zeros((len(res.t), 2)), np.zeros(6), P0, gnss)
+    tails = []
+
+    def fake_run_alone(model, tail_run, gate_prob, lateral):
+        tails.append(tail_run)
+        return None, RunStatus("failed", 0.0, "stub")
+
+    monkeypatch.setattr(health, "_run_alone", fake_run_alone)
+    _, status = _recover(None, run, res, 0.999, None, recover=True, step_test=False)
+    return status, tails
+
+
+def _window_bound() -> float:
+    return NIS_TOLERANCE * chi2.ppf(1.0 - NIS_FALSE_ALARM, 2 * NIS_WINDOW)
+
+
+def test_an_alarm_without_a_gated_fix_diverges_from_its_windows_start_and_resets_at_unit_variance_factor(
+        monkeypatch):
+    # every NIS 12, inside the gate (13.8) yet 20 of them beyond the window's bound: the alarm is the
+    # first window, no fix in it beyond the gate, so the divergence dates from its start (fix 0,
+    # 100 s); no variance factor learnt before fix 0: the reset uses the fixes' own std
+    assert 20 * 12.0 > _window_bound()
+    status, tails = _reset_run(np.full(100, 12.0), np.full(100, 9.0), monkeypatch)
+    assert status.status == "diverged" and status.t_s == 0.0 and status.recoveries == 1  # the tail failed
+    [tail] = tails
+    assert tail.t[0] == 100.0
+    np.testing.assert_allclose(tail.x0[:2], [1.0, 0.0])  # the first fix after 100 s: fix 1 at 100.2 s
+    np.testing.assert_allclose(np.diag(tail.P0)[:2], 0.02 ** 2 + 100.0 * np.diag(P0)[:2], rtol=1e-12)
+    np.testing.assert_allclose(tail.gnss.std, 0.02, rtol=1e-12)
+    np.testing.assert_allclose(tail.gnss.t_valid[0], 100.2, atol=1e-9)
+
+
+def test_a_reset_after_the_first_fix_carries_the_variance_factor_learnt_by_then(monkeypatch):
+    # fix 0 quiet, then NIS x (inside the gate) such that the window at 0 stays under the bound
+    # and the one at 1 does not: the alarm is at fix 1 (100.2 s), the factor learnt by then is the
+    # one applied to fix 0, 4: the reset position's variance and the tail's fixes use 4 x 0.02^2
+    b = _window_bound()
+    x = 0.5 * (b / 20 + (b - 1.0) / 19)
+    assert 1.0 + 19 * x <= b < 20 * x < 20 * GATE_NIS
+    nis = np.full(100, x)
+    nis[0] = 1.0
+    r_scale = np.full(100, 9.0)
+    r_scale[0] = 4.0
+    status, tails = _reset_run(nis, r_scale, monkeypatch)
+    assert status.t_s == pytest.approx(0.2, abs=1e-9)
+    [tail] = tails
+    assert tail.t[0] == pytest.approx(100.2, abs=1e-9)
+    np.testing.assert_allclose(tail.x0[:2], [2.0, 0.0])  # fix 2, at 100.4 s
+    np.testing.assert_allclose(np.diag(tail.P0)[:2], 4.0 * 0.02 ** 2 + 100.0 * np.diag(P0)[:2], rtol=1e-12)
+    np.testing.assert_allclose(tail.gnss.std, 2.0 * 0.02, rtol=1e-12)
