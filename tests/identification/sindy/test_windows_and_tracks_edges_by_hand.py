@@ -98,3 +98,10 @@ def test_lagged_at_follows_one_minus_exp_after_a_step(lag_s):
     # the second input without a lag passes unchanged
     np.testing.assert_allclose(track.lagged_at(1, (lag_s, 0.0), 3.0 + s, (0.0, 0.0)), 2.0, atol=1e-9)
     assert math.isclose(float(track.lagged_at(0, (lag_s, 0.0), np.array([2.9]), (0.0, 0.0))[0]), 0.0, abs_tol=1e-9)
+
+
+def test_the_rate_of_held_inputs_is_zero_long_before_and_after_the_track():
+    # the end values hold on both sides: no change, whatever the distance (here beyond the 1e4 s
+    # the held values are padded by, where the rate's table ends: its indices stay inside it)
+    got = ZOH.rate(np.array([-3e4, -5.0, 10.0, 3e4]))
+    np.testing.assert_array_equal(got, np.zeros((4, 2)))
