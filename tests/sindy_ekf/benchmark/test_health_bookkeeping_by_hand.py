@@ -9,20 +9,23 @@ estimated pose, including one ending exactly on it."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
-import sindy_ekf.benchmark.health as health
+from groundfloor.errors import DivergenceError
 from groundfloor.gnss import GnssSeries
+from sindy_ekf.benchmark import health
 from sindy_ekf.benchmark.health import (
     NIS_FALSE_ALARM,
     NIS_TOLERANCE,
     NIS_WINDOW,
     RunStatus,
     _recover,
+    guarded,
     reset_state,
     score_partial,
 )
@@ -190,3 +193,42 @@ def test_a_reset_after_the_first_fix_carries_the_variance_factor_learnt_by_then(
     np.testing.assert_allclose(tail.x0[:2], [2.0, 0.0])  # fix 2, at 100.4 s
     np.testing.assert_allclose(np.diag(tail.P0)[:2], 4.0 * 0.02 ** 2 + 100.0 * np.diag(P0)[:2], rtol=1e-12)
     np.testing.assert_allclose(tail.gnss.std, 2.0 * 0.02, rtol=1e-12)
+
+
+def test_a_tail_that_diverges_again_dates_its_divergence_on_the_runs_clock(monkeypatch):
+    # the alarm at fix 0 (every NIS 12, as above): reset at 100 s; the tail diverges 1.5 s after its
+    # own start, which is 1.5 s after the run's; its reason is the tail's, one recovery counted
+    nis = np.full(100, 12.0)
+    res = _ekf_result(nis, np.full(100, 9.0))
+    m = len(nis)
+    t_fix = 100.0 + 0.2 * np.arange(m)
+    gnss = GnssSeries("rtk", t_fix, t_fix.copy(), np.zeros((m, 3)), np.full((m, 3), 0.02), np.zeros(m, np.uint8),
+                      np.zeros(3), np.empty((0, 2)))
+    run = EkfRun("r", res.t - 0.5, np.zeros((len(res.t), 2)), np.zeros(6), P0, gnss)  # run starts 0.5 s earlier
+
+    def fake_run_alone(model, tail_run, gate_prob, lateral):
+        n = 76  # 1.5 s of the 50 Hz grid
+        tail = _ekf_result(np.ones(5), np.ones(5))
+        tail = replace(tail, t=tail_run.t[:n], x=tail.x[:n], P=tail.P[:n], outside_envelope=tail.outside_envelope[:n])
+        return tail, RunStatus("diverged", 1.5, "tail lost")
+
+    monkeypatch.setattr(health, "_run_alone", fake_run_alone)
+    got, status = _recover(None, run, res, 0.999, None, recover=True, step_test=False)
+    assert status.status == "diverged" and status.reason == "tail lost" and status.recoveries == 1
+    assert status.t_s == pytest.approx(1.5 + 0.5, abs=1e-9)  # the tail's 1.5 s from 100 s, the run from 99.5 s
+    assert got.t[0] == 100.0 and got.t[-1] == pytest.approx(101.5, abs=1e-9)
+
+
+def test_an_estimator_that_raises_failed_from_the_runs_start():
+    # no estimate at all: failed at 0 s (RunStatus.t_s is where it failed; nothing came out of it);
+    # a DivergenceError keeps its own time
+    def boom():
+        raise ValueError("no")
+
+    assert guarded(boom) == (None, RunStatus("failed", 0.0, "ValueError: no"))
+
+    def lost():
+        raise DivergenceError("state non-finite", 2.5)
+
+    value, status = guarded(lost)
+    assert value is None and status.status == "diverged" and status.t_s == 2.5

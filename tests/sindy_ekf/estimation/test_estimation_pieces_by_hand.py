@@ -11,7 +11,11 @@ import pytest
 
 from sindy_ekf.estimation.ekf import inverse_2x2
 from sindy_ekf.estimation.graph import smooth_isam2
-from sindy_ekf.estimation.process_models import ProcessModel, StateSeries, fit_mean_reversion
+from sindy_ekf.estimation.process_models import (
+    ProcessModel,
+    StateSeries,
+    fit_mean_reversion,
+)
 from tests.support.estimation_helpers import PolyBody
 
 
