@@ -46,3 +46,18 @@ def test_a_first_step_needs_one_level_inside_the_filters_gate(offset, agrees):
     y, S = _two_levels(0.5, first_level=(offset, 0.0))
     assert fixes_stepped(y, S) is True  # a step either way
     assert fixes_stepped(y, S, need_step=True) is agrees
+
+
+def test_optimal_partition_of_two_plain_levels_by_hand():
+    # y = 0, 0, 5, 5, 5 (one coordinate, weights 1): one level costs the scatter about the mean 3,
+    # 3 x 2^2 + 2 x 3^2 = 30; two levels split at 2 and cost 0; three levels of at least two fixes
+    # do not fit in five fixes (inf). Tables for k = 0..max_levels and b = 0..n, arg[k, b] the start
+    # of the last level of the best partition of y[:b]
+    from sindy_ekf.benchmark.step_test import _partitions, _segment_rss
+
+    y = np.column_stack([[0.0, 0.0, 5.0, 5.0, 5.0], np.zeros(5)])
+    cost, arg = _partitions(_segment_rss(np.ones(5), y), max_levels=3)
+    assert cost.shape == arg.shape == (4, 6)
+    assert cost[0, 0] == 0.0 and np.isinf(cost[0, 1:]).all()
+    assert cost[1, 5] == pytest.approx(30.0) and cost[2, 5] == 0.0 and np.isinf(cost[3, 5])
+    assert arg[2, 5] == 2 and arg[1, 2] == 0  # the second level starts at fix 2, the first at 0
