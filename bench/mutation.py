@@ -117,7 +117,7 @@ TARGETS = {
 }
 # seeds whose surviving mutants tests were written against (the report says so: their score is
 # not an unbiased measure of the tests; a fresh seed is)
-WRITTEN_AGAINST = (5, 7, 14, 23, 31, 61, 149, 211)
+WRITTEN_AGAINST = (5, 7, 14, 23, 31, 61, 149, 211, 1001, 1002, 1003, 1004, 1005)
 SWAP_BIN = {ast.Add: ast.Sub, ast.Sub: ast.Add, ast.Mult: ast.Div, ast.Div: ast.Mult, ast.Pow: ast.Mult}
 SWAP_CMP = {ast.Lt: ast.GtE, ast.GtE: ast.Lt, ast.Gt: ast.LtE, ast.LtE: ast.Gt, ast.Eq: ast.NotEq,
             ast.NotEq: ast.Eq}
@@ -241,6 +241,24 @@ EQUIVALENT: list[Equivalent] = [
                "binds, since the levels are at most ``n // MIN_LEVEL_FIXES = n // 2`` and the test runs on n >= 8 "
                "fixes only (``if n < 8: return False`` above it), so 2 n - 2 k >= n >= 8",
                source=r"np\.maximum\(2 \* n - 2 \* levels, 1\)"),
+    Equivalent("sindy_ekf/estimation/graph.py", r"", r"GtE -> Lt",
+               "which sets of values trigger the dynamics factors' vectorised prediction of all steps: a cache "
+               "keyed by the state, whose entry k a factor uses only if it was computed at that factor's own "
+               "state bit for bit (``x0 == self._x[k]``), with step k's input and step (else it predicts alone); "
+               "so every factor's prediction is step_and_jac at its own state either way, the same arithmetic "
+               "row by row, and only the counts of vectorised and single calls (logged) change",
+               source=r"if values\.size\(\) >= n_full:"),
+    Equivalent("identification/sindy/evaluate.py", r"", r"1 -> 2",
+               "the rollout's test for stacked dead times, ``delay.ndim > 1`` as ``> 2``: it differs only for a "
+               "``(M, 2)`` stack, which then goes to ``inputs_for(delay)`` instead of ``inputs_for(delay.reshape(-1, "
+               "2)).reshape((M,) + u_half.shape)``; the reshape leaves an ``(M, 2)`` array as it is and inputs_for "
+               "returns ``(M, *u_half.shape)`` for it, so both give the same array",
+               source=r"if delay\.ndim > 1 else windows\.inputs_for\(delay, lag_s=lag\)"),
+    Equivalent("identification/preprocessing/clock_sync.py", r"", r"Add -> Sub",
+               "the clock offset's sign in the samples' residuals that pick the outliers left out of the fit: "
+               "``- d`` for ``+ d`` adds 2 d to every residual, and the residuals are only read about their "
+               "median (their robust spread, ``|r - median(r)|`` against it), which a common shift leaves unchanged",
+               source=r"r = y - \(k \* x \+ d\)"),
 ]
 
 

@@ -1,10 +1,13 @@
 """Small pieces of the estimators by hand: the closed-form inverse of a 2 x 2 innovation covariance
 against the textbook adjugate formula, iSAM2's initial guesses for a model that reads the clock
-(a run that does not start at zero: the time since the run's start, as the dynamics factors use),
-and the Gauss-Markov fit refusing a series that grows instead of reverting (``phi`` not in (0, 1)).
+(a run that does not start at zero: the time since the run's start, as the dynamics factors use)
+and its computing time (within the call's), and the Gauss-Markov fit refusing a series that grows
+instead of reverting (``phi`` not in (0, 1)).
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -57,7 +60,10 @@ def test_isam2_without_fixes_dead_reckons_a_clock_reading_model_from_the_runs_st
     u = np.column_stack([0.3 * np.sin(t - 100.0), 0.2 * np.cos(t - 100.0)])
     x0 = np.array([0.0, 0.0, 0.2, 0.3, 0.0, 0.1])
     P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
+    t_start = time.perf_counter()
     got = smooth_isam2(model, t, u, x0, P0, None)
+    elapsed_s = time.perf_counter() - t_start
+    assert 0.0 < got.runtime_s <= elapsed_s  # its own computing time, within the call's
     # the reference by hand: RK4 of the same derivative with time from 0 at the run's start
     d = model.dynamics.derivative
     ref = [x0]
