@@ -69,46 +69,55 @@ TARGETS = {
                                     "tests/sindy_ekf/estimation/test_ekf_lateral.py",
                                     "tests/sindy_ekf/estimation/test_ekf_gate_by_hand.py",
                                     "tests/sindy_ekf/estimation/test_ekf_runtime_share.py",
-                                    "tests/sindy_ekf/estimation/test_ekf_grid_edges_by_hand.py", FROZEN],
+                                    "tests/sindy_ekf/estimation/test_ekf_grid_edges_by_hand.py",
+                                    "tests/sindy_ekf/estimation/test_estimation_pieces_by_hand.py", FROZEN],
     "sindy_ekf/estimation/graph.py": ["tests/sindy_ekf/estimation/test_graph.py",
                                       "tests/sindy_ekf/estimation/test_measurements.py",
                                       "tests/sindy_ekf/estimation/test_isam2_linear.py",
                                       "tests/sindy_ekf/estimation/test_graph_last_fix.py",
-                                      "tests/sindy_ekf/estimation/test_graph_by_hand.py", FROZEN],
+                                      "tests/sindy_ekf/estimation/test_graph_by_hand.py",
+                                      "tests/sindy_ekf/estimation/test_estimation_pieces_by_hand.py", FROZEN],
     "sindy_ekf/estimation/process_models.py": ["tests/sindy_ekf/estimation/test_process_models.py",
                                                "tests/sindy_ekf/estimation/test_process_noise_by_hand.py",
-                                               "tests/sindy_ekf/estimation/test_saturation_by_hand.py", FROZEN],
+                                               "tests/sindy_ekf/estimation/test_saturation_by_hand.py",
+                                               "tests/sindy_ekf/estimation/test_estimation_pieces_by_hand.py", FROZEN],
     "identification/sindy/evaluate.py": ["tests/identification/sindy/test_evaluate_by_hand.py",
                                          "tests/identification/sindy/test_evaluate.py",
                                          "tests/identification/sindy/test_windows_by_hand.py",
-                                         "tests/identification/sindy/test_input_track_by_hand.py", FROZEN],
+                                         "tests/identification/sindy/test_input_track_by_hand.py",
+                                         "tests/identification/sindy/test_windows_and_tracks_edges_by_hand.py", FROZEN],
     # InputTrack, split out of evaluate.py (same code, same tests)
     "identification/sindy/input_track.py": ["tests/identification/sindy/test_evaluate_by_hand.py",
                                             "tests/identification/sindy/test_evaluate.py",
                                             "tests/identification/sindy/test_windows_by_hand.py",
                                             "tests/identification/sindy/test_input_track_by_hand.py",
                                             # lagged_at: only the output-error sensitivities call it
-                                            "tests/identification/sindy/test_sensitivity_rollout.py", FROZEN],
+                                            "tests/identification/sindy/test_sensitivity_rollout.py",
+                                            "tests/identification/sindy/test_windows_and_tracks_edges_by_hand.py", FROZEN],
     "identification/sindy/regression.py": ["tests/identification/sindy/test_sindy.py",
                                            "tests/identification/sindy/test_stlsq_normalised.py",
                                            "tests/identification/sindy/test_regression_by_hand.py",
-                                           "tests/identification/sindy/test_stlsq_small_columns.py", FROZEN],
+                                           "tests/identification/sindy/test_stlsq_small_columns.py",
+                                           "tests/identification/sindy/test_constant_input_by_hand.py", FROZEN],
     "identification/preprocessing/clock_sync.py": ["tests/identification/preprocessing/test_sync.py",
                                                    "tests/identification/preprocessing/test_coarse_shift_origins.py",
                                                    "tests/identification/preprocessing/test_clock_fit_by_hand.py",
+                                                   "tests/identification/preprocessing/test_clock_tolerance_by_hand.py",
                                                    FROZEN],
     "sindy_ekf/diagnose/rank.py": ["tests/sindy_ekf/diagnose/test_rank_order.py", FROZEN],
     "sindy_ekf/benchmark/health.py": ["tests/sindy_ekf/benchmark/test_health.py",
                                       "tests/sindy_ekf/benchmark/test_nis_alarm_by_hand.py",
                                       "tests/sindy_ekf/benchmark/test_health_recovery_diverges.py",
                                       "tests/sindy_ekf/benchmark/test_split_short_runs.py",
-                                      "tests/sindy_ekf/benchmark/test_health_by_hand.py", FROZEN],
+                                      "tests/sindy_ekf/benchmark/test_health_by_hand.py",
+                                      "tests/sindy_ekf/benchmark/test_health_bookkeeping_by_hand.py", FROZEN],
     "sindy_ekf/benchmark/step_test.py": ["tests/sindy_ekf/benchmark/test_health.py",
-                                         "tests/sindy_ekf/benchmark/test_health_by_hand.py", FROZEN],
+                                         "tests/sindy_ekf/benchmark/test_health_by_hand.py",
+                                         "tests/sindy_ekf/benchmark/test_step_test_bounds_by_hand.py", FROZEN],
 }
 # seeds whose surviving mutants tests were written against (the report says so: their score is
 # not an unbiased measure of the tests; a fresh seed is)
-WRITTEN_AGAINST = (5, 7, 14, 23, 31, 61, 149)
+WRITTEN_AGAINST = (5, 7, 14, 23, 31, 61, 149, 211, 1001, 1002, 1003, 1004, 1005)
 SWAP_BIN = {ast.Add: ast.Sub, ast.Sub: ast.Add, ast.Mult: ast.Div, ast.Div: ast.Mult, ast.Pow: ast.Mult}
 SWAP_CMP = {ast.Lt: ast.GtE, ast.GtE: ast.Lt, ast.Gt: ast.LtE, ast.LtE: ast.Gt, ast.Eq: ast.NotEq,
             ast.NotEq: ast.Eq}
@@ -217,6 +226,39 @@ EQUIVALENT: list[Equivalent] = [
                "square, ``(n + 1, n + 1)`` (``_segment_rss`` builds it as ``c_w[None, :] - c_w[:, None]`` of one "
                "cumulative sum), in the one caller and in the tests alike",
                source=r"n = rss\.shape\[0\] - 1"),
+    Equivalent("sindy_ekf/estimation/ekf.py", r"potrf\.(lower|clean)", r"(True -> False|False -> True)",
+               "the positive-definiteness test's Cholesky factor, which is discarded (only LAPACK's info, ``[1]``, "
+               "is read): ``clean`` only zeroes the factor's unused triangle; ``lower`` says which triangle is "
+               "read of a matrix symmetrised bit for bit the line before (``0.5 (P + P^T)``: float addition "
+               "commutes), so both factorise the same matrix. Their rounding differs (another "
+               "order of the same sums), so they can disagree only for a P whose smallest eigenvalue is within "
+               "round-off of zero: in 200 000 random 6 x 6 covariances with eigenvalues down to 1e-16, 6 "
+               "disagreed, all with |lambda_min| < 4e-16 ||P||, where neither answer is more right and the "
+               "repair moves P by at most min_eig = 1e-12",
+               source=r"if potrf\(P, lower=True, clean=False\)\[1\] == 0:"),
+    Equivalent("sindy_ekf/benchmark/step_test.py", r"", r"1 -> 2",
+               "the floor of the levels' chi-square degrees of freedom, ``np.maximum(2 n - 2 k, 1)``, as 2: it never "
+               "binds, since the levels are at most ``n // MIN_LEVEL_FIXES = n // 2`` and the test runs on n >= 8 "
+               "fixes only (``if n < 8: return False`` above it), so 2 n - 2 k >= n >= 8",
+               source=r"np\.maximum\(2 \* n - 2 \* levels, 1\)"),
+    Equivalent("sindy_ekf/estimation/graph.py", r"", r"GtE -> Lt",
+               "which sets of values trigger the dynamics factors' vectorised prediction of all steps: a cache "
+               "keyed by the state, whose entry k a factor uses only if it was computed at that factor's own "
+               "state bit for bit (``x0 == self._x[k]``), with step k's input and step (else it predicts alone); "
+               "so every factor's prediction is step_and_jac at its own state either way, the same arithmetic "
+               "row by row, and only the counts of vectorised and single calls (logged) change",
+               source=r"if values\.size\(\) >= n_full:"),
+    Equivalent("identification/sindy/evaluate.py", r"", r"1 -> 2",
+               "the rollout's test for stacked dead times, ``delay.ndim > 1`` as ``> 2``: it differs only for a "
+               "``(M, 2)`` stack, which then goes to ``inputs_for(delay)`` instead of ``inputs_for(delay.reshape(-1, "
+               "2)).reshape((M,) + u_half.shape)``; the reshape leaves an ``(M, 2)`` array as it is and inputs_for "
+               "returns ``(M, *u_half.shape)`` for it, so both give the same array",
+               source=r"if delay\.ndim > 1 else windows\.inputs_for\(delay, lag_s=lag\)"),
+    Equivalent("identification/preprocessing/clock_sync.py", r"", r"Add -> Sub",
+               "the clock offset's sign in the samples' residuals that pick the outliers left out of the fit: "
+               "``- d`` for ``+ d`` adds 2 d to every residual, and the residuals are only read about their "
+               "median (their robust spread, ``|r - median(r)|`` against it), which a common shift leaves unchanged",
+               source=r"r = y - \(k \* x \+ d\)"),
 ]
 
 

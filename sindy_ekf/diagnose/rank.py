@@ -51,7 +51,8 @@ class RankedCause:
 
     @property
     def strength(self) -> float:
-        """Gain in units of the family's threshold (what the ranking sorts by)."""
+        """Gain in units of the family's threshold: above 1 where the gain passes the threshold (the ranking
+        sorts by the gain itself, see :func:`rank_families`)."""
         return self.gain / self.threshold
 
 

@@ -92,7 +92,8 @@ class ProcessModel:
             return None
         lo = np.array([env[v][0] if v in env else -np.inf for v in ("vx", "vy", "omega")], dtype=float)
         hi = np.array([env[v][1] if v in env else np.inf for v in ("vx", "vy", "omega")], dtype=float)
-        pad = margin * np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        width = hi - lo
+        pad = margin * np.where(np.isfinite(width), width, 0.0)
         return lo - pad, hi + pad
 
     def step(self, x6: np.ndarray, u: np.ndarray, t, dt) -> np.ndarray:

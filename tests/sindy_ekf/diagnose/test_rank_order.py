@@ -67,3 +67,14 @@ def test_thresholds_are_twice_the_recorded_calibration_maxima():
             assert NULL_MAX_GAIN[family] == gain
     assert THRESHOLDS["deadband"] == 0.01918 and THRESHOLDS["asymmetry"] == 0.09428
     assert THRESHOLDS["input_delay"] == 0.03152 and THRESHOLDS["lateral_slip"] == 0.07066
+
+
+def test_strength_is_the_gain_in_units_of_the_familys_threshold():
+    # by hand with the thresholds above: 0.05 / 0.02, 0.3 / 0.5, 0.02 / 0.02; above 1 exactly for
+    # the significant families (gain over its threshold)
+    scores = [_score("input_delay", 0.05), _score("heading_dependence", 0.30), _score("deadband", 0.02)]
+    by_name = {c.name: c for c in rank_families(scores, THRESHOLDS)}
+    assert by_name["input_delay"].strength == 2.5
+    assert by_name["heading_dependence"].strength == 0.6
+    assert by_name["deadband"].strength == 1.0 and not by_name["deadband"].significant  # on it: not beyond
+    assert all((c.strength > 1.0) == c.significant for c in by_name.values())
