@@ -11,6 +11,7 @@ The mechanisms themselves are :mod:`sindy_ekf.diagnose.families`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 
@@ -165,6 +166,13 @@ class FamilyScore:
     estimate: dict
     estimate_std: dict = field(default_factory=dict)
     profile: dict = field(default_factory=dict)  # theta grid and train SSE (1-D families)
+    by_scoring: dict = field(default_factory=dict)  # test gain of each scoring: {"fixed": g, "refit": g}
+    alternative: "FamilyScore | None" = None  # the other scoring's score (the lower test gain)
+
+    @property
+    def scoring(self) -> str:
+        """Return how the score was made: ``"refit"`` (model re-identified around the mechanism) or ``"fixed"``."""
+        return "refit" if self.estimate.get("scored_with") == "refit" else "fixed"
 
     def to_dict(self) -> dict:
         """Return a JSON-ready dict."""
@@ -418,9 +426,13 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
                         float(1.0 - sse_train[0] / sse0_train), estimate, std, profile)
     if refit and family.name != "lateral_slip":  # lateral terms are library terms: a refit absorbs them
         alt = refit_score(family, model, train, test, weights, theta)
-        if alt["gain"] > gain:
-            score = FamilyScore(family.name, alt["theta"], alt["beta"], alt["gain"], alt["gain_runs"], float("nan"),
-                                {**alt["estimate"], "scored_with": "refit"}, alt["std"], alt["profile"] or profile)
+        by = {"fixed": gain, "refit": alt["gain"]}
+        fixed = dataclasses.replace(score, by_scoring=by)
+        refitted = FamilyScore(family.name, alt["theta"], alt["beta"], alt["gain"], alt["gain_runs"], float("nan"),
+                               {**alt["estimate"], "scored_with": "refit"}, alt["std"], alt["profile"] or profile, by)
+        # the better test gain is the score; the other is kept: each scoring has its own null (rank.py)
+        better, other = (refitted, fixed) if alt["gain"] > gain else (fixed, refitted)
+        score = dataclasses.replace(better, alternative=other)
     log.debug("%s: theta %s, beta %s, test gain %.4f, estimate %s", family.name, score.theta, score.beta,
               score.gain, score.estimate)
     return score

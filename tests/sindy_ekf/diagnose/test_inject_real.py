@@ -67,12 +67,6 @@ def test_injected_coupling_named_with_its_value(wheels, model_file, tmp_path):
     assert d.after.pos_err_5s_m < d.before.pos_err_5s_m
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 15, open: with issue 13's pipeline the fixed grid selects the lag structure with input lags; "
-    "the time_dependence family estimates the injected decay exactly (0.30 per 10 min) but the "
-    "asymmetry family's gain (0.117 against its threshold 0.094, the robot's own 0.017 coupling) "
-    "ranks first: the family thresholds were calibrated on grid models and are not yet recalibrated "
-    "on the lag-structure models (bench_diagnose --calibrate)"))
 def test_injected_gain_decay_named_with_its_rate(wheels, model_file, tmp_path):
     out = inject_campaign(wheels, tmp_path / "decay", "time_dependence", 0.3)
     d = diagnose_campaign(out, model_file, ekf=False)
