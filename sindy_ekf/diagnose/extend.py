@@ -37,7 +37,12 @@ from identification.sindy.library import parse_term
 from identification.sindy.model import SindyModel
 from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, mechanism_rows, mechanism_spec
+from sindy_ekf.diagnose.families import (
+    FAMILY_SPECS,
+    Family,
+    mechanism_rows,
+    mechanism_spec,
+)
 from sindy_ekf.diagnose.fitting import null_prediction
 from sindy_ekf.estimation.ekf import run_ekf_batch
 from sindy_ekf.estimation.process_models import (

@@ -28,7 +28,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES, parse_term
+from identification.sindy.library import (
+    LIBRARY_INPUT_NAMES,
+    LIBRARY_STATE_NAMES,
+    parse_term,
+)
 from sindy_ekf.diagnose.data import Split
 
 FAMILIES = ("input_delay", "heading_dependence", "position_dependence", "time_dependence", "asymmetry",

@@ -167,7 +167,7 @@ class FamilyScore:
     estimate_std: dict = field(default_factory=dict)
     profile: dict = field(default_factory=dict)  # theta grid and train SSE (1-D families)
     by_scoring: dict = field(default_factory=dict)  # test gain of each scoring: {"fixed": g, "refit": g}
-    alternative: "FamilyScore | None" = None  # the other scoring's score (the lower test gain)
+    alternative: FamilyScore | None = None  # the other scoring's score (the lower test gain)
 
     @property
     def scoring(self) -> str:

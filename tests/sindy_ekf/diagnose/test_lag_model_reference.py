@@ -57,19 +57,19 @@ def delay_score(model, data_dead_s: float):
 def test_exact_lag_model_leaves_no_delay():
     score, _ = delay_score(exact_model(DEAD_S), DEAD_S)
     assert score.gain < 0.01  # under the smallest threshold (rank.MIN_THRESHOLD)
-    assert list(score.estimate.values())[0] == pytest.approx(0.0, abs=0.01)
+    assert next(iter(score.estimate.values())) == pytest.approx(0.0, abs=0.01)
 
 
 def test_extra_dead_time_is_found_on_top_of_the_models_chain():
     score, _ = delay_score(exact_model(DEAD_S), DEAD_S + 0.15)
     assert score.gain > 0.3
-    assert list(score.estimate.values())[0] == pytest.approx(0.15, abs=0.01)
+    assert next(iter(score.estimate.values())) == pytest.approx(0.15, abs=0.01)
 
 
 def test_a_refit_that_runs_away_at_rest_is_not_admitted():
     model = exact_model(0.3)  # waits 0.3 s for inputs the data respond to at once
     score, (tr, weights) = delay_score(model, 0.0)
-    assert score.gain <= 0.0 and list(score.estimate.values())[0] == 0.0
+    assert score.gain <= 0.0 and next(iter(score.estimate.values())) == 0.0
     spec = MECHANISMS["input_delay"][0]
     grid = spec.grid(tr)
     _, sols, sse, ok = refit_grid(spec, model, tr, weights, grid)
