@@ -53,7 +53,6 @@ def threshold_of(thresholds: dict, scoring: str, family: str) -> float:
     return thresholds[scoring][family] if scoring in thresholds else thresholds[family]
 
 
-
 @dataclass(frozen=True)
 class RankedCause:
     """One family in the ranking: its score, threshold and whether it is significant."""
