@@ -37,7 +37,12 @@ from identification.sindy.library import parse_term
 from identification.sindy.model import SindyModel
 from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, mechanism_spec
+from sindy_ekf.diagnose.families import (
+    FAMILY_SPECS,
+    Family,
+    mechanism_rows,
+    mechanism_spec,
+)
 from sindy_ekf.diagnose.fitting import null_prediction
 from sindy_ekf.estimation.ekf import run_ekf_batch
 from sindy_ekf.estimation.process_models import (
@@ -270,6 +275,10 @@ def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,
     for e in range(3):
         coef[e, idx[e]] = sol[col:col + len(idx[e])]
         col += len(idx[e])
+    # the equations the mechanism does not enter refit alike with and without it: they keep the
+    # model's coefficients, as the diagnosis scores and admits the refit (fitting.refit_grid)
+    entered = mechanism_rows(spec, model, train.x6, train.u, train.t_run, theta)
+    coef[~entered] = model.coef[~entered]
     # the model's input chain (dead time, input lag) and extrapolation stay: ``train`` holds the
     # inputs as the model sees them (diagnose.data.model_split), so the refit is on those
     base = replace(model.with_coefficients(coef), checks={},

@@ -1,13 +1,17 @@
 """Ranking the families by their out-of-sample gain, with thresholds calibrated on effect-free data.
 
 A family's gain is the relative drop of the weighted window-residual sum of squares on the test
-runs (:func:`sindy_ekf.diagnose.fitting.score_family`). Even without any effect a flexible
-mechanism buys a little on the test runs by chance (or by fitting what the model gets slightly
-wrong everywhere), so each family has its own significance threshold, calibrated on effect-free
-simulated campaigns: the threshold is a margin times the largest gain that family reached on
-any of them (see :data:`THRESHOLD_PROVENANCE`). A family counts only above its threshold; the
-most likely cause is the significant family with the largest gain;
-none significant gives ``none``.
+runs (:func:`sindy_ekf.diagnose.fitting.score_family`), scored twice: with the given model kept
+fixed, and with the model re-identified around the mechanism against the model re-identified
+without it. Even without any effect a flexible mechanism buys a little on the test runs by chance
+(or by fitting what the model gets slightly wrong everywhere), so each family has its own
+significance threshold, calibrated on effect-free simulated campaigns: the threshold is a margin
+times the largest gain that family reached on any of them (see :data:`THRESHOLD_PROVENANCE`).
+Thresholds may also be given per scoring (``{"fixed": {...}, "refit": {...}}``): the two differ in
+how much a chance mechanism buys (the window residual of a stiff output-error model amplifies any
+input-gain mismatch: 12 % for time_dependence on the clean real wheels runs with the model fixed,
+nothing re-identified); a family then counts when either scoring clears its own threshold. The
+most likely cause is the significant family with the largest gain; none significant gives ``none``.
 """
 
 from __future__ import annotations
@@ -36,6 +40,17 @@ THRESHOLD_PROVENANCE = (
     "2 x the largest out-of-sample gain of each family on 24 effect-free simulated campaigns "
     "(bench/bench_diagnose.py --calibrate 24, master seed 20261121), at least 0.01"
 )
+# Not yet replaced by bench/bench_diagnose.py --calibrate-families (effect-free real, variant and short
+# simulated campaigns, per scoring; bench/results/diagnose.md): measured there, one threshold per family
+# and scoring cannot separate them from the simulator's moderate effects (time_dependence: 0.117 fixed
+# on the clean real wheels runs against 0.134 for a 0.2 per 10 min decay on the simulator; lateral_slip:
+# 0.134 on an effect-free variant against 0.249 for a 4.5 x slip); a per-campaign null is open.
+
+
+def threshold_of(thresholds: dict, scoring: str, family: str) -> float:
+    """Return the threshold of ``family`` scored by ``scoring`` from ``{scoring: {family: t}}`` or
+    ``{family: t}`` (one threshold for both scorings, as :data:`THRESHOLDS`)."""
+    return thresholds[scoring][family] if scoring in thresholds else thresholds[family]
 
 
 @dataclass(frozen=True)
@@ -56,12 +71,22 @@ class RankedCause:
         return self.gain / self.threshold
 
 
-def rank_families(scores: Sequence[FamilyScore], thresholds: dict[str, float] | None = None) -> list[RankedCause]:
-    """Return the families sorted most likely first: significant ones by gain over threshold, then the rest."""
+def rank_families(scores: Sequence[FamilyScore], thresholds: dict | None = None) -> list[RankedCause]:
+    """Return the families sorted most likely first: significant ones by gain, then the rest.
+
+    Each family is judged by whichever of its scorings (fixed, refit) clears its own threshold by the
+    larger factor; that scoring's gain, estimate and threshold are what the ranking reports.
+    """
     thresholds = THRESHOLDS if thresholds is None else thresholds
     ranked = []
     for s in scores:
-        significant, note = s.gain > thresholds[s.family], ""
+        # each scoring against its own null: the model kept fixed and the model re-identified around
+        # the mechanism differ in how much a chance mechanism buys (a stiff output-error model's
+        # window residual amplifies any input-gain mismatch; its re-identification does not)
+        s = max((o for o in (s, s.alternative) if o is not None),
+                key=lambda o: o.gain / threshold_of(thresholds, o.scoring, o.family))
+        limit = threshold_of(thresholds, s.scoring, s.family)
+        significant, note = s.gain > limit, ""
         if s.family == "lateral_slip" and s.estimate.get("model_has_lateral_law") is False:
             # without a lateral law in the model there is no drift to compare with: more slip
             # cannot be told from ordinary slip, so the family is reported, never named
@@ -69,7 +94,7 @@ def rank_families(scores: Sequence[FamilyScore], thresholds: dict[str, float] | 
             note = (f"the model has no lateral law (vy_dot = 0, as eq. 7.8): the data drift sideways by "
                     f"{s.estimate['drift_s']:.3g} s x vx omega in turns; adding the law gains "
                     f"{100 * s.gain:.1f} % on the test runs")
-        ranked.append(RankedCause(s.family, s.gain, thresholds[s.family], significant, s, note))
+        ranked.append(RankedCause(s.family, s.gain, limit, significant, s, note))
     # among the significant, the largest out-of-sample gain wins: the gain is comparable across
     # families (same residual, same weights), the threshold only says whether it is real
     return sorted(ranked, key=lambda c: (not c.significant, -c.gain))

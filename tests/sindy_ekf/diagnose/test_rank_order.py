@@ -78,3 +78,17 @@ def test_strength_is_the_gain_in_units_of_the_familys_threshold():
     assert by_name["heading_dependence"].strength == 0.6
     assert by_name["deadband"].strength == 1.0 and not by_name["deadband"].significant  # on it: not beyond
     assert all((c.strength > 1.0) == c.significant for c in by_name.values())
+
+
+def test_a_family_is_significant_by_either_scoring_against_its_own_threshold():
+    refit = FamilyScore("time_dependence", np.array([0.3]), np.zeros(0), 0.025, {}, float("nan"),
+                        {"decay_per_10min": 0.3, "scored_with": "refit"})
+    fixed = FamilyScore("time_dependence", np.array([-0.07]), np.zeros(0), 0.11, {}, 0.11,
+                        {"decay_per_10min": -0.07}, alternative=refit)
+    thresholds = {"fixed": {**THRESHOLDS, "time_dependence": 0.2}, "refit": {**THRESHOLDS, "time_dependence": 0.02}}
+    assert rank_families([fixed], THRESHOLDS)[0].score is fixed  # one threshold for both: the larger gain
+    (c,) = rank_families([fixed], thresholds)
+    assert c.significant and c.score is refit and c.gain == 0.025 and c.threshold == 0.02
+    thresholds["refit"]["time_dependence"] = 0.03  # 0.83 x its threshold, the fixed scoring 0.55 x
+    (c,) = rank_families([fixed], thresholds)
+    assert not c.significant and c.score is refit and c.threshold == 0.03
