@@ -46,6 +46,8 @@ from sindy_ekf.diagnose.fitting import (
     FamilyScore,
     design_for,
     equation_weights,
+    gain_recalibrated,
+    null_fit,
     null_prediction,
     refit_grid,
     score_family,
@@ -312,7 +314,7 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
     """
     specs = MECHANISMS[name]
     if len(specs) > 1:  # compared on their grids: the refinement and the scoring only for the one kept
-        sse0_fixed = float(np.sum((tr.delta_v - base_pred["train"]) ** 2 * weights))
+        sse0_fixed = null_fit(model, tr, weights, base_pred["train"])[1]
         ratios = []
         for s in specs:
             grid = s.grid(tr)
@@ -364,8 +366,12 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     tr = model_split(model, train, train_names, tau, what="train runs")
     te = model_split(model, test, test_names, tau, what="test runs")
     weights = equation_weights(model, tr)
-    base_pred = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
-    scores = parallel_map(_score_family_task, [(f, model, tr, te, weights, base_pred, uncertainty) for f in families],
+    # every mechanism is scored against the model with its input gains recalibrated on the train runs:
+    # what one constant gain per input explains is no mechanism (fitting.gain_recalibrated)
+    null_model, gains = gain_recalibrated(model, tr, weights)
+    base_pred = {"train": null_prediction(null_model, tr), "test": null_prediction(null_model, te)}
+    scores = parallel_map(_score_family_task,
+                          [(f, null_model, tr, te, weights, base_pred, uncertainty) for f in families],
                           workers, names=[f"family {f}" for f in families], desc="diagnose: families")
     ranked = rank_families(scores, thresholds)
     seconds["families"] = time.perf_counter() - t0
@@ -384,7 +390,8 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         if extended is not None:
             res_after = multistep(extended, test, test_names)
     before, after = errors_5s(res_before, res_after)
-    evidence = {"response_lag": {k: v.to_dict() for k, v in lags.items()},
+    evidence = {"input_gains": dict(zip(LIBRARY_INPUT_NAMES, map(float, gains))),
+                "response_lag": {k: v.to_dict() for k, v in lags.items()},
                 "thresholds": {"delay_s": threshold("delay_s"), "eta2": threshold("eta2")},
                 "provenance": NULL_PROVENANCE}
     eta2, equation, regressor = unexplained_structure(model, tr, te)

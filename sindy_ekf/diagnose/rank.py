@@ -40,11 +40,11 @@ THRESHOLD_PROVENANCE = (
     "2 x the largest out-of-sample gain of each family on 24 effect-free simulated campaigns "
     "(bench/bench_diagnose.py --calibrate 24, master seed 20261121), at least 0.01"
 )
-# Not yet replaced by bench/bench_diagnose.py --calibrate-families (effect-free real, variant and short
-# simulated campaigns, per scoring; bench/results/diagnose.md): measured there, one threshold per family
-# and scoring cannot separate them from the simulator's moderate effects (time_dependence: 0.117 fixed
-# on the clean real wheels runs against 0.134 for a 0.2 per 10 min decay on the simulator; lateral_slip:
-# 0.134 on an effect-free variant against 0.249 for a 4.5 x slip); a per-campaign null is open.
+# The fixed-model scoring's null is per campaign: the given model with its input gains fitted on the
+# campaign's train runs, and a gain nuisance fitted with every mechanism (fitting.residual_and_columns).
+# Before it, a stiff output-error model's input-gain mismatch bought 0.117 for time_dependence on the
+# clean real wheels runs, and one threshold per family and scoring could not separate that from the
+# simulator's moderate effects (bench/results/diagnose_notes.md).
 
 
 def threshold_of(thresholds: dict, scoring: str, family: str) -> float:
