@@ -243,6 +243,22 @@ def _diagnose(r: Source) -> str:
             f"diagnosed in {took:.0f} s")
 
 
+def _diagnose_forms(r: Source) -> str:
+    named = r.find(r"named correctly: (\d+)/(\d+)")
+    false = r.find(r"false alarms on effect-free variant campaigns: (\d+)/(\d+)")
+    return (f"{named.group(1)}/{named.group(2)} named correctly (target 90 %), {false.group(1)}/{false.group(2)} "
+            "false alarms (target 10 %)")
+
+
+def _inject_real(r: Source) -> str:
+    parts = []
+    for c in ("wheels", "cmd"):
+        m = r.find(rf"### warthog-drive-{c}: \*\*(\d+) of (\d+) named correctly, (\d+) with the estimate within "
+                   r"25 %\*\*; clean campaign: \*\*(\w+)\*\*")
+        parts.append(f"{c}: {m.group(1)} of {m.group(2)} named, {m.group(3)} within 25 %, clean `{m.group(4)}`")
+    return "; ".join(parts)
+
+
 def _real(r: Source) -> str:
     header = "campaign | model | pos 5 s [m] | yaw 5 s [deg] | windows | x README unicycle"
     cmd = r.row(header, "warthog-drive-cmd", "sindy")
@@ -318,6 +334,10 @@ ROWS = (
     Row("ekf_speed", "SINDy EKF speed, default campaign (45 min, 9 runs in lockstep), full-grid model", _ekf_speed,
         "-"),
     Row("diagnose", _diagnose_q, _diagnose, "outlook only"),
+    Row("diagnose_forms", "diagnosis, mechanism forms the families were not written from, on simulator variants "
+        "1 to 10", _diagnose_forms, "-"),
+    Row("inject_real", "diagnosis of effects hidden in real Warthog data (`inject`: delay, deadband, coupling, "
+        "decay at 0.5, 1, 2 x moderate)", _inject_real, "-"),
     Row("real", "real Warthog data, 5 s position error on the test runs (`identify` on the train runs picks the "
         "low-rate grid), against the data README's unicycle", _real, "-"),
     Row("real_cli", "real Warthog data, estimators under DGNSS simulated from the ICP poses (cmd / wheels)",

@@ -314,7 +314,7 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
     """
     specs = MECHANISMS[name]
     if len(specs) > 1:  # compared on their grids: the refinement and the scoring only for the one kept
-        sse0_fixed = null_fit(model, tr, weights, base_pred["train"])[1]
+        sse0_fixed = null_fit(model, tr, weights, base_pred["train"], specs[0].kind)[1]
         ratios = []
         for s in specs:
             grid = s.grid(tr)
@@ -335,6 +335,29 @@ def _score_family_task(task) -> FamilyScore:
     """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty)``."""
     name, model, tr, te, weights, base_pred, uncertainty = task
     return score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+
+
+def score_families(model, tr, te, families: Sequence[str] = FAMILIES, uncertainty: bool = True,
+                   workers: Workers | int = 1) -> tuple[list[FamilyScore], np.ndarray, np.ndarray]:
+    """Return every family scored on the model's splits ``tr``, ``te``, the equation weights and the input gains.
+
+    An input-side mechanism is scored against the model with its input gains recalibrated on the train
+    runs (:func:`sindy_ekf.diagnose.fitting.gain_recalibrated`), with a gain nuisance fitted beside it:
+    what one constant gain per input explains is no input mechanism. An additive mechanism (a slope, a
+    floor patch, a lateral law) is scored against the model as given: recalibrated gains would absorb
+    part of it (a patch that slows the robot looks like a lower gain on the runs that cross it: the
+    suite's 0.32 patch fell from a gain of 0.37 to 0.05). The thresholds' calibration
+    (``bench/bench_diagnose.py``) scores through this too.
+    """
+    weights = equation_weights(model, tr)
+    null_model, gains = gain_recalibrated(model, tr, weights)
+    given = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
+    recalibrated = {"train": null_prediction(null_model, tr), "test": null_prediction(null_model, te)}
+    tasks = [(f, null_model, tr, te, weights, recalibrated, uncertainty) if MECHANISMS[f][0].kind == "input"
+             else (f, model, tr, te, weights, given, uncertainty) for f in families]
+    scores = parallel_map(_score_family_task, tasks, workers, names=[f"family {f}" for f in families],
+                          desc="diagnose: families")
+    return scores, weights, gains
 
 
 def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequence[BodyStates],
@@ -365,14 +388,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     tau = float(tau or model.hyperparameters.get("tau") or 2.0)
     tr = model_split(model, train, train_names, tau, what="train runs")
     te = model_split(model, test, test_names, tau, what="test runs")
-    weights = equation_weights(model, tr)
-    # every mechanism is scored against the model with its input gains recalibrated on the train runs:
-    # what one constant gain per input explains is no mechanism (fitting.gain_recalibrated)
-    null_model, gains = gain_recalibrated(model, tr, weights)
-    base_pred = {"train": null_prediction(null_model, tr), "test": null_prediction(null_model, te)}
-    scores = parallel_map(_score_family_task,
-                          [(f, null_model, tr, te, weights, base_pred, uncertainty) for f in families],
-                          workers, names=[f"family {f}" for f in families], desc="diagnose: families")
+    scores, weights, gains = score_families(model, tr, te, families, uncertainty, workers)
     ranked = rank_families(scores, thresholds)
     seconds["families"] = time.perf_counter() - t0
     t0 = time.perf_counter()

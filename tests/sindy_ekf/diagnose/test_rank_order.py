@@ -53,20 +53,20 @@ def test_lateral_slip_without_a_lateral_law_is_reported_but_never_named():
 
 def test_thresholds_are_twice_the_recorded_calibration_maxima():
     """The significance thresholds come from the calibration recorded in bench/results (raw numbers
-    of ``bench.bench_diagnose --calibrate 24``): a changed constant would no longer match them."""
+    of ``bench.bench_diagnose --calibrate-families``): a changed constant would no longer match them."""
     import json
 
     from sindy_ekf.diagnose.rank import NULL_MAX_GAIN, THRESHOLDS
     from tests.support import REPO
 
-    recorded = json.loads((REPO / "bench" / "results" / "diagnose_raw.json").read_text())["calibration"]["max"]
-    for family, gain in recorded.items():
-        if family == "lateral_slip":  # from the first study's reference-model campaigns (rank.py)
-            assert NULL_MAX_GAIN[family] == 0.03533
-        else:
-            assert NULL_MAX_GAIN[family] == gain
-    assert THRESHOLDS["deadband"] == 0.01918 and THRESHOLDS["asymmetry"] == 0.09428
-    assert THRESHOLDS["input_delay"] == 0.03152 and THRESHOLDS["lateral_slip"] == 0.07066
+    recorded = json.loads((REPO / "bench" / "results" / "diagnose_raw.json").read_text())["family_calibration"]
+    assert NULL_MAX_GAIN == recorded["max"]
+    assert len(recorded["rows"]) == 46 and {r["kind"] for r in recorded["rows"]} == {
+        "real", "short simulated", "short simulator variant"}
+    # by hand from the recorded maxima: 2 x, at least 0.01
+    assert THRESHOLDS["fixed"]["time_dependence"] == 2 * recorded["max"]["fixed"]["time_dependence"]
+    assert THRESHOLDS["refit"]["input_delay"] == 0.01 and THRESHOLDS["refit"]["deadband"] == 0.01
+    assert THRESHOLDS["fixed"]["asymmetry"] == 2 * recorded["max"]["fixed"]["asymmetry"]
 
 
 def test_strength_is_the_gain_in_units_of_the_familys_threshold():
