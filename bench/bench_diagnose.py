@@ -218,7 +218,7 @@ def family_gains(model, train, test, train_names, test_names) -> dict:
     (``model_split``, ``score_mechanisms``), and whether the model has a lateral law."""
     from sindy_ekf.diagnose.data import model_split
     from sindy_ekf.diagnose.families import FAMILIES
-    from sindy_ekf.diagnose.pipeline import score_families
+    from sindy_ekf.diagnose.scoring import score_families
 
     tau = float(model.hyperparameters.get("tau") or 2.0)
     tr = model_split(model, train, train_names, tau, what="train runs")
@@ -319,7 +319,7 @@ def family_lines(fc) -> list[str]:
              f"per simulator variant {', '.join(map(str, fc.get('variants', [])))} (against the variant's lab "
              "model, identified with its motor lag on another effect-free campaign of it, and against a model "
              "of the campaign's own train runs). Every family is scored as `diagnose` scores it "
-             "(`sindy_ekf.diagnose.pipeline.score_families`: the model with its input gains fitted on the train "
+             "(`sindy_ekf.diagnose.scoring.score_families`: the model with its input gains fitted on the train "
              "runs, a gain nuisance with every input-side mechanism). Each cell: the family's out-of-sample gain "
              "with the model kept fixed / re-identified around the mechanism (`-` not re-identified, `-inf` no "
              "admissible re-identification); lateral_slip in brackets where the model has no lateral law "

@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from groundfloor.parallel import Workers, parallel_map
+from groundfloor.parallel import parallel_map
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data"
@@ -59,7 +59,8 @@ def own_coupling(campaign: Path, model_path: Path) -> float:
     from identification.sindy.data import states_of_runs
     from sindy_ekf.diagnose.data import model_split
     from sindy_ekf.diagnose.families import mechanism_spec
-    from sindy_ekf.diagnose.fitting import equation_weights, gain_recalibrated, score_family
+    from sindy_ekf.diagnose.design import equation_weights, gain_recalibrated
+    from sindy_ekf.diagnose.fitting import score_family
     from sindy_ekf.diagnose.pipeline import load_model
 
     model = load_model(model_path)

@@ -18,7 +18,7 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.errors import InputError
-from groundfloor.parallel import Workers, parallel_map
+from groundfloor.parallel import Workers
 from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates
 from identification.preprocessing.campaigns import open_campaign
@@ -41,18 +41,7 @@ from sindy_ekf.diagnose.extend import (
     outage_errors,
     reidentify,
 )
-from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS, mechanism_spec
-from sindy_ekf.diagnose.fitting import (
-    FamilyScore,
-    design_for,
-    equation_weights,
-    gain_recalibrated,
-    null_fit,
-    null_prediction,
-    refit_grid,
-    score_family,
-    solve_design,
-)
+from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
@@ -67,6 +56,7 @@ from sindy_ekf.diagnose.residuals import (
     residual_map,
     residual_structure,
 )
+from sindy_ekf.diagnose.scoring import score_families
 
 log = logging.getLogger(__name__)
 
@@ -283,81 +273,6 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
             f"(median 5 s position error {100 * reference:.1f} -> {100 * after:.1f} cm, more than "
             f"{100 * CONFIRM_TOLERANCE:.0f} % worse)"))
     return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
-
-
-def parabolic_min(grid: np.ndarray, sse: np.ndarray) -> float:
-    """Return the minimum of the parabola through the best of ``sse`` on ``grid`` and its neighbours
-    (the best value itself at an edge or without curvature): mechanisms on grids of different
-    spacing compared near their optima, not at wherever their grid points happen to fall."""
-    i = int(np.nanargmin(np.where(np.isfinite(sse), sse, np.inf)))
-    if i == 0 or i == len(sse) - 1 or not np.all(np.isfinite(sse[i - 1:i + 2])):
-        return float(sse[i])
-    (x0, x1, x2), (y0, y1, y2) = grid[i - 1:i + 2], sse[i - 1:i + 2]
-    c2 = ((y2 - y1) / (x2 - x1) - (y1 - y0) / (x1 - x0)) / (x2 - x0)  # second divided difference
-    if c2 <= 0:
-        return float(y1)
-    c1 = (y1 - y0) / (x1 - x0) - c2 * (x0 + x1)  # y = c2 x^2 + c1 x + c0 through the three points
-    x_min = -c1 / (2 * c2)
-    return float(min(y1, y1 + c1 * (x_min - x1) + c2 * (x_min ** 2 - x1 ** 2)))
-
-
-def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:
-    """Return family ``name`` scored with the one of its mechanisms (families.MECHANISMS) that fits
-    the *train* runs best, so that the choice of form never looks at the test runs that score it.
-
-    Each form is judged as the family's test scores it (:func:`score_family`): the model kept
-    fixed, and the model re-identified around the form against the model re-identified without
-    it; the form's train fit is the better of the two relative SSE drops on its search grid. A
-    model identified on runs with the effect has absorbed part of it: held fixed, a gain
-    imbalance it absorbed looks like a steering offset (0.7 % gain), re-identified the imbalance
-    gains 20 % (measured on the suite's asymmetry campaign of seed 1879697337).
-    """
-    specs = MECHANISMS[name]
-    if len(specs) > 1:  # compared on their grids: the refinement and the scoring only for the one kept
-        sse0_fixed = null_fit(model, tr, weights, base_pred["train"], specs[0].kind)[1]
-        ratios = []
-        for s in specs:
-            grid = s.grid(tr)
-            fixed = parabolic_min(grid[:, 0], solve_design(design_for(s, model, tr, grid, weights,
-                                                                      base_pred["train"]))[1]) / sse0_fixed
-            refit = np.inf
-            if s.kind == "input":  # the null of a re-identified input form: the same form at 0 (no transform)
-                sse = refit_grid(s, model, tr, weights, grid)[2]
-                sse0 = refit_grid(s, model, tr, weights, np.zeros((1, grid.shape[1])))[2][0]
-                if np.isfinite(sse0) and sse0 > 0 and np.isfinite(sse).any():
-                    refit = parabolic_min(grid[:, 0], sse) / sse0
-            ratios.append(min(fixed, refit))
-        specs = (specs[int(np.nanargmin(np.where(np.isfinite(ratios), ratios, np.inf)))],)
-    return score_family(specs[0], model, tr, te, weights, base_pred, uncertainty=uncertainty)
-
-
-def _score_family_task(task) -> FamilyScore:
-    """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty)``."""
-    name, model, tr, te, weights, base_pred, uncertainty = task
-    return score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
-
-
-def score_families(model, tr, te, families: Sequence[str] = FAMILIES, uncertainty: bool = True,
-                   workers: Workers | int = 1) -> tuple[list[FamilyScore], np.ndarray, np.ndarray]:
-    """Return every family scored on the model's splits ``tr``, ``te``, the equation weights and the input gains.
-
-    An input-side mechanism is scored against the model with its input gains recalibrated on the train
-    runs (:func:`sindy_ekf.diagnose.fitting.gain_recalibrated`), with a gain nuisance fitted beside it:
-    what one constant gain per input explains is no input mechanism. An additive mechanism (a slope, a
-    floor patch, a lateral law) is scored against the model as given: recalibrated gains would absorb
-    part of it (a patch that slows the robot looks like a lower gain on the runs that cross it: the
-    suite's 0.32 patch fell from a gain of 0.37 to 0.05). The thresholds' calibration
-    (``bench/bench_diagnose.py``) scores through this too.
-    """
-    weights = equation_weights(model, tr)
-    null_model, gains = gain_recalibrated(model, tr, weights)
-    given = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
-    recalibrated = {"train": null_prediction(null_model, tr), "test": null_prediction(null_model, te)}
-    tasks = [(f, null_model, tr, te, weights, recalibrated, uncertainty) if MECHANISMS[f][0].kind == "input"
-             else (f, model, tr, te, weights, given, uncertainty) for f in families]
-    scores = parallel_map(_score_family_task, tasks, workers, names=[f"family {f}" for f in families],
-                          desc="diagnose: families")
-    return scores, weights, gains
 
 
 def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequence[BodyStates],

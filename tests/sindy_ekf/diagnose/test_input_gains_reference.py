@@ -19,14 +19,14 @@ from identification.sindy.data import states_of_runs
 from identification.sindy.library import make_library
 from identification.sindy.model import SindyModel
 from sindy_ekf.diagnose.data import model_split
-from sindy_ekf.diagnose.fitting import (
+from sindy_ekf.diagnose.design import (
     equation_weights,
     fit_input_gains,
     gain_recalibrated,
     null_prediction,
     with_input_gains,
 )
-from sindy_ekf.diagnose.pipeline import score_mechanisms
+from sindy_ekf.diagnose.scoring import score_mechanisms
 from tests.support.sindy_synth import lag_f, simulate_trajectory_runs
 
 TRUE_GAINS = (1.8 / 0.3, 1.2 / 0.2)  # lag_f's input coefficients of vx and omega

@@ -22,7 +22,7 @@ from identification.sindy.model import SindyModel
 from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.families import MECHANISMS
 from sindy_ekf.diagnose.fitting import equation_weights, null_prediction, refit_grid
-from sindy_ekf.diagnose.pipeline import score_mechanisms
+from sindy_ekf.diagnose.scoring import score_mechanisms
 from tests.support.sindy_synth import lag_f, simulate_trajectory_runs
 
 DEAD_S, LAG_S = 0.1, 0.15  # the system's (and the exact model's) dead time and input lag

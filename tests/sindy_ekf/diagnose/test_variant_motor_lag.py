@@ -13,7 +13,7 @@ from identification.sindy.regression import fit_sindy
 from simulation.short_campaign import simulate_states_campaign
 from simulation.variants import draw_variant
 from sindy_ekf.diagnose.data import model_split
-from sindy_ekf.diagnose.pipeline import score_families
+from sindy_ekf.diagnose.scoring import score_families
 from tests.support.diagnose_synth import fit_lab_model
 
 VARIANT = 3
