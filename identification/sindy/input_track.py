@@ -129,6 +129,15 @@ class InputTrack:
                 k_lo = np.clip(np.searchsorted(knots, q - h, side="right") - 1, 0, len(held) - 1)
                 out[..., i] = (held[k_hi, i] - held[k_lo, i]) / self.width_s
             else:
-                out[..., i] = (np.interp(q + h, knots, integral[:, i]) - np.interp(q - h, knots, integral[:, i])) \
-                    / self.width_s
+                out[..., i] = (_integral_at(q + h, knots, integral[:, i], held[:, i])
+                               - _integral_at(q - h, knots, integral[:, i], held[:, i])) / self.width_s
         return out
+
+
+def _integral_at(q: np.ndarray, knots: np.ndarray, integral: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """Return the integral of the held input at ``q``: interpolated between the knots, and beyond the
+    padded ends continued with the end values (``np.interp`` alone would hold the integral constant
+    there, so an input queried more than the padding past the track would read 0)."""
+    out = np.interp(q, knots, integral)
+    out = np.where(q > knots[-1], integral[-1] + held[-1] * (q - knots[-1]), out)
+    return np.where(q < knots[0], integral[0] - held[0] * (knots[0] - q), out)
