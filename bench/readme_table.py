@@ -259,13 +259,19 @@ def _inject_real(r: Source) -> str:
     return "; ".join(parts)
 
 
-def _real(r: Source) -> str:
-    header = "campaign | model | pos 5 s [m] | yaw 5 s [deg] | windows | x README unicycle"
+def _against_unicycle(r: Source, header: str) -> str:
+    """Return the SINDy rows of a 5 s error table as ``cmd ... m = ...x (target ...x); wheels ...``: the
+    position error in column 2, the ratio in the column headed ``x README unicycle``, the target after it."""
+    k = [c.strip() for c in header.split("|")].index("x README unicycle")
     cmd = r.row(header, "warthog-drive-cmd", "sindy")
     whl = r.row(header, "warthog-drive-wheels", "sindy")
-    target = [re.search(r"<= ([\d.]+)", c[6]).group(1) for c in (cmd, whl)]
-    return (f"cmd {cmd[2]} m = {cmd[5]}x (target {target[0]}x); wheels {whl[2]} m = {whl[5]}x "
+    target = [re.search(r"<= ([\d.]+)", c[k + 1]).group(1) for c in (cmd, whl)]
+    return (f"cmd {cmd[2]} m = {cmd[k]}x (target {target[0]}x); wheels {whl[2]} m = {whl[k]}x "
             f"(target {target[1]}x)")
+
+
+def _real(r: Source) -> str:
+    return _against_unicycle(r, "campaign | model | pos 5 s [m] | yaw 5 s [deg] | windows | x README unicycle")
 
 
 def _real_cli(r: Source) -> str:
@@ -281,12 +287,7 @@ def _real_cli(r: Source) -> str:
 
 
 def _real_cli_evaluate(r: Source) -> str:
-    header = "campaign | model | pos 5 s [m] | yaw 5 s [deg] | x README unicycle"
-    cmd = r.row(header, "warthog-drive-cmd", "sindy")
-    whl = r.row(header, "warthog-drive-wheels", "sindy")
-    target = [re.search(r"<= ([\d.]+)", c[5]).group(1) for c in (cmd, whl)]
-    return (f"cmd {cmd[2]} m = {cmd[4]}x (target {target[0]}x); wheels {whl[2]} m = {whl[4]}x "
-            f"(target {target[1]}x)")
+    return _against_unicycle(r, "campaign | model | pos 5 s [m] | yaw 5 s [deg] | x README unicycle")
 
 
 def _real_cli_diagnosis(r: Source) -> str:
