@@ -2,8 +2,9 @@
 
 Usage: ``.venv/bin/python -m bench.run_all [--assemble-only]`` from the checkout. Each ``bench/bench_*.py``
 writes its own ``bench/results/<area>.md`` with the figures and the command that produced
-them; this script runs them one after another (never in parallel: timings are for 2 cores)
-and concatenates the sections in pipeline order; then it writes the README's results table
+them; this script runs them one after another (never in parallel: timings are for 2 cores), with
+the modes of :data:`MODES` that write files of their own (the diagnosis's forms suite), and
+concatenates the sections in pipeline order; then it writes the README's results table
 from them (:mod:`bench.readme_table`).
 """
 
@@ -33,14 +34,20 @@ def assemble() -> Path:
     return out
 
 
+# modes of a script that write results files of their own (run after the script's default run)
+MODES = {"bench_diagnose": (["--forms"],)}
+
+
 def main() -> int:
     if "--assemble-only" not in sys.argv:
         for script in sorted(HERE.glob("bench_*.py")):
-            t0 = time.perf_counter()
-            print(f"== {script.name}", flush=True)
-            # as a module from the checkout: its sources, and tests.support for the builders
-            rc = subprocess.call([sys.executable, "-m", f"bench.{script.stem}"], cwd=HERE.parent)
-            print(f"== {script.name}: exit {rc} after {time.perf_counter() - t0:.1f} s", flush=True)
+            for args in ([],) + MODES.get(script.stem, ()):
+                t0 = time.perf_counter()
+                what = " ".join([script.name] + args)
+                print(f"== {what}", flush=True)
+                # as a module from the checkout: its sources, and tests.support for the builders
+                rc = subprocess.call([sys.executable, "-m", f"bench.{script.stem}", *args], cwd=HERE.parent)
+                print(f"== {what}: exit {rc} after {time.perf_counter() - t0:.1f} s", flush=True)
     print(assemble())
     return readme_table.main([])
 
