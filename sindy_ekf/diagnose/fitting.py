@@ -46,7 +46,8 @@ log = logging.getLogger(__name__)
 
 def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
                          base_pred: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Return window targets ``y (C, p, 3)`` after the fixed part and columns ``X (C, p, 3, m [+ 2])``.
+    """Return window targets ``y (C, p, 3)`` after the fixed part and columns ``X (C, p, 3, m)``
+    (``(C, p, 3, 2)`` for an input-side mechanism: its gain nuisance).
 
     An input-side mechanism gets two more columns, its nuisance: the model's response to a change of
     its input gains (linearised at the given gains, the derivative by ``log g_i``), fitted with the
@@ -72,32 +73,31 @@ def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
         return y, X
     base_pred = null_prediction(model, split) if base_pred is None else base_pred
     y = np.broadcast_to(dv - base_pred, (C, p, 3))
-    n_nuisance = 2 if family is GAINS_ONLY else 0
-    X = np.empty((C, p, 3, m + n_nuisance))
-    if n_nuisance:
-        X[..., m:] = model_and_gain_columns(act, split, split.u[None])[1]
+    X = np.empty((C, p, 3, m))
     x6 = split.x6
     for sl in chunks(C, len(split.t_run) * 3 * m):
         cols = family.columns(x6, split.u, split.t_run, theta[sl])
         n = cols.shape[0]
-        X[sl, ..., :m] = split.integrate(cols.reshape(n, len(x6), 3 * m)).reshape(n, p, 3, m)
+        X[sl] = split.integrate(cols.reshape(n, len(x6), 3 * m)).reshape(n, p, 3, m)
     return y, X
 
 
-# the nulls of the fixed-model scoring: the given model and its input-gain nuisance (of an input-side
-# mechanism), the given model alone (of an additive one)
-GAINS_ONLY = Family("gains_only", "additive")
-NO_MECHANISM = Family("no_mechanism", "additive")
-
-
-def _null_of(kind: str) -> Family:
-    return GAINS_ONLY if kind == "input" else NO_MECHANISM
+def null_columns(model, split: Split, base_pred: np.ndarray | None = None,
+                 kind: str = "input") -> tuple[np.ndarray, np.ndarray]:
+    """Return the null of a ``kind`` mechanism's fixed-model scoring as ``y (p, 3)``, ``X (p, 3, n)``:
+    the given model, with its gain nuisance (``n = 2``) for an input-side mechanism, alone (``n = 0``)
+    for an additive one (:func:`residual_and_columns` fits the same nuisance beside the mechanism)."""
+    base_pred = null_prediction(model, split) if base_pred is None else base_pred
+    y = split.delta_v - base_pred
+    if kind != "input":
+        return y, np.zeros((split.n_windows, 3, 0))
+    return y, model_and_gain_columns(ActiveTerms(model), split, split.u[None])[1][0]
 
 
 def null_fit(model, split: Split, weights: np.ndarray, base_pred: np.ndarray | None = None, kind: str = "input"):
     """Return ``(nuisance coefficients, weighted SSE)`` of the null of a ``kind`` mechanism fitted on ``split``."""
-    d = design_for(_null_of(kind), model, split, np.zeros((1, 0)), weights, base_pred)
-    beta, sse = solve_design(d)
+    y, X = null_columns(model, split, base_pred, kind)
+    beta, sse = solve_design(normal_equations(y[None], X[None], weights, split.window_run, len(split.names)))
     return beta[0], float(sse[0])
 
 
@@ -105,8 +105,8 @@ def null_residual(model, split: Split, beta0: np.ndarray, base_pred: np.ndarray 
                   kind: str = "input") -> np.ndarray:
     """Return the window residual ``(p, 3)`` on ``split`` of the null of a ``kind`` mechanism with
     nuisance coefficients ``beta0``."""
-    y, X = residual_and_columns(_null_of(kind), model, split, np.zeros((1, 0)), base_pred)
-    return y[0] - np.einsum("pem,m->pe", X[0], beta0)
+    y, X = null_columns(model, split, base_pred, kind)
+    return y - np.einsum("pem,m->pe", X, beta0)
 
 
 def design_for(family: Family, model, split: Split, grid: np.ndarray, weights: np.ndarray,
