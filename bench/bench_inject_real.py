@@ -52,28 +52,6 @@ def identify(name: str, out: Path) -> Path:
     return path
 
 
-def own_coupling(campaign: Path, model_path: Path) -> float:
-    """Return the throttle-to-turn coupling the clean campaign's train runs hold relative to the model,
-    scored as the diagnosis scores it (model with its input gains fitted, gain nuisance, model fixed)."""
-    from identification.preprocessing.campaigns import open_campaign
-    from identification.sindy.data import states_of_runs
-    from sindy_ekf.diagnose.data import model_split
-    from sindy_ekf.diagnose.families import mechanism_spec
-    from sindy_ekf.diagnose.design import equation_weights, gain_recalibrated
-    from sindy_ekf.diagnose.fitting import score_family
-    from sindy_ekf.diagnose.pipeline import load_model
-
-    model = load_model(model_path)
-    s = float(model.hyperparameters.get("s") or 0.0)
-    st, names, _ = states_of_runs(open_campaign(campaign).split("train"), s)
-    tau = float(model.hyperparameters.get("tau") or 2.0)
-    tr = model_split(model, st, names, tau)
-    w = equation_weights(model, tr)
-    null, _ = gain_recalibrated(model, tr, w)
-    spec = mechanism_spec("asymmetry", "throttle_to_turn_coupling")
-    return float(score_family(spec, null, tr, tr, w, uncertainty=False, refit=False).estimate["coupling"])
-
-
 def one(task) -> dict:
     """Diagnose one (campaign, family, value) task; ``family`` None is the clean campaign."""
     name, model_path, family, value, work = task
@@ -155,6 +133,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="inject_real_") as work:
         models = {n: identify(n, Path(work)) for n in names}
+        from tests.support.diagnose_synth import own_coupling
+
         own = {n: own_coupling(SHARED / f"warthog-drive-{n}", models[n]) for n in names}
         tasks = [(n, models[n], None, None, work) for n in names]
         tasks += [(n, models[n], f, round(MODERATE[f] * k, 6), work) for n in names for f in MODERATE for k in FACTORS]

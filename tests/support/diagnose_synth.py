@@ -8,13 +8,18 @@ from __future__ import annotations
 
 import functools
 
+from identification.preprocessing.campaigns import open_campaign
+from identification.sindy.data import states_of_runs
 from identification.sindy.reference import delayed_inputs
 from identification.sindy.regression import fit_sindy
 from simulation.short_campaign import simulate_states_campaign
 from simulation.variants import draw_variant
-from sindy_ekf.diagnose.data import split_from_states
+from sindy_ekf.diagnose.data import model_split, split_from_states
+from sindy_ekf.diagnose.design import gain_recalibrated
 from sindy_ekf.diagnose.extend import reidentify
-from sindy_ekf.diagnose.fitting import equation_weights
+from sindy_ekf.diagnose.families import mechanism_spec
+from sindy_ekf.diagnose.fitting import equation_weights, score_family
+from sindy_ekf.diagnose.pipeline import load_model
 
 
 def fit_reference_model(seed: int = 12345, n_runs: int = 6, run_s: float = 60.0):
@@ -61,3 +66,16 @@ def variant_reference(variant: int, run_s: float = 45.0, rate_hz: float = 25.0):
     """Return the lab model of simulator variant ``variant`` (cached per process): identified, with the
     variant's motor lag, on an effect-free campaign of 4 runs of ``run_s`` at ``rate_hz``."""
     return fit_reference_with_lateral_law(n_runs=4, run_s=run_s, rate_hz=rate_hz, variant=variant)
+
+
+def own_coupling(campaign, model_path) -> float:
+    """Return the throttle-to-turn coupling a clean campaign's train runs hold relative to the model in
+    ``model_path``, scored as the diagnosis scores it (the model with its input gains fitted on the train
+    runs, the gain nuisance, the model kept fixed): what an injected coupling adds to."""
+    model = load_model(model_path)
+    st, names, _ = states_of_runs(open_campaign(campaign).split("train"), float(model.hyperparameters.get("s") or 0.0))
+    tr = model_split(model, st, names, float(model.hyperparameters.get("tau") or 2.0))
+    w = equation_weights(model, tr)
+    null, _ = gain_recalibrated(model, tr, w)
+    spec = mechanism_spec("asymmetry", "throttle_to_turn_coupling")
+    return float(score_family(spec, null, tr, tr, w, uncertainty=False, refit=False).estimate["coupling"])

@@ -14,14 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from identification.preprocessing.campaigns import open_campaign
-from identification.sindy.data import states_of_runs
 from sindy_ekf import cli
-from sindy_ekf.diagnose.data import model_split
-from sindy_ekf.diagnose.families import mechanism_spec
-from sindy_ekf.diagnose.fitting import equation_weights, score_family
 from sindy_ekf.diagnose.inject import inject_campaign
-from sindy_ekf.diagnose.pipeline import diagnose_campaign, load_model
+from sindy_ekf.diagnose.pipeline import diagnose_campaign
+from tests.support.diagnose_synth import own_coupling
 
 # the hyperparameters identify's low-rate search selects on this campaign (bench/results/real_cli.md)
 FIXED_GRID = ["--smoothing", "20", "--tau", "1", "--alpha", "1", "--threshold", "0.25"]
@@ -52,12 +48,7 @@ def test_injected_deadband_named_with_its_threshold(wheels, model_file, tmp_path
 
 
 def test_injected_coupling_named_with_its_value(wheels, model_file, tmp_path):
-    model = load_model(model_file)
-    coupling = mechanism_spec("asymmetry", "throttle_to_turn_coupling")
-    st, names, _ = states_of_runs(open_campaign(wheels).split("train"), 20.0)
-    tr = model_split(model, st, names, 1.0)
-    own = score_family(coupling, model, tr, tr, equation_weights(model, tr), uncertainty=False,
-                       refit=False).estimate["coupling"]
+    own = own_coupling(wheels, model_file)
     out = inject_campaign(wheels, tmp_path / "asym", "asymmetry", 0.05)
     d = diagnose_campaign(out, model_file, ekf=False)
     assert d.verdict == "asymmetry" and d.ranked[0].name == "asymmetry"
