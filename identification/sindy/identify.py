@@ -26,7 +26,13 @@
    data barely excite fails there without being fragile on all train runs, which the final
    model is checked on (measured on simulator variant 2: every refined structure failed the
    dissipativity check in one fold of three, on ``vy omega^2`` with ``vy`` at 15 mm/s).
-6. **Final model**: the picked candidate refitted on all train runs the same way; if it fails
+6. **Stepwise output error** (:mod:`identification.sindy.stepwise`): the structure the rule
+   picks (a grid structure; the best grid structure by CV error when it picks the lag) is the
+   start of a search that adds terms by their score on the output error and drops them by its t
+   statistics; refitted in every fold the same way, it joins the candidates and the rule picks
+   again. On simulator variants the regression's choice of terms, not the coefficients, kept the
+   refined models at about twice the true dynamics' error on their own train windows.
+7. **Final model**: the picked candidate refitted on all train runs the same way; if it fails
    the checks, the next candidate by CV error is taken (never a failing model).
 """
 
@@ -67,53 +73,13 @@ from identification.sindy.output_error import (
 )
 from identification.sindy.reference import Folds, Reference, cv_folds, reference, select_windows, thin_windows
 from identification.sindy.search import DEFAULT_GRID, SearchGrid, SearchResult, admissible, refit, search
+from identification.sindy.selection import Candidate, select_candidate
+from identification.sindy.stepwise import STEPWISE, stepwise_output_error
 
 log = logging.getLogger(__name__)
 
 #: distinct structures of the screening refined by output error and cross-validated (plus the lag)
 N_CANDIDATES = 4
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One candidate of the output-error stage with its cross-validated score."""
-
-    label: str  # "lag" or "grid rank N"
-    hyperparameters: dict | None  # the screening's grid point, None for the lag
-    fold_rms_m: np.ndarray  # (folds,) RMS 5 s position error on each held-out fold
-    fold_n: np.ndarray  # (folds,) windows per held-out fold
-    fold_yaw_deg: np.ndarray  # (folds,) RMS 5 s heading error on each held-out fold
-    complexity: float  # mean number of active terms over the folds
-    passed: bool  # the models of most folds (more than half) passed the checks
-    failed: tuple[str, ...] = ()
-
-    @property
-    def cv_pos_err_5s_m(self) -> float:
-        """Return the RMS 5 s position error over all held-out windows."""
-        n = self.fold_n.sum()
-        return float(np.sqrt(np.sum(self.fold_n * self.fold_rms_m**2) / n)) if n else float("nan")
-
-    @property
-    def cv_yaw_err_5s_deg(self) -> float:
-        """Return the RMS 5 s heading error over all held-out windows."""
-        n = self.fold_n.sum()
-        return float(np.sqrt(np.sum(self.fold_n * self.fold_yaw_deg**2) / n)) if n else float("nan")
-
-    @property
-    def cv_se_m(self) -> float:
-        """Return the standard error of the CV error over the folds (std of the fold RMS / sqrt(folds))."""
-        scored = self.fold_n > 0
-        if scored.sum() < 2:
-            return float("nan")
-        return float(np.std(self.fold_rms_m[scored], ddof=1) / np.sqrt(scored.sum()))
-
-    def summary(self) -> dict:
-        """Return the JSON-ready description."""
-        return {"label": self.label, "hyperparameters": self.hyperparameters,
-                "cv_pos_err_5s_m": self.cv_pos_err_5s_m, "cv_se_m": self.cv_se_m,
-                "cv_yaw_err_5s_deg": self.cv_yaw_err_5s_deg,
-                "fold_pos_err_5s_m": [float(v) for v in self.fold_rms_m], "complexity": self.complexity,
-                "passed_checks": self.passed, "failed_checks": list(self.failed)}
 
 
 @dataclass(frozen=True)
@@ -155,14 +121,19 @@ def with_lag_core(model: SindyModel, lag: LagModel) -> SindyModel:
     return model.with_coefficients(coef)
 
 
+def _excluded_terms(model: SindyModel, excluded) -> np.ndarray:
+    """Return the mask ``(3, k)`` of the terms of the ``excluded`` variables: every feature
+    containing one, and every term of an excluded state's equation."""
+    return np.array([any(v in excluded for v, _ in atoms) for atoms in model.library.atoms])[None, :] | \
+        np.array([e in excluded for e in range(3)])[:, None]
+
+
 def without_excluded(model: SindyModel, excluded) -> SindyModel:
     """Return ``model`` without the terms of the ``excluded`` variables: no feature containing one,
     and an excluded state's equation reduced to its own damping (its data are noise)."""
     if not excluded:
         return model
-    drop = np.array([any(v in excluded for v, _ in atoms) for atoms in model.library.atoms])[None, :] | \
-        np.array([e in excluded for e in range(3)])[:, None]
-    return model.with_coefficients(np.where(drop & ~self_terms(model), 0.0, model.coef))
+    return model.with_coefficients(np.where(_excluded_terms(model, excluded) & ~self_terms(model), 0.0, model.coef))
 
 
 def _fixed(model: SindyModel, excluded) -> np.ndarray:
@@ -227,19 +198,6 @@ def _fold_score(model, windows: Windows | None) -> tuple[float, int, float]:
                 float(np.degrees(np.sqrt(np.mean(eps_h[:, 0] ** 2)))))
 
 
-def select_candidate(candidates: Sequence[Candidate]) -> int:
-    """Return the index of the sparsest candidate that passed its checks and lies within one
-    standard error of the best such candidate's CV error (the one-standard-error rule over folds)."""
-    ok = [i for i, c in enumerate(candidates) if c.passed and np.isfinite(c.cv_pos_err_5s_m)]
-    if not ok:
-        raise InputError("identification: no candidate passed the well-posedness checks in most folds")
-    best = min(ok, key=lambda i: candidates[i].cv_pos_err_5s_m)
-    se = candidates[best].cv_se_m
-    limit = candidates[best].cv_pos_err_5s_m + (se if np.isfinite(se) else 0.0)
-    within = [i for i in ok if candidates[i].cv_pos_err_5s_m <= limit]
-    return min(within, key=lambda i: (candidates[i].complexity, candidates[i].cv_pos_err_5s_m))
-
-
 def _initial(label: str, hp: dict | None, search_result: SearchResult, cache: dict, excluded, runs, lag: LagModel,
              states) -> tuple[SindyModel, Adjustment | None]:
     """Return a candidate's starting model on the segments ``runs`` (all when None) and the
@@ -272,17 +230,44 @@ def _candidates(result: SearchResult, n: int) -> list[tuple[str, dict]]:
         # refinement of a dense model can trade well-posedness for fit; CV and the checks decide)
         out += [(f"grid rank {i + 1}", hp | {"output_error": True}),
                 (f"grid rank {i + 1}, regression", hp | {"output_error": False})]
-        if len(out) == 2 * n:
+        if len(seen) == n:
             break
     return out
 
 
-def _refined(start: SindyModel, hp: dict | None, windows: Windows, excluded) -> tuple[SindyModel, OutputErrorFit | None]:
-    """Return the candidate from its start: refined by output error (:func:`refine`) unless its
-    hyperparameters say ``output_error: False`` (the regression's coefficients kept)."""
-    if hp is not None and not hp.get("output_error", True):
-        return start, None
-    return refine(start, windows, excluded)
+def _stepwise_spec(candidates: Sequence[Candidate]) -> tuple[str, dict] | None:
+    """Return ``(label, hyperparameters)`` of the stepwise output-error search's candidate: from
+    the structure the one-standard-error rule picks among ``candidates``, or from the grid
+    candidate of smallest CV error that passed when it picks the lag (None without one)."""
+    grid = [i for i, c in enumerate(candidates) if c.hyperparameters is not None and c.passed
+            and np.isfinite(c.cv_pos_err_5s_m)]
+    if not grid:
+        return None
+    try:
+        first = select_candidate(candidates)
+    except InputError:
+        first = None
+    start = first if first in grid else min(grid, key=lambda i: candidates[i].cv_pos_err_5s_m)
+    c = candidates[start]
+    return f"{c.label.split(',')[0]}, stepwise", c.hyperparameters | {"output_error": STEPWISE}
+
+
+def _refined(start: SindyModel, adj: Adjustment | None, hp: dict | None, windows: Windows,
+             excluded) -> tuple[SindyModel, OutputErrorFit | None, tuple]:
+    """Return the candidate from its start, its output-error fit and its terms' significance
+    (names and t statistics for :func:`~identification.sindy.checks.run_checks`): refined by
+    output error (:func:`refine`) unless its hyperparameters say ``output_error: False`` (the
+    regression's coefficients kept), or its terms chosen by the stepwise output-error search
+    (:func:`~identification.sindy.stepwise.stepwise_output_error`) for ``output_error: "stepwise"``."""
+    how = True if hp is None else hp.get("output_error", True)
+    if how is False:
+        return start, None, _significance(adj)
+    model, fit = refine(start, windows, excluded)
+    if how != STEPWISE:
+        return model, fit, _significance(adj)
+    allowed = ~_excluded_terms(model, excluded)
+    step = stepwise_output_error(model, windows, allowed, lag_core(model), _fixed(model, excluded))
+    return step.model, step.fit, (step.names, step.t_stat)
 
 
 def _fold_job(job) -> dict:
@@ -312,8 +297,8 @@ def _fold_job_serial(job) -> dict:
             log.info("fold %d, %s: %s; not admissible", f, label, exc)
             out[label] = (float("nan"), 0, float("nan"), float("nan"), ["significance"])
             continue
-        model, _ = _refined(start, hp, fold_oe, excluded)
-        checks = run_checks(model, fold_ref.states, *_significance(adj), accel_max)
+        model, _, significance = _refined(start, adj, hp, fold_oe, excluded)
+        checks = run_checks(model, fold_ref.states, *significance, accel_max)
         out[label] = _fold_score(model, held) + (model.complexity, [k for k, v in checks.items()
                                                                     if isinstance(v, dict) and not v["passed"]])
     return out
@@ -332,8 +317,8 @@ def _final(candidates, chosen: int, order, result: SearchResult, excluded, lag: 
         except InputError as exc:  # more active terms than independent windows: significance unjudgeable
             log.warning("identification: candidate %s refitted on all train runs: %s; trying the next", c.label, exc)
             continue
-        model, fit = _refined(start, c.hyperparameters, all_oe, excluded)
-        checks = run_checks(model, ref.states, *_significance(adj), accel_max)
+        model, fit, significance = _refined(start, adj, c.hyperparameters, all_oe, excluded)
+        checks = run_checks(model, ref.states, *significance, accel_max)
         if checks["passed"]:
             return i, model, fit, checks
         log.warning("identification: candidate %s refitted on all train runs fails the checks (%s); trying the next",
@@ -369,9 +354,12 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     specs = [("lag", None)] + _candidates(result, n_candidates)
     n_f = folds.n_folds
     slim = replace(result, top_models=[], model=result.model)  # what the folds need of the screening
-    jobs = [(f, ref, folds.fold, specs, slim, excluded, oe_windows, score_windows, accel_max) for f in range(n_f)]
-    per_fold = parallel_map(_fold_job, jobs, n_jobs, desc="output-error candidates per fold",
-                            names=[f"output-error fold {f}" for f in range(n_f)])
+
+    def fold_pass(these, what):
+        jobs = [(f, ref, folds.fold, these, slim, excluded, oe_windows, score_windows, accel_max) for f in range(n_f)]
+        return parallel_map(_fold_job, jobs, n_jobs, desc=what, names=[f"{what}, fold {f}" for f in range(n_f)])
+
+    per_fold = fold_pass(specs, "output-error candidates")
 
     def collect(label, complexity=None):
         rms = np.array([p[label][0] for p in per_fold])
@@ -385,6 +373,12 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
                 tuple(dict.fromkeys(failed)))
 
     candidates = tuple(Candidate(label, hp, *collect(label)) for label, hp in specs)
+    step = _stepwise_spec(candidates)
+    if step is not None:  # the stepwise search from the structure the rule picks, cross-validated the same way
+        for p, q in zip(per_fold, fold_pass([step], "stepwise output error")):
+            p.update({k: v for k, v in q.items() if k != "lag baseline"})
+        specs.append(step)
+        candidates += (Candidate(step[0], step[1], *collect(step[0])),)
     lag_cv = collect("lag baseline", complexity=6.0)
     order = sorted(range(len(candidates)), key=lambda i: candidates[i].cv_pos_err_5s_m)
     chosen = select_candidate(candidates)

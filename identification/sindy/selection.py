@@ -1,4 +1,5 @@
-"""Which grid point the search selects: admissibility and the one-standard-error rule.
+"""Which grid point the search selects and which candidate ``identify`` selects: admissibility
+and the one-standard-error rule.
 
 The rules of :func:`identification.sindy.search.search` over its ranked table (thesis section
 7.3.3 for the grid, Hastie, Tibshirani and Friedman 7.10 for the rule), apart so that the search
@@ -7,7 +8,13 @@ itself stays one module.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Sequence
+
 import numpy as np
+
+from groundfloor.errors import InputError
+
 
 def admissible(table: dict[str, np.ndarray]) -> np.ndarray:
     """Return, per row, whether the model is stable at rest and never diverged on a held-out window.
@@ -56,3 +63,58 @@ def select_parsimonious(table: dict[str, np.ndarray], rel_tol: float = 0.05) -> 
     best = err[pool].min()
     ok = np.flatnonzero(pool & (err <= (1 + rel_tol) * best))
     return int(ok[np.lexsort((err[ok], np.asarray(table["complexity"])[ok]))[0]])
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate of the output-error stage with its cross-validated score."""
+
+    label: str  # "lag" or "grid rank N"
+    hyperparameters: dict | None  # the screening's grid point, None for the lag
+    fold_rms_m: np.ndarray  # (folds,) RMS 5 s position error on each held-out fold
+    fold_n: np.ndarray  # (folds,) windows per held-out fold
+    fold_yaw_deg: np.ndarray  # (folds,) RMS 5 s heading error on each held-out fold
+    complexity: float  # mean number of active terms over the folds
+    passed: bool  # the models of most folds (more than half) passed the checks
+    failed: tuple[str, ...] = ()
+
+    @property
+    def cv_pos_err_5s_m(self) -> float:
+        """Return the RMS 5 s position error over all held-out windows."""
+        n = self.fold_n.sum()
+        return float(np.sqrt(np.sum(self.fold_n * self.fold_rms_m**2) / n)) if n else float("nan")
+
+    @property
+    def cv_yaw_err_5s_deg(self) -> float:
+        """Return the RMS 5 s heading error over all held-out windows."""
+        n = self.fold_n.sum()
+        return float(np.sqrt(np.sum(self.fold_n * self.fold_yaw_deg**2) / n)) if n else float("nan")
+
+    @property
+    def cv_se_m(self) -> float:
+        """Return the standard error of the CV error over the folds (std of the fold RMS / sqrt(folds))."""
+        scored = self.fold_n > 0
+        if scored.sum() < 2:
+            return float("nan")
+        return float(np.std(self.fold_rms_m[scored], ddof=1) / np.sqrt(scored.sum()))
+
+    def summary(self) -> dict:
+        """Return the JSON-ready description."""
+        return {"label": self.label, "hyperparameters": self.hyperparameters,
+                "cv_pos_err_5s_m": self.cv_pos_err_5s_m, "cv_se_m": self.cv_se_m,
+                "cv_yaw_err_5s_deg": self.cv_yaw_err_5s_deg,
+                "fold_pos_err_5s_m": [float(v) for v in self.fold_rms_m], "complexity": self.complexity,
+                "passed_checks": self.passed, "failed_checks": list(self.failed)}
+
+
+def select_candidate(candidates: Sequence[Candidate]) -> int:
+    """Return the index of the sparsest candidate that passed its checks and lies within one
+    standard error of the best such candidate's CV error (the one-standard-error rule over folds)."""
+    ok = [i for i, c in enumerate(candidates) if c.passed and np.isfinite(c.cv_pos_err_5s_m)]
+    if not ok:
+        raise InputError("identification: no candidate passed the well-posedness checks in most folds")
+    best = min(ok, key=lambda i: candidates[i].cv_pos_err_5s_m)
+    se = candidates[best].cv_se_m
+    limit = candidates[best].cv_pos_err_5s_m + (se if np.isfinite(se) else 0.0)
+    within = [i for i in ok if candidates[i].cv_pos_err_5s_m <= limit]
+    return min(within, key=lambda i: (candidates[i].complexity, candidates[i].cv_pos_err_5s_m))

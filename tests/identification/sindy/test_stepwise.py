@@ -1,0 +1,117 @@
+"""The stepwise output-error search against a known sparse model (tests/support/sindy_synth.py):
+from a wrong structure it must find the missing terms and drop the spurious ones."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identification.sindy.checks import lag_core
+from identification.sindy.evaluate import evaluate_model
+from identification.sindy.identify import _stepwise_spec, refine
+from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
+from identification.sindy.reference import reference
+from identification.sindy.selection import Candidate
+from identification.sindy.stepwise import STEPWISE, stepwise_output_error, term_scores
+from tests.support.sindy_synth import SPARSE_TERMS, simulate_trajectory_runs, sparse_f
+
+MISSING = {"vx": "vx omega^2", "omega": "omega^3"}
+SPURIOUS = {"vy": {"u1": 0.3}, "vx": {"omega": 0.4}}
+
+
+@pytest.fixture(scope="module")
+def runs():
+    """Three 40 s runs of the known sparse model."""
+    return simulate_trajectory_runs(40.0, [11, 12, 13], f=sparse_f)
+
+
+def _wrong_start(runs) -> tuple[SindyModel, SindyModel, object]:
+    """Return the truth (poly3) and a start without two of its terms and with two spurious ones."""
+    truth = model_from_terms(SPARSE_TERMS, "poly3")
+    terms = {e: {k: v for k, v in t.items() if k != MISSING.get(e)} for e, t in SPARSE_TERMS.items()}
+    for e, extra in SPURIOUS.items():
+        terms[e] = terms[e] | extra
+    ref = reference(runs)
+    x = np.vstack([st.state for st in ref.states])
+    u = np.vstack([st.inputs for st in ref.states])
+    start = model_from_terms(terms, "poly3", envelope=envelope_from_data(x, u), extrapolation="frozen")
+    return truth, start, ref
+
+
+def _mask(model: SindyModel, eq: str, feature: str) -> tuple[int, int]:
+    return ["vx", "vy", "omega"].index(eq), model.library.feature_names.index(feature)
+
+
+def test_the_missing_terms_score_highest_at_a_fit_of_the_wrong_structure(runs):
+    truth, start, ref = _wrong_start(runs)
+    windows = ref.windows(3.0, 0.0, 0.05)
+    fitted, _ = refine(start, windows)
+    allowed = np.ones(fitted.coef.shape, bool)
+    scores = term_scores(fitted, windows, np.zeros_like(allowed), allowed)
+    assert np.all(scores[fitted.coef != 0] == 0.0)
+    # each missing term the best of its equation's 56 - k candidates
+    for e, f in MISSING.items():
+        i, j = _mask(fitted, e, f)
+        assert np.argmax(scores[i]) == j
+
+
+def test_stepwise_output_error_recovers_the_known_structure_from_a_wrong_one(runs):
+    truth, start, ref = _wrong_start(runs)
+    windows = ref.windows(3.0, 0.0, 0.05)
+    fitted, _ = refine(start, windows)
+    allowed = np.ones(fitted.coef.shape, bool)
+    step = stepwise_output_error(fitted, windows, allowed, lag_core(fitted))
+    found = step.model.coef != 0
+    true = truth.coef != 0
+    assert np.all(found[true]), "a term of the true model was not found"
+    for e, extra in SPURIOUS.items():
+        for f in extra:
+            assert not found[_mask(step.model, e, f)], f"the spurious {e}: {f} was kept"
+    # at most one term beyond the truth (a t test at 5 % on about 40 windows; here u2^3, collinear
+    # with omega^3 through the steady state, at t = 2.3)
+    assert (found & ~true).sum() <= 1
+    exact = np.all(found == true, axis=1)  # equations whose structure is the truth's
+    assert exact.sum() >= 2
+    np.testing.assert_allclose(step.model.coef[exact][true[exact]], truth.coef[exact][true[exact]], rtol=0.1)
+    assert np.all(step.t_stat >= 2.0)
+    # as good as the truth at 5 s, and the wrong structure refined by output error alone far worse
+    full = ref.windows()
+    err = evaluate_model(step.model, full).pos_err_5s_m
+    assert err < 1.2 * evaluate_model(truth.with_coefficients(truth.coef), full).pos_err_5s_m + 1e-4
+    assert err < 0.3 * evaluate_model(fitted, full).pos_err_5s_m
+
+
+def test_terms_not_allowed_are_never_added_and_protected_ones_never_dropped(runs):
+    truth, start, ref = _wrong_start(runs)
+    windows = ref.windows(3.0, 0.0, 0.05)
+    fitted, _ = refine(start, windows)
+    allowed = np.ones(fitted.coef.shape, bool)
+    e, f = _mask(fitted, "vx", MISSING["vx"])
+    allowed[e, f] = False
+    protected = lag_core(fitted)
+    protected[_mask(fitted, "vy", "u1")] = True
+    step = stepwise_output_error(fitted, windows, allowed, protected)
+    assert step.model.coef[e, f] == 0.0
+    assert step.model.coef[_mask(step.model, "vy", "u1")] != 0.0
+
+
+def _candidate(label, hp, folds_m, complexity, passed=True):
+    folds_m = np.asarray(folds_m, float)
+    return Candidate(label, hp, folds_m, np.full(len(folds_m), 10), folds_m * 100, complexity, passed)
+
+
+def test_the_stepwise_search_starts_from_the_structure_the_rule_picks_else_the_best_grid_one():
+    hp = {"s": 0.0, "tau": 1.0, "alpha": 0.01, "T": 0.1, "library": "poly3", "normalize": True}
+    lag = _candidate("lag", None, [0.050, 0.052, 0.048], 5)
+    rank1 = _candidate("grid rank 1", hp | {"output_error": True}, [0.012, 0.013, 0.011], 25)
+    rank1_reg = _candidate("grid rank 1, regression", hp | {"output_error": False}, [0.0125, 0.0135, 0.0115], 20)
+    rank5 = _candidate("grid rank 5", hp | {"T": 0.2, "output_error": True}, [0.005, 0.005, 0.005], 30, passed=False)
+    # the rule picks the sparser regression candidate within one SE: the search starts from its structure
+    label, spec = _stepwise_spec([lag, rank1, rank1_reg, rank5])
+    assert label == "grid rank 1, stepwise" and spec == hp | {"output_error": STEPWISE}
+    # the lag picked: from the grid candidate of smallest CV error that passed (not rank 5, it failed)
+    good_lag = _candidate("lag", None, [0.010, 0.010, 0.010], 5)
+    rank9 = _candidate("grid rank 9", hp | {"T": 0.3, "output_error": True}, [0.011, 0.011, 0.011], 30)
+    label, spec = _stepwise_spec([good_lag, rank1, rank9, rank5])
+    assert label == "grid rank 9, stepwise" and spec["T"] == 0.3
+    assert _stepwise_spec([good_lag]) is None
