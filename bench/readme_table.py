@@ -250,6 +250,21 @@ def _diagnose_forms(r: Source) -> str:
             "false alarms (target 10 %)")
 
 
+def _variants(r: Source) -> str:
+    m = r.find(r"median \*\*([\d.]+)x\*\* \(target <= ([\d.]+).*?worst \*\*([\d.]+)x\*\* \(target <= ([\d.]+)")
+    floor = r.find(r"The true terms refitted on the same train runs: median \*\*([\d.]+)x\*\*, worst \*\*([\d.]+)x\*\*")
+    return (f"median {m.group(1)}x (target {m.group(2)}x), worst {m.group(3)}x (target {m.group(4)}x) the true "
+            f"dynamics; the true terms refitted on the same train runs: median {floor.group(1)}x, worst "
+            f"{floor.group(2)}x")
+
+
+def _leave_one_day_out(r: Source) -> str:
+    parts = []
+    for cells in r.table("campaign | train -> test"):
+        parts.append(f"{cells[0].replace('warthog-drive-', '')} {cells[1].replace(' -> ', '->')}: {cells[6].split()[0]}")
+    return "identified / lag: " + "; ".join(parts) + " (target 0.8x)"
+
+
 def _inject_real(r: Source) -> str:
     parts = []
     for c in ("wheels", "cmd"):
@@ -354,6 +369,10 @@ ROWS = (
     Row("diagnose", _diagnose_q, _diagnose, "outlook only"),
     Row("diagnose_forms", "diagnosis, mechanism forms the families were not written from, on simulator variants "
         "1 to 10", _diagnose_forms, "-"),
+    Row("identify_variants", "identification on simulator variants 1 to 10 (12-min campaigns through bags; "
+        "`identify` then `evaluate`): 5 s position error of the selected model on the test runs", _variants, "-"),
+    Row("identification", "real Warthog data, leave one day out (train on one day, score on the other)",
+        _leave_one_day_out, "-"),
     Row("inject_real", "diagnosis of effects hidden in real Warthog data (`inject`: delay, deadband, coupling, "
         "decay at 0.5, 1, 2 x moderate)", _inject_real, "-"),
     Row("real_cli", "real Warthog data, `sindy-ekf identify` on the train runs then `evaluate`: 5 s position error "
