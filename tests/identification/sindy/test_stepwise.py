@@ -12,7 +12,7 @@ from identification.sindy.identify import _stepwise_spec, refine
 from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
 from identification.sindy.reference import reference
 from identification.sindy.selection import Candidate
-from identification.sindy.stepwise import STEPWISE, stepwise_output_error, term_scores
+from identification.sindy.stepwise import MAX_ROUNDS, STEPWISE, stepwise_output_error, term_scores
 from tests.support.sindy_synth import SPARSE_TERMS, simulate_trajectory_runs, sparse_f
 
 MISSING = {"vx": "vx omega^2", "omega": "omega^3"}
@@ -74,6 +74,9 @@ def test_stepwise_output_error_recovers_the_known_structure_from_a_wrong_one(run
     assert exact.sum() >= 2
     np.testing.assert_allclose(step.model.coef[exact][true[exact]], truth.coef[exact][true[exact]], rtol=0.1)
     assert np.all(step.t_stat >= 2.0)
+    # it stopped because a round left the structure as it was, not on its round limit
+    assert step.rounds < MAX_ROUNDS and step.history[-1][0] == step.history[-2][0]
+    assert len(step.history) == step.rounds + 1
     # as good as the truth at 5 s, and the wrong structure refined by output error alone far worse
     full = ref.windows()
     err = evaluate_model(step.model, full).pos_err_5s_m
@@ -93,6 +96,16 @@ def test_terms_not_allowed_are_never_added_and_protected_ones_never_dropped(runs
     step = stepwise_output_error(fitted, windows, allowed, protected)
     assert step.model.coef[e, f] == 0.0
     assert step.model.coef[_mask(step.model, "vy", "u1")] != 0.0
+
+
+def test_the_search_ends_after_max_rounds_rounds(runs):
+    truth, start, ref = _wrong_start(runs)
+    windows = ref.windows(3.0, 0.0, 0.05)
+    fitted, _ = refine(start, windows)
+    step = stepwise_output_error(fitted, windows, np.ones(fitted.coef.shape, bool), lag_core(fitted), max_rounds=1)
+    assert step.rounds == 1 and len(step.history) == 2
+    # one round adds the best term of each equation: the missing vx omega^2 is in after it
+    assert step.model.coef[_mask(step.model, "vx", MISSING["vx"])] != 0.0
 
 
 def _candidate(label, hp, folds_m, complexity, passed=True):
