@@ -74,17 +74,18 @@ def format_ranking(ident: Identification) -> str:
                      f"  {note}")
     if pipe is None:
         return "\n".join(lines)
+    w = max(len(c.label) for c in (*pipe.candidates, pipe.lag_cv))  # the labels' column
     lines += ["\ncandidates refined by output error, cross-validated on the same folds:",
-              f"{'candidate':14} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} {'yaw 5s deg':>10}  note"]
+              f"{'candidate':{w}} {'terms':>5} {'pos 5s cm':>9} {'+-SE':>5} {'yaw 5s deg':>10}  note"]
     for i, c in enumerate(pipe.candidates):
         note = "selected" if i == pipe.selected else ""
         if c.failed:
             note += ("; " if note else "") + ("fails " if not c.passed else "fails in a minority of folds: ") \
                 + ", ".join(c.failed)
-        lines.append(f"{c.label:14} {c.complexity:5.1f} {100 * c.cv_pos_err_5s_m:9.2f} {100 * c.cv_se_m:5.2f} "
+        lines.append(f"{c.label:{w}} {c.complexity:5.1f} {100 * c.cv_pos_err_5s_m:9.2f} {100 * c.cv_se_m:5.2f} "
                      f"{c.cv_yaw_err_5s_deg:10.2f}  {note}")
     lag = pipe.lag_cv
-    lines.append(f"{'lag baseline':14} {lag.complexity:5.1f} {100 * lag.cv_pos_err_5s_m:9.2f} {100 * lag.cv_se_m:5.2f} "
+    lines.append(f"{'lag baseline':{w}} {lag.complexity:5.1f} {100 * lag.cv_pos_err_5s_m:9.2f} {100 * lag.cv_se_m:5.2f} "
                  f"{lag.cv_yaw_err_5s_deg:10.2f}  the hand-written model to beat")
     chosen = pipe.candidates[pipe.selected]
     if pipe.beats_lag:
