@@ -62,8 +62,7 @@ def true_structure_refit(campaign, oracle) -> float:
     start = model_from_terms(oracle.true_terms(), "poly3", envelope=envelope_from_data(x, u), extrapolation="frozen",
                              input_lag_s=(lag, lag))
     with threadpool_limits(limits=1, user_api="blas"):
-        model, _ = refine(start, thin_windows(ref.windows(OE_WINDOW_S, 0.0, OE_DT), OE_MAX_WINDOWS),
-                          fit_input_lag=True)
+        model, _ = refine(start, thin_windows(ref.windows(OE_WINDOW_S, 0.0, OE_DT), OE_MAX_WINDOWS))
     return evaluate_model(model, reference(campaign.split("test")).windows()).pos_err_5s_m
 
 

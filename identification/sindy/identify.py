@@ -377,7 +377,6 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     if step is not None:  # the stepwise search from the structure the rule picks, cross-validated the same way
         for p, q in zip(per_fold, fold_pass([step], "stepwise output error")):
             p.update({k: v for k, v in q.items() if k != "lag baseline"})
-        specs.append(step)
         candidates += (Candidate(step[0], step[1], *collect(step[0])),)
     lag_cv = collect("lag baseline", complexity=6.0)
     order = sorted(range(len(candidates)), key=lambda i: candidates[i].cv_pos_err_5s_m)

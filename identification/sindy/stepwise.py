@@ -66,27 +66,27 @@ class StepwiseFit:
 
     model: SindyModel
     fit: OutputErrorFit
-    names: tuple[str, ...]  # the free terms, "eq: feature"
-    t_stat: np.ndarray  # (len(names),) cluster-robust |t| of each free term
     rounds: int
     history: tuple[tuple[int, float], ...]  # (active terms, output-error RMS position residual) per round
 
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Return the free terms, ``"eq: feature"``."""
+        return self.fit.names[:len(self.fit.theta)]
 
-def _free(model: SindyModel, fixed: np.ndarray) -> np.ndarray:
-    """Return the mask of the terms a fit may move."""
-    return (model.coef != 0) & ~fixed
+    @property
+    def t_stat(self) -> np.ndarray:
+        """Return the cluster-robust |t| of each free term."""
+        return self.fit.t_stat
 
 
-def _fit(model: SindyModel, windows: Windows, fixed: np.ndarray, max_nfev: int) -> tuple[SindyModel, OutputErrorFit,
-                                                                                       SindyStructure, np.ndarray]:
-    """Return ``model`` refitted by output error (terms, dead times, input lags), its fit,
-    its structure and the |t| of its free terms."""
+def _fit(model: SindyModel, windows: Windows, fixed: np.ndarray,
+         max_nfev: int) -> tuple[SindyModel, OutputErrorFit, SindyStructure]:
+    """Return ``model`` refitted by output error (terms, dead times, input lags), its fit and its structure."""
     spec = SindyStructure(model, fixed)
     fit = fit_output_error(spec, spec.theta0, windows, model.dead_time_s, True, max_nfev=max_nfev,
                            input_lag0=model.input_lag_s, fit_input_lag=True)
-    p = len(fit.theta)
-    se = np.sqrt(np.maximum(np.diag(fit.cov)[:p], 1e-300))
-    return spec.build(fit.theta, fit.dead_time_s, fit.input_lag_s), fit, spec, np.abs(fit.theta) / se
+    return spec.build(fit.theta, fit.dead_time_s, fit.input_lag_s), fit, spec
 
 
 def term_scores(model: SindyModel, windows: Windows, fixed: np.ndarray, allowed: np.ndarray) -> np.ndarray:
@@ -130,29 +130,31 @@ def stepwise_output_error(model: SindyModel, windows: Windows, allowed: np.ndarr
     (the t statistics take them as independent clusters).
     """
     fixed = np.zeros(model.coef.shape, bool) if fixed is None else np.asarray(fixed, bool)
-    current, fit, spec, t = _fit(model, windows, fixed, max_nfev)
+    current, fit, spec = _fit(model, windows, fixed, max_nfev)
     history = [(current.complexity, fit.rms_pos_m)]
     rounds = 0
     for rounds in range(1, max_rounds + 1):
         before = current.coef != 0
         scores = term_scores(current, windows, fixed, allowed)
+        best = np.argsort(scores, axis=1)[:, ::-1][:, :n_add]  # (3, n_add) per equation
+        eq = np.broadcast_to(np.arange(3)[:, None], best.shape)
+        take = np.take_along_axis(scores, best, axis=1) > 0.0
         coef = current.coef.copy()
-        for e, row in enumerate(scores):
-            best = np.argsort(row)[::-1][:n_add]
-            coef[e, best[row[best] > 0.0]] = _SEED
-        current, fit, spec, t = _fit(current.with_coefficients(coef, current.dead_time_s, current.input_lag_s),
-                                     windows, fixed, max_nfev)
+        coef[eq[take], best[take]] = _SEED
+        current, fit, spec = _fit(current.with_coefficients(coef, current.dead_time_s, current.input_lag_s),
+                                  windows, fixed, max_nfev)
         while True:
+            t = fit.t_stat
             weak = np.flatnonzero((t < MIN_T_STAT) & ~protected[spec.eq, spec.col])
             if not len(weak):
                 break
             k = weak[np.argmin(t[weak])]
             coef = current.coef.copy()
             coef[spec.eq[k], spec.col[k]] = 0.0
-            current, fit, spec, t = _fit(current.with_coefficients(coef, current.dead_time_s, current.input_lag_s),
-                                         windows, fixed, PRUNE_NFEV)
+            current, fit, spec = _fit(current.with_coefficients(coef, current.dead_time_s, current.input_lag_s),
+                                      windows, fixed, PRUNE_NFEV)
         history.append((current.complexity, fit.rms_pos_m))
         log.debug("stepwise output error, round %d: %d terms, RMS %.4f m", rounds, current.complexity, fit.rms_pos_m)
         if np.array_equal(before, current.coef != 0):
             break
-    return StepwiseFit(current, fit, tuple(spec.names), t, rounds, tuple(history))
+    return StepwiseFit(current, fit, rounds, tuple(history))
