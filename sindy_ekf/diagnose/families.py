@@ -239,6 +239,21 @@ class Family:
                 jac[:, :, 1, 1, 4] = 1.0
         return (cols, jac) if with_jacobian else cols
 
+    def uniform_columns(self, x6: np.ndarray) -> np.ndarray:
+        """Return the nuisance ``(N, 3, n)`` of an additive mechanism: its columns where they do not
+        depend on where the robot is (``n = 0`` for the mechanisms without one).
+
+        A floor patch that covers the whole driven area changes the damping everywhere, which is
+        what a stiffer model (or a lower input gain, in steady state) does, not a position
+        dependence; the patch is credited only for what a uniform change of the same damping cannot
+        explain, as an input-side mechanism only for what a constant input gain cannot.
+        """
+        if self.name != "position_dependence":
+            return np.zeros((len(x6), 3, 0))
+        out = np.zeros((len(x6), 3, 2))
+        out[:, 0, 0], out[:, 2, 1] = x6[:, 3], x6[:, 5]  # the patch's columns at s = 1
+        return out
+
     def estimate(self, theta: np.ndarray, beta: np.ndarray, model) -> dict[str, float | list]:
         """Return the physical parameters of the mechanism from ``theta (d,)`` and ``beta (m,)``."""
         theta, beta = np.asarray(theta, float), np.asarray(beta, float)

@@ -10,7 +10,8 @@ With the model kept fixed, the null of an input-side mechanism is the model with
 fitted on the train runs, and the mechanism is fitted together with a gain nuisance (two more
 columns): it is credited only for what one constant gain per input cannot explain
 (:func:`residual_and_columns`); an additive mechanism is scored against the model as given
-(:func:`sindy_ekf.diagnose.scoring.score_families`).
+(:func:`sindy_ekf.diagnose.scoring.score_families`), the floor patch with its uniform nuisance
+(the same damping changed everywhere, :meth:`Family.uniform_columns`) in the null and beside it.
 The mechanisms themselves are :mod:`sindy_ekf.diagnose.families`.
 """
 
@@ -57,7 +58,10 @@ def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
     the robot is or how it heads and cannot mimic a gain; it gets no nuisance: given one, a floor patch
     bought a better fit of the gains on the train runs by absorbing the runs that disagree and credited
     that to itself (measured: 26 % on the clean real cmd test run, which never enters the patch; the
-    extension changed its 5 s error by 1e-12).
+    extension changed its 5 s error by 1e-12). The floor patch gets its own uniform nuisance instead
+    (:func:`uniform_nuisance`): a patch grown over the whole driven area is a damping wrong everywhere,
+    which a battery sag or a soft deadband also looks like (issue 15's forms suite: a patch of radius
+    4 m won over both, 0/3 and 1/3 named).
     """
     theta = np.atleast_2d(theta)
     C, p, m = len(theta), split.n_windows, family.n_columns
@@ -73,39 +77,51 @@ def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
         return y, X
     base_pred = null_prediction(model, split) if base_pred is None else base_pred
     y = np.broadcast_to(dv - base_pred, (C, p, 3))
-    X = np.empty((C, p, 3, m))
+    nuisance = uniform_nuisance(family, split)
+    X = np.empty((C, p, 3, m + nuisance.shape[-1]))
+    X[..., m:] = nuisance
     x6 = split.x6
     for sl in chunks(C, len(split.t_run) * 3 * m):
         cols = family.columns(x6, split.u, split.t_run, theta[sl])
         n = cols.shape[0]
-        X[sl] = split.integrate(cols.reshape(n, len(x6), 3 * m)).reshape(n, p, 3, m)
+        X[sl, ..., :m] = split.integrate(cols.reshape(n, len(x6), 3 * m)).reshape(n, p, 3, m)
     return y, X
 
 
+def uniform_nuisance(family: Family, split: Split) -> np.ndarray:
+    """Return the window integrals ``(p, 3, n)`` of an additive family's uniform nuisance
+    (:meth:`Family.uniform_columns`), fitted beside the mechanism and in its null."""
+    cols = family.uniform_columns(split.x6)
+    n = cols.shape[-1]
+    return split.integrate(cols.reshape(len(cols), 3 * n)).reshape(-1, 3, n) if n else np.zeros((split.n_windows, 3, 0))
+
+
 def null_columns(model, split: Split, base_pred: np.ndarray | None = None,
-                 kind: str = "input") -> tuple[np.ndarray, np.ndarray]:
-    """Return the null of a ``kind`` mechanism's fixed-model scoring as ``y (p, 3)``, ``X (p, 3, n)``:
-    the given model, with its gain nuisance (``n = 2``) for an input-side mechanism, alone (``n = 0``)
-    for an additive one (:func:`residual_and_columns` fits the same nuisance beside the mechanism)."""
+                 family: Family | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Return the null of ``family``'s fixed-model scoring as ``y (p, 3)``, ``X (p, 3, n)``: the given
+    model with its gain nuisance (``n = 2``) for an input-side mechanism (also when ``family`` is
+    None), with its uniform nuisance for an additive one (:func:`uniform_nuisance`, ``n = 0`` for most):
+    :func:`residual_and_columns` fits the same nuisance beside the mechanism."""
     base_pred = null_prediction(model, split) if base_pred is None else base_pred
     y = split.delta_v - base_pred
-    if kind != "input":
-        return y, np.zeros((split.n_windows, 3, 0))
+    if family is not None and family.kind != "input":
+        return y, uniform_nuisance(family, split)
     return y, model_and_gain_columns(ActiveTerms(model), split, split.u[None])[1][0]
 
 
-def null_fit(model, split: Split, weights: np.ndarray, base_pred: np.ndarray | None = None, kind: str = "input"):
-    """Return ``(nuisance coefficients, weighted SSE)`` of the null of a ``kind`` mechanism fitted on ``split``."""
-    y, X = null_columns(model, split, base_pred, kind)
+def null_fit(model, split: Split, weights: np.ndarray, base_pred: np.ndarray | None = None,
+             family: Family | None = None):
+    """Return ``(nuisance coefficients, weighted SSE)`` of the null of ``family`` fitted on ``split``."""
+    y, X = null_columns(model, split, base_pred, family)
     beta, sse = solve_design(normal_equations(y[None], X[None], weights, split.window_run, len(split.names)))
     return beta[0], float(sse[0])
 
 
 def null_residual(model, split: Split, beta0: np.ndarray, base_pred: np.ndarray | None = None,
-                  kind: str = "input") -> np.ndarray:
-    """Return the window residual ``(p, 3)`` on ``split`` of the null of a ``kind`` mechanism with
-    nuisance coefficients ``beta0``."""
-    y, X = null_columns(model, split, base_pred, kind)
+                  family: Family | None = None) -> np.ndarray:
+    """Return the window residual ``(p, 3)`` on ``split`` of the null of ``family`` with nuisance
+    coefficients ``beta0``."""
+    y, X = null_columns(model, split, base_pred, family)
     return y - np.einsum("pem,m->pe", X, beta0)
 
 
@@ -113,7 +129,7 @@ def design_for(family: Family, model, split: Split, grid: np.ndarray, weights: n
                base_pred: np.ndarray | None = None) -> Design:
     """Return the per-run normal equations of all candidates ``grid``, built in memory-bounded chunks."""
     parts = []
-    per = split.n_windows * 3 * max(family.n_columns, 2)
+    per = split.n_windows * 3 * (family.n_columns + 2)
     for sl in chunks(len(grid), per):
         y, X = residual_and_columns(family, model, split, grid[sl], base_pred)
         parts.append(normal_equations(y, X, weights, split.window_run, len(split.names)))
@@ -363,11 +379,11 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
     beta_all, sse_train = solve_design(d_best)
     beta_all = beta_all[0]
     beta = beta_all[:family.n_columns]  # the mechanism's; an input-side one's nuisance follows
-    beta0, sse0_train = null_fit(model, train, weights, base_pred["train"], family.kind)
+    beta0, sse0_train = null_fit(model, train, weights, base_pred["train"], family)
     # out of sample: the test runs with theta and beta from the train runs, against the null from them
     y_t, X_t = residual_and_columns(family, model, test, theta[None], base_pred["test"])
     res_t = y_t[0] - np.einsum("pem,m->pe", X_t[0], beta_all)
-    r0_t = null_residual(model, test, beta0, base_pred["test"], family.kind)
+    r0_t = null_residual(model, test, beta0, base_pred["test"], family)
     per_win_ext = np.sum(res_t * res_t * weights, axis=1)
     per_win_0 = np.sum(r0_t * r0_t * weights, axis=1)
     run_w = test.window_run

@@ -29,13 +29,16 @@ from sindy_ekf.diagnose.fitting import FamilyScore
 # train runs) and two per simulator variant 1 to 10 (against the variant's own lab model, identified
 # with its motor lag on another effect-free campaign, and against a model of their own runs).
 # lateral_slip only where the model has a lateral law (without one it is never named), scored fixed.
+# position_dependence recalibrated with its uniform nuisance (issue 15, fitting.uniform_nuisance): the
+# largest, 0.064 fixed and 0.082 refit, on variant 9 against a model of its own runs (the largest
+# without the nuisance were 0.017 and 0.065); the other families' maxima were unchanged by the rerun.
 NULL_MAX_GAIN = {
     "fixed": {
-        "input_delay": 0.01694, "heading_dependence": 0.01883, "position_dependence": 0.01711,
+        "input_delay": 0.01694, "heading_dependence": 0.01883, "position_dependence": 0.06378,
         "time_dependence": 0.06514, "asymmetry": 0.06865, "deadband": 0.02759, "lateral_slip": 0.04228,
     },
     "refit": {
-        "input_delay": 0.0, "heading_dependence": 0.13388, "position_dependence": 0.06513,
+        "input_delay": 0.0, "heading_dependence": 0.13388, "position_dependence": 0.08194,
         "time_dependence": 0.02066, "asymmetry": 0.04714, "deadband": 0.0, "lateral_slip": 0.04228,
     },
 }

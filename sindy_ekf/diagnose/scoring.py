@@ -47,7 +47,7 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
     """
     specs = MECHANISMS[name]
     if len(specs) > 1:  # compared on their grids: the refinement and the scoring only for the one kept
-        sse0_fixed = null_fit(model, tr, weights, base_pred["train"], specs[0].kind)[1]
+        sse0_fixed = null_fit(model, tr, weights, base_pred["train"], specs[0])[1]
         ratios = []
         for s in specs:
             grid = s.grid(tr)
@@ -79,7 +79,8 @@ def score_families(model, tr, te, families: Sequence[str] = FAMILIES, uncertaint
     what one constant gain per input explains is no input mechanism. An additive mechanism (a slope, a
     floor patch, a lateral law) is scored against the model as given: recalibrated gains would absorb
     part of it (a patch that slows the robot looks like a lower gain on the runs that cross it: the
-    suite's 0.32 patch fell from a gain of 0.37 to 0.05). The thresholds' calibration
+    suite's 0.32 patch fell from a gain of 0.37 to 0.05); the patch is fitted beside its uniform nuisance,
+    a damping changed everywhere (:func:`sindy_ekf.diagnose.fitting.uniform_nuisance`). The thresholds' calibration
     (``bench/bench_diagnose.py``) scores through this too.
     """
     weights = equation_weights(model, tr)

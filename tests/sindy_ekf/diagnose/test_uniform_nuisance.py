@@ -1,0 +1,60 @@
+"""A floor patch is credited only for what varies over the lab (issue 15): a damping that is wrong
+everywhere is the uniform nuisance's, not a position dependence.
+
+Reference: a model identified on an effect-free simulated campaign, then its ``vx`` and ``omega``
+damping made 15 % stronger by hand. The window residual of the wrong model is the identified
+model's plus ``0.15 c ∫ vx`` (and the same for ``omega``), so the nuisance must recover
+``-0.15 c`` per equation, and a patch fitted beside it buys nothing beyond what a chance
+patch buys on effect-free data.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from identification.sindy.model import SindyModel
+from identification.sindy.regression import fit_sindy
+from simulation.short_campaign import simulate_states_campaign
+from sindy_ekf.diagnose.data import model_split
+from sindy_ekf.diagnose.design import equation_weights, null_prediction
+from sindy_ekf.diagnose.families import FAMILY_SPECS, model_coefficient
+from sindy_ekf.diagnose.fitting import null_fit, score_family
+from sindy_ekf.diagnose.rank import THRESHOLDS
+
+STRONGER = 0.15
+
+
+@pytest.fixture(scope="module")
+def wrongly_damped():
+    """Return ``(identified model, model with damping made stronger, train split, test split)``."""
+    train, test, a, b = simulate_states_campaign(271828, None, run_s=45.0, rate_hz=25.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = fit_sindy(train, "poly3", tau=2.0, alpha=1.0, threshold=0.2, names=a)
+    coef = np.array(model.coef, float)
+    names = list(model.library.feature_names)
+    for e, term in ((0, "vx"), (2, "omega")):
+        assert coef[e, names.index(term)] < 0  # a damping, identified
+        coef[e, names.index(term)] *= 1.0 + STRONGER
+    wrong = SindyModel(library=model.library, coef=coef, hyperparameters=dict(model.hyperparameters))
+    tr = model_split(wrong, train, a, 2.0, what="train runs")
+    te = model_split(wrong, test, b, 2.0, what="test runs")
+    return model, wrong, tr, te
+
+
+def test_uniform_nuisance_recovers_a_damping_wrong_everywhere(wrongly_damped):
+    model, wrong, tr, _ = wrongly_damped
+    family = FAMILY_SPECS["position_dependence"]
+    beta0, _ = null_fit(wrong, tr, equation_weights(wrong, tr), null_prediction(wrong, tr), family)
+    # by hand: the wrong model over-damps by STRONGER c, the nuisance adds it back (c < 0: beta0 > 0)
+    expected = [-STRONGER * model_coefficient(model, "vx", "vx"), -STRONGER * model_coefficient(model, "omega", "omega")]
+    np.testing.assert_allclose(beta0, expected, rtol=0.1)
+
+
+def test_patch_is_not_credited_with_a_damping_wrong_everywhere(wrongly_damped):
+    _, wrong, tr, te = wrongly_damped
+    score = score_family("position_dependence", wrong, tr, te, uncertainty=False, refit=False)
+    assert score.gain < THRESHOLDS["fixed"]["position_dependence"]
