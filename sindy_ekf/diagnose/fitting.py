@@ -159,8 +159,10 @@ class FamilyScore:
 
     @property
     def scoring(self) -> str:
-        """Return how the score was made: ``"refit"`` (model re-identified around the mechanism) or ``"fixed"``."""
-        return "refit" if self.estimate.get("scored_with") == "refit" else "fixed"
+        """Return how the score was made: ``"refit"`` (model re-identified around the mechanism), ``"multistep"``
+        (the lateral law by the 5 s prediction, :mod:`sindy_ekf.diagnose.drift`) or ``"fixed"``."""
+        how = self.estimate.get("scored_with")
+        return how if how in ("refit", "multistep") else "fixed"
 
     def to_dict(self) -> dict:
         """Return a JSON-ready dict."""

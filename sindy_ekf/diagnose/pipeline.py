@@ -303,7 +303,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     tau = float(tau or model.hyperparameters.get("tau") or 2.0)
     tr = model_split(model, train, train_names, tau, what="train runs")
     te = model_split(model, test, test_names, tau, what="test runs")
-    scores, weights, gains = score_families(model, tr, te, families, uncertainty, workers)
+    scores, weights, gains = score_families(model, tr, te, families, uncertainty, workers, test, test_names)
     ranked = rank_families(scores, thresholds)
     seconds["families"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -14,6 +14,7 @@ import numpy as np
 
 from groundfloor.parallel import Workers, parallel_map
 from sindy_ekf.diagnose.design import equation_weights, gain_recalibrated, null_prediction, solve_design
+from sindy_ekf.diagnose.drift import drift_score
 from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
 from sindy_ekf.diagnose.fitting import FamilyScore, design_for, null_fit, refit_grid, score_family
 
@@ -65,13 +66,18 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
 
 
 def _score_family_task(task) -> FamilyScore:
-    """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty)``."""
-    name, model, tr, te, weights, base_pred, uncertainty = task
-    return score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+    """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty,
+    test)``, the lateral law also by its 5 s prediction of the test runs ``test = (states, names)`` when given."""
+    name, model, tr, te, weights, base_pred, uncertainty, test = task
+    score = score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+    if name == "lateral_slip" and test is not None:
+        score = drift_score(score, model, *test)
+    return score
 
 
 def score_families(model, tr, te, families: Sequence[str] = FAMILIES, uncertainty: bool = True,
-                   workers: Workers | int = 1) -> tuple[list[FamilyScore], np.ndarray, np.ndarray]:
+                   workers: Workers | int = 1, test_states=None,
+                   test_names: Sequence[str] | None = None) -> tuple[list[FamilyScore], np.ndarray, np.ndarray]:
     """Return every family scored on the model's splits ``tr``, ``te``, the equation weights and the input gains.
 
     An input-side mechanism is scored against the model with its input gains recalibrated on the train
@@ -80,15 +86,18 @@ def score_families(model, tr, te, families: Sequence[str] = FAMILIES, uncertaint
     floor patch, a lateral law) is scored against the model as given: recalibrated gains would absorb
     part of it (a patch that slows the robot looks like a lower gain on the runs that cross it: the
     suite's 0.32 patch fell from a gain of 0.37 to 0.05); the patch is fitted beside its uniform nuisance,
-    a damping changed everywhere (:func:`sindy_ekf.diagnose.fitting.uniform_nuisance`). The thresholds' calibration
+    a damping changed everywhere (:func:`sindy_ekf.diagnose.fitting.uniform_nuisance`). Given the test runs'
+    body states ``test_states`` (as ``te`` was made from them), the lateral law is also scored by its 5 s
+    prediction of them (:func:`sindy_ekf.diagnose.drift.drift_score`). The thresholds' calibration
     (``bench/bench_diagnose.py``) scores through this too.
     """
     weights = equation_weights(model, tr)
     null_model, gains = gain_recalibrated(model, tr, weights)
     given = {"train": null_prediction(model, tr), "test": null_prediction(model, te)}
     recalibrated = {"train": null_prediction(null_model, tr), "test": null_prediction(null_model, te)}
-    tasks = [(f, null_model, tr, te, weights, recalibrated, uncertainty) if MECHANISMS[f][0].kind == "input"
-             else (f, model, tr, te, weights, given, uncertainty) for f in families]
+    test = None if test_states is None else (list(test_states), list(test_names))
+    tasks = [(f, null_model, tr, te, weights, recalibrated, uncertainty, None) if MECHANISMS[f][0].kind == "input"
+             else (f, model, tr, te, weights, given, uncertainty, test) for f in families]
     scores = parallel_map(_score_family_task, tasks, workers, names=[f"family {f}" for f in families],
                           desc="diagnose: families")
     return scores, weights, gains
