@@ -21,7 +21,8 @@ from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.drift import drift_gain, drift_score
 from sindy_ekf.diagnose.extend import ExtendedModel
-from sindy_ekf.diagnose.fitting import score_family
+from sindy_ekf.diagnose.fitting import FamilyScore, score_family
+from sindy_ekf.diagnose.rank import rank_families
 from tests.support.diagnose_synth import fit_reference_with_lateral_law
 
 
@@ -74,9 +75,6 @@ def test_drift_score_keeps_both_scorings_the_better_as_the_score(slipping):
 
 
 def test_a_scoring_without_a_calibrated_threshold_is_never_significant():
-    from sindy_ekf.diagnose.fitting import FamilyScore
-    from sindy_ekf.diagnose.rank import rank_families
-
     fixed = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.02, {}, 0.02, {"model_has_lateral_law": True},
                         by_scoring={"fixed": 0.02, "multistep": 0.6})
     score = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.6, {}, 0.02,
