@@ -47,15 +47,16 @@ log = logging.getLogger(__name__)
 
 def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
                          base_pred: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Return window targets ``y (C, p, 3)`` after the fixed part and columns ``X (C, p, 3, m)``
-    (``(C, p, 3, 2)`` for an input-side mechanism: its gain nuisance).
+    """Return window targets ``y (C, p, 3)`` after the fixed part and columns ``X (C, p, 3, m + n)``:
+    the mechanism's ``m`` columns, then its ``n`` nuisance columns (2 for an input-side mechanism: its
+    gain nuisance; 2 for the floor patch: its uniform nuisance; 0 for the other additive ones).
 
     An input-side mechanism gets two more columns, its nuisance: the model's response to a change of
     its input gains (linearised at the given gains, the derivative by ``log g_i``), fitted with the
     mechanism. What a constant gain per input explains is credited to no mechanism, and a gain-shaped
     mechanism (a decay, a deadband) is fitted around the gains it would otherwise have to mimic
     (:func:`sindy_ekf.diagnose.design.gain_recalibrated` is the null's nonlinear counterpart). An additive mechanism acts where
-    the robot is or how it heads and cannot mimic a gain; it gets no nuisance: given one, a floor patch
+    the robot is or how it heads and cannot mimic a gain; it gets no gain nuisance: given one, a floor patch
     bought a better fit of the gains on the train runs by absorbing the runs that disagree and credited
     that to itself (measured: 26 % on the clean real cmd test run, which never enters the patch; the
     extension changed its 5 s error by 1e-12). The floor patch gets its own uniform nuisance instead
@@ -154,7 +155,7 @@ class FamilyScore:
     estimate: dict
     estimate_std: dict = field(default_factory=dict)
     profile: dict = field(default_factory=dict)  # theta grid and train SSE (1-D families)
-    by_scoring: dict = field(default_factory=dict)  # test gain of each scoring: {"fixed": g, "refit": g}
+    by_scoring: dict = field(default_factory=dict)  # test gain per scoring: {"fixed": g, "refit": g, "multistep": g}
     alternative: FamilyScore | None = None  # the other scoring's score (the lower test gain)
 
     @property

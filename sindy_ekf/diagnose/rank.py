@@ -114,8 +114,10 @@ def rank_families(scores: Sequence[FamilyScore], thresholds: dict | None = None)
                     f"{s.estimate['drift_s']:.3g} s x vx omega in turns; adding the law gains "
                     f"{100 * s.gain:.1f} % on the test runs")
         ranked.append(RankedCause(s.family, s.gain, limit, significant, s, note))
-    # among the significant, the largest out-of-sample gain wins: the gain is comparable across
-    # families (same residual, same weights), the threshold only says whether it is real
+    # among the significant, the largest out-of-sample gain wins: the window gains are comparable
+    # across families (same residual, same weights), the threshold only says whether it is real.
+    # Known defect (issue 15, open): the lateral law's "multistep" gain is a drop of squared 5 s
+    # position errors, not a window gain, and is sorted here as if it were one
     return sorted(ranked, key=lambda c: (not c.significant, -c.gain))
 
 

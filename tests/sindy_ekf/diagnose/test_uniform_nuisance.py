@@ -21,7 +21,7 @@ from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.design import equation_weights, null_prediction
 from sindy_ekf.diagnose.families import FAMILY_SPECS, model_coefficient
-from sindy_ekf.diagnose.fitting import null_fit, score_family
+from sindy_ekf.diagnose.fitting import null_columns, null_fit, residual_and_columns, score_family
 from sindy_ekf.diagnose.rank import THRESHOLDS
 
 STRONGER = 0.15
@@ -58,3 +58,23 @@ def test_patch_is_not_credited_with_a_damping_wrong_everywhere(wrongly_damped):
     _, wrong, tr, te = wrongly_damped
     score = score_family("position_dependence", wrong, tr, te, uncertainty=False, refit=False)
     assert score.gain < THRESHOLDS["fixed"]["position_dependence"]
+
+
+def test_the_nuisance_beside_the_patch_is_the_null_s_and_a_patch_over_everything_is_the_nuisance(wrongly_damped):
+    _, wrong, tr, _ = wrongly_damped
+    family = FAMILY_SPECS["position_dependence"]
+    m = family.n_columns
+    base = null_prediction(wrong, tr)
+    x, y = tr.x6[:, 0], tr.x6[:, 1]
+    centre = [0.5 * (x.min() + x.max()), 0.5 * (y.min() + y.max())]
+    far = np.array([[centre[0], centre[1], 1e3]])  # a disc of 1 km: s = 1 wherever the robot drove
+    target, X = residual_and_columns(family, wrong, tr, far, base)
+    y0, X0 = null_columns(wrong, tr, base, family)
+    assert X.shape[-1] == m + 2 and X0.shape[-1] == 2
+    np.testing.assert_array_equal(X[0, ..., m:], X0)  # the same nuisance in the null and beside the patch
+    np.testing.assert_allclose(target[0], y0)
+    # the patch switched on everywhere spans exactly the nuisance's columns: nothing left to credit to it
+    patch = X[0, ..., :m].reshape(-1, m)
+    nuisance = X0.reshape(-1, 2)
+    coef, *_ = np.linalg.lstsq(nuisance, patch, rcond=None)
+    np.testing.assert_allclose(nuisance @ coef, patch, atol=1e-9 * np.abs(patch).max())
