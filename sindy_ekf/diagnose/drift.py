@@ -29,17 +29,16 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.types import BodyStates
-from sindy_ekf.diagnose.extend import ExtendedModel, multistep
+from sindy_ekf.diagnose.extend import ExtendedModel, diverged, multistep
 from sindy_ekf.diagnose.fitting import FamilyScore
 
 SCORING = "multistep"
-MAX_ERROR_M = 1e3  # a window whose prediction ends farther off has diverged (as pipeline.errors_5s)
 
 
 def squared_errors(model, states: Sequence[BodyStates], names: Sequence[str]) -> np.ndarray:
     """Return the squared position errors ``(W,)`` at the end of the 5 s windows (``inf`` where diverged)."""
     e = np.asarray(multistep(model, states, names).eps_p[:, -1], float)
-    return np.where(np.isfinite(e) & (e < MAX_ERROR_M), e * e, np.inf)
+    return np.where(diverged(e), np.inf, e * e)
 
 
 def drift_gain(model, extended, states: Sequence[BodyStates], names: Sequence[str]) -> float:

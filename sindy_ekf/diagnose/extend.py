@@ -295,6 +295,17 @@ def check_extended(ext: ExtendedModel, model: SindyModel, train: Split) -> float
     return float(np.sum(r1 ** 2) / np.sum(r0 ** 2) - 1.0)
 
 
+#: a 5 s prediction that ends farther off than this (or not finite) has diverged, m
+DIVERGED_5S_M = 1e3
+
+
+def diverged(end_error_m: np.ndarray) -> np.ndarray:
+    """Return which 5 s position errors belong to diverged predictions (non-finite or beyond
+    :data:`DIVERGED_5S_M`)."""
+    e = np.asarray(end_error_m, dtype=float)
+    return ~np.isfinite(e) | (e >= DIVERGED_5S_M)
+
+
 def multistep(model, states: Sequence[BodyStates], names: Sequence[str], window_s: float = 5.0, dt: float = 0.02):
     """Return the 5 s multi-step evaluation (``identification.sindy.evaluate``) of a model or an extended model.
 

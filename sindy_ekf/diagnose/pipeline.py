@@ -36,7 +36,9 @@ from sindy_ekf.diagnose.cause import (
 )
 from sindy_ekf.diagnose.data import in_envelope, model_split
 from sindy_ekf.diagnose.extend import (
+    DIVERGED_5S_M,
     ExtendedModel,
+    diverged,
     multistep,
     outage_errors,
     reidentify,
@@ -139,8 +141,7 @@ def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[Predic
     A model that leaves its envelope may blow up in a few windows (``inf``); comparing on the
     common finite windows keeps the numbers meaningful (:func:`n_diverged` says how many each left out).
     """
-    ok = (np.isfinite(before.eps_p[:, -1]) & np.isfinite(after.eps_p[:, -1])
-          & (before.eps_p[:, -1] < 1e3) & (after.eps_p[:, -1] < 1e3))
+    ok = ~diverged(before.eps_p[:, -1]) & ~diverged(after.eps_p[:, -1])
     return tuple(PredictionError(
         pos_err_5s_m=float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else float("nan"),
         yaw_err_5s_deg=float(np.degrees(np.sqrt(np.mean(r.eps_h[ok, -1] ** 2)))) if ok.any() else float("nan"),
@@ -149,8 +150,7 @@ def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[Predic
 
 def n_diverged(evaluation: EvaluationResult) -> int:
     """Return the number of windows in which a prediction diverged (non-finite or beyond 1 km after 5 s)."""
-    end = evaluation.eps_p[:, -1]
-    return int(np.count_nonzero(~np.isfinite(end) | (end >= 1e3)))
+    return int(np.count_nonzero(diverged(evaluation.eps_p[:, -1])))
 
 
 def check_model_inputs(model, source: str = "model") -> None:
@@ -224,7 +224,7 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
         refit = reidentify(model, name, best.theta, tr.select_windows(keep), weights, best.estimate)
         for i, cand in enumerate((refit, added)):
             e = multistep(cand, [st], [train_names[r]]).eps_p[:, -1]
-            sq[i] += float(np.sum(np.where(np.isfinite(e), np.minimum(e, 1e3), 1e3) ** 2))
+            sq[i] += float(np.sum(np.where(diverged(e), DIVERGED_5S_M, e) ** 2))
     # a full refit must beat the mechanism on the model by 20 % (RMS) on held-out runs: on short
     # campaigns a refit of every coefficient is often the noisier of the two
     return full if sq[0] < 0.64 * sq[1] else added
