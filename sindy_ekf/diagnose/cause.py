@@ -33,6 +33,7 @@ import numpy as np
 
 from sindy_ekf.diagnose.data import Split
 from sindy_ekf.diagnose.families import inputs_delayed
+from sindy_ekf.diagnose.rank import order_key
 from sindy_ekf.diagnose.residuals import EQUATIONS, residual_structure, window_residuals
 
 LAGS_S = np.arange(-0.5, 0.81, 0.01)  # candidate lags of the response, s
@@ -282,4 +283,4 @@ def named_by_response_lag(ranked: list, lag_train: ResponseLag, lag_test: Respon
                 f"(train runs) and {1000 * lag_test.delay_s:.0f} ms (test runs) later than the model's, "
                 f"above {1000 * limit:.0f} ms; the fixed-model gain was {100 * c.gain:.1f} %"))
         out.append(c)
-    return sorted(out, key=lambda c: (not c.significant, -c.gain if not c.score.estimate.get("evidence") else 1.0))
+    return sorted(out, key=order_key)

@@ -16,8 +16,10 @@ same extension changes them by less than 10 %).
 
 :func:`drift_score` therefore scores the lateral law a second way: the model plus the law fitted
 on the train runs (:meth:`ExtendedModel.added`, the extension ``diagnose`` writes) against the
-model as given, by the relative drop of the squared 5 s position errors on the test runs (the
-windows where neither diverged). Its null is calibrated like the others (``rank.NULL_MAX_GAIN``
+model as given, by the relative drop of the squared 5 s position errors on the test runs. A window
+where a prediction diverged is charged :data:`~sindy_ekf.diagnose.extend.DIVERGED_5S_M`, as
+:func:`~sindy_ekf.diagnose.pipeline.choose_extension` charges it: a law that runs away on the hard
+windows is not scored on the easy ones alone. Its null is calibrated like the others (``rank.NULL_MAX_GAIN``
 under ``"multistep"``).
 """
 
@@ -29,26 +31,26 @@ from typing import Sequence
 import numpy as np
 
 from groundfloor.types import BodyStates
-from sindy_ekf.diagnose.extend import ExtendedModel, diverged, multistep
+from sindy_ekf.diagnose.extend import DIVERGED_5S_M, ExtendedModel, diverged, multistep
 from sindy_ekf.diagnose.fitting import FamilyScore
 
 SCORING = "multistep"
 
 
 def squared_errors(model, states: Sequence[BodyStates], names: Sequence[str]) -> np.ndarray:
-    """Return the squared position errors ``(W,)`` at the end of the 5 s windows (``inf`` where diverged)."""
+    """Return the squared position errors ``(W,)`` at the end of the 5 s windows, a diverged one
+    charged ``DIVERGED_5S_M ** 2``."""
     e = np.asarray(multistep(model, states, names).eps_p[:, -1], float)
-    return np.where(diverged(e), np.inf, e * e)
+    return np.where(diverged(e), DIVERGED_5S_M, e) ** 2
 
 
 def drift_gain(model, extended, states: Sequence[BodyStates], names: Sequence[str]) -> float:
-    """Return ``1 - SSE_extended / SSE_model`` of the squared 5 s position errors on ``states``, over
-    the windows where neither prediction diverged (``nan`` without any)."""
+    """Return ``1 - SSE_extended / SSE_model`` of the squared 5 s position errors on ``states``, every
+    window counted, a diverged one charged (:func:`squared_errors`; ``nan`` without any window)."""
     before, after = squared_errors(model, states, names), squared_errors(extended, states, names)
-    ok = np.isfinite(before) & np.isfinite(after)
-    if not ok.any() or before[ok].sum() <= 0:
+    if not len(before) or before.sum() <= 0:
         return float("nan")
-    return float(1.0 - after[ok].sum() / before[ok].sum())
+    return float(1.0 - after.sum() / before.sum())
 
 
 def drift_score(score: FamilyScore, model, test: Sequence[BodyStates], test_names: Sequence[str]) -> FamilyScore:
@@ -56,7 +58,7 @@ def drift_score(score: FamilyScore, model, test: Sequence[BodyStates], test_name
     5 s scoring on the test runs beside it (``by_scoring["multistep"]``, the better of the two the
     score, the other its ``alternative``, as :func:`sindy_ekf.diagnose.fitting.score_family` does
     with the refit)."""
-    extended = ExtendedModel.added(model, score.family, score.theta, score.beta, dict(score.estimate))
+    extended = ExtendedModel.added(model, score.family, score.theta, score.beta, dict(score.estimate), score.uniform)
     gain = drift_gain(model, extended, test, test_names)
     by = {**(score.by_scoring or {"fixed": score.gain}), SCORING: gain}
     fixed = dataclasses.replace(score, by_scoring=by, alternative=None)

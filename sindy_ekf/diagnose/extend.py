@@ -81,8 +81,14 @@ class ExtendedModel(Dynamics):
             raise InputError(f"extended model {self.family!r}: vy_scale {self.vy_scale!r} is not a positive number")
 
     @classmethod
-    def added(cls, base: SindyModel, family: str, theta, beta, estimate: dict | None = None) -> "ExtendedModel":
-        """Return ``base`` plus the mechanism as scored (its coefficients kept).
+    def added(cls, base: SindyModel, family: str, theta, beta, estimate: dict | None = None,
+              uniform=None) -> "ExtendedModel":
+        """Return ``base`` plus the mechanism as scored (its coefficients kept, but for ``uniform``).
+
+        ``uniform``: the coefficients of the family's uniform nuisance fitted beside it
+        (:attr:`FamilyScore.uniform`, the floor patch's damping changed everywhere), folded into the
+        base's linear damping terms (:func:`with_uniform_damping`): the patch was scored beside it, so
+        the extension carries both.
 
         For ``lateral_slip`` the mechanism changes the lateral law only: the drift in turns becomes
         ``slip_gain`` times the base model's. The base model's forward and yaw equations were
@@ -97,7 +103,12 @@ class ExtendedModel(Dynamics):
         if family == "lateral_slip":  # the family's own estimate of the drift ratio (None without a law)
             gain = FAMILY_SPECS[family].estimate(np.asarray(theta, float), np.asarray(beta, float), base)["slip_gain"]
             vy_scale = gain if gain is not None and np.isfinite(gain) and gain > 0 else 1.0
-        return cls(base, family, theta, beta, dict(estimate or {}), vy_scale)
+        estimate = dict(estimate or {})
+        uniform = np.zeros(0) if uniform is None else np.asarray(uniform, float).reshape(-1)
+        if uniform.size:
+            base = with_uniform_damping(base, uniform)
+            estimate["uniform_damping"] = {"vx": float(uniform[0]), "omega": float(uniform[1])}
+        return cls(base, family, theta, beta, estimate, vy_scale)
 
     @property
     def spec(self) -> Family:
@@ -235,6 +246,21 @@ class ExtendedModel(Dynamics):
             raise InputError(f"{path}: key vy_scale_other_equations is {vy_scale!r}, not a number")
         return cls(SindyModel.from_dict(d["base"], source=str(path)), d["family"], theta, beta,
                    dict(d.get("estimate") or {}), vy_scale)
+
+
+def with_uniform_damping(base: SindyModel, uniform: np.ndarray) -> SindyModel:
+    """Return ``base`` with ``uniform = [b_vx, b_omega]`` added to its linear damping terms (``vx`` in
+    the vx equation, ``omega`` in the omega equation: the columns of
+    :meth:`~sindy_ekf.diagnose.families.Family.uniform_columns`); InputError when its library has neither."""
+    coef = np.array(base.coef, float, copy=True)
+    for (eq, term), b in zip(((0, "vx"), (2, "omega")), np.asarray(uniform, float)):
+        try:
+            j = base.library.atoms.index(parse_term(term, base.library.variables))
+        except ValueError:
+            raise InputError(f"model library has no term {term!r}: the uniform damping of the floor patch "
+                             f"cannot be added to it") from None
+        coef[eq, j] += b
+    return base.with_coefficients(coef)
 
 
 def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,

@@ -157,6 +157,9 @@ class FamilyScore:
     profile: dict = field(default_factory=dict)  # theta grid and train SSE (1-D families)
     by_scoring: dict = field(default_factory=dict)  # test gain per scoring: {"fixed": g, "refit": g, "multistep": g}
     alternative: FamilyScore | None = None  # the other scoring's score (the lower test gain)
+    # coefficients of an additive family's uniform nuisance fitted beside it (Family.uniform_columns:
+    # the floor patch's damping changed everywhere); the extension carries them (ExtendedModel.added)
+    uniform: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def scoring(self) -> str:
@@ -413,8 +416,9 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
     profile = {}
     if grid.shape[1] == 1:
         profile = {"theta": grid[:, 0].tolist(), "train_sse": sse_grid.tolist()}
+    uniform = beta_all[family.n_columns:] if family.kind != "input" else np.zeros(0)
     score = FamilyScore(family.name, np.asarray(theta, float), np.asarray(beta, float), gain, gain_runs,
-                        float(1.0 - sse_train[0] / sse0_train), estimate, std, profile)
+                        float(1.0 - sse_train[0] / sse0_train), estimate, std, profile, uniform=np.array(uniform))
     if refit and family.name != "lateral_slip":  # lateral terms are library terms: a refit absorbs them
         alt = refit_score(family, model, train, test, weights, theta)
         by = {"fixed": gain, "refit": alt["gain"]}

@@ -48,6 +48,8 @@ from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
     RankedCause,
+    drop_unresolved,
+    order_key,
     rank_families,
     verdict,
 )
@@ -189,6 +191,12 @@ def check_scorable(test: Sequence[BodyStates], names: Sequence[str], window_s: f
                          f"{window_s:g} s (need {MIN_TEST_WINDOWS})")
 
 
+def sample_interval(states: Sequence[BodyStates]) -> float:
+    """Return the median sample interval of the runs, s."""
+    dt = np.concatenate([np.diff(np.asarray(st.t, float)) for st in states if len(st.t) > 1] or [np.zeros(0)])
+    return float(np.median(dt)) if dt.size else 0.0
+
+
 def median_5s(res) -> float:
     """Return the median 5 s position error of an evaluation (a diverged window counts as infinite)."""
     e = np.asarray(res.eps_p[:, -1], float)
@@ -203,7 +211,8 @@ def choose_extension(model, name, best, tr, weights, train, train_names) -> Exte
     The re-identified model refits every coefficient, which a short campaign may overfit; it is
     judged by leave-one-run-out over the train runs (refitted without the run it predicts).
     """
-    added = ExtendedModel.added(model, name, best.theta, best.beta, {**best.estimate, "extension": "added"})
+    added = ExtendedModel.added(model, name, best.theta, best.beta, {**best.estimate, "extension": "added"},
+                                best.uniform)
     full = reidentify(model, name, best.theta, tr, weights, {**best.estimate, "extension": "reidentified"})
     if stable_at_rest(model) and not stable_at_rest(full.base):
         return added  # a re-identification that runs away at rest is not admissible (as in the search)
@@ -272,7 +281,7 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
             f"window gain not confirmed over 5 s: the extended model predicts the train runs worse "
             f"(median 5 s position error {100 * reference:.1f} -> {100 * after:.1f} cm, more than "
             f"{100 * CONFIRM_TOLERANCE:.0f} % worse)"))
-    return sorted(out, key=lambda c: (not c.significant, -c.gain)), extended
+    return sorted(out, key=order_key), extended
 
 
 def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequence[BodyStates],
@@ -310,6 +319,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     # the cause step: evidence that assumes no mechanism form (sindy_ekf.diagnose.cause)
     lags = {"train": response_lag(model, tr), "test": response_lag(model, te)}
     ranked = named_by_response_lag(ranked, lags["train"], lags["test"])
+    ranked = drop_unresolved(ranked, sample_interval(train))
     name = verdict(ranked)
     seconds["cause"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -336,7 +346,8 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         if c.significant:  # what each other significant mechanism alone would buy
             ext = (reidentify(model, c.name, c.score.theta, tr, weights, dict(c.score.estimate))
                    if c.score.estimate.get("scored_with") == "refit"
-                   else ExtendedModel.added(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate)))
+                   else ExtendedModel.added(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate),
+                                            c.score.uniform))
             others[c.name] = errors_5s(res_before, multistep(ext, test, test_names))[1]
     seconds["multistep"] = time.perf_counter() - t0
     t0 = time.perf_counter()

@@ -10,13 +10,16 @@ simulated, simulator variants): the threshold is a margin times the largest gain
 scoring reached on any of them (see :data:`THRESHOLD_PROVENANCE`). Thresholds are given per scoring
 (``{"fixed": {...}, "refit": {...}}``, or one ``{family: t}`` for both): the two differ in how much a
 chance mechanism buys; a family counts when either scoring clears its own threshold. The
-most likely cause is the significant family with the largest gain; none significant gives ``none``.
+most likely cause is the significant family with the largest window gain (:func:`window_gain`); none
+significant gives ``none``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
+
+import numpy as np
 
 from sindy_ekf.diagnose.families import FAMILIES
 from sindy_ekf.diagnose.fitting import FamilyScore
@@ -60,6 +63,8 @@ THRESHOLD_PROVENANCE = (
 # 0.117 for time_dependence on the clean real wheels runs, and one threshold per family and scoring
 # could not separate that from the simulator's moderate effects (bench/results/diagnose_notes.md).
 
+WINDOW_SCORINGS = ("fixed", "refit")  # gains of the weighted window residual: one unit across families
+
 
 def threshold_of(thresholds: dict, scoring: str, family: str) -> float:
     """Return the threshold of ``family`` scored by ``scoring`` from ``{scoring: {family: t}}`` (as
@@ -82,18 +87,47 @@ class RankedCause:
     note: str = ""
 
     @property
+    def window_gain(self) -> float:
+        """The gain the ranking sorts by: the window-residual gain of the scoring that judged the family
+        (:func:`window_gain`)."""
+        return window_gain(self.score)
+
+    @property
     def strength(self) -> float:
         """Gain in units of the family's threshold: above 1 where the gain passes the threshold (the ranking
         sorts by the gain itself, see :func:`rank_families`)."""
         return self.gain / self.threshold
 
 
+def window_gain(score: FamilyScore) -> float:
+    """Return ``score``'s gain in the unit every family shares, the relative drop of the weighted window
+    residual: its own gain for a window scoring (:data:`WINDOW_SCORINGS`), else the best window gain
+    among its scorings (the lateral law judged by its 5 s prediction is sorted by its window gain: a
+    drop of squared 5 s position errors is another unit)."""
+    if score.scoring in WINDOW_SCORINGS:
+        return float(score.gain)
+    gains = [g for k, g in (score.by_scoring or {}).items() if k in WINDOW_SCORINGS and np.isfinite(g)]
+    return float(max(gains)) if gains else float("nan")
+
+
+def order_key(cause: RankedCause) -> tuple[bool, float]:
+    """Return the sort key of the ranking: significant first, then the larger window gain (``nan`` last);
+    a family named by the cause step's evidence (``estimate["evidence"]``, not by a gain of its own)
+    after the families significant by their gain (:func:`sindy_ekf.diagnose.cause.named_by_response_lag`)."""
+    g = cause.window_gain
+    if cause.significant and cause.score.estimate.get("evidence"):
+        return (False, 1.0)
+    return (not cause.significant, -g if np.isfinite(g) else float("inf"))
+
+
 def rank_families(scores: Sequence[FamilyScore], thresholds: dict | None = None) -> list[RankedCause]:
-    """Return the families sorted most likely first: significant ones by gain, then the rest.
+    """Return the families sorted most likely first: significant ones by window gain, then the rest.
 
     Each family is judged by whichever of its scorings (fixed, refit; the lateral law also by its 5 s
     prediction, :mod:`sindy_ekf.diagnose.drift`) with a threshold clears it by the
-    larger factor; that scoring's gain, estimate and threshold are what the ranking reports.
+    larger factor; that scoring's gain, estimate and threshold are what the ranking reports. The order
+    is by window gain (:func:`window_gain`), the one unit all families share: a 5 s scoring decides
+    significance only.
     """
     thresholds = THRESHOLDS if thresholds is None else thresholds
     ranked = []
@@ -114,11 +148,48 @@ def rank_families(scores: Sequence[FamilyScore], thresholds: dict | None = None)
                     f"{s.estimate['drift_s']:.3g} s x vx omega in turns; adding the law gains "
                     f"{100 * s.gain:.1f} % on the test runs")
         ranked.append(RankedCause(s.family, s.gain, limit, significant, s, note))
-    # among the significant, the largest out-of-sample gain wins: the window gains are comparable
-    # across families (same residual, same weights), the threshold only says whether it is real.
-    # Known defect (issue 15, open): the lateral law's "multistep" gain is a drop of squared 5 s
-    # position errors, not a window gain, and is sorted here as if it were one
-    return sorted(ranked, key=lambda c: (not c.significant, -c.gain))
+    # among the significant, the largest out-of-sample window gain wins: the window gains are
+    # comparable across families (same residual, same weights), the threshold only says whether it is
+    # real; the lateral law's 5 s gain (a drop of squared 5 s position errors) is not a window gain
+    return sorted(ranked, key=order_key)
+
+
+# parameters of the input-side mechanisms that are zero without the mechanism, and those that are times
+# (a delay or a lag shorter than half the sample interval is not resolved by the data)
+NULL_AT_ZERO = ("delay_s", "lag_s", "threshold", "imbalance", "coupling", "steering_offset", "decay_per_10min")
+TIMES = ("delay_s", "lag_s")
+
+
+def unresolved(cause: RankedCause, sample_interval_s: float) -> str:
+    """Return why the estimate of a significant ``cause`` is not resolved, or ``""`` when it is.
+
+    An input-side mechanism is named by its parameter; a parameter the data cannot tell from zero is no
+    finding, whatever the gain: within one jackknife standard deviation of zero, or a delay or lag
+    shorter than half the sample interval (on variant 3 of the forms suite a 3 ms delay, a tenth of
+    the 40 ms interval, was named next once the lateral law was rejected).
+    """
+    est, std = cause.score.estimate, cause.score.estimate_std or {}
+    for key in NULL_AT_ZERO:
+        v = est.get(key)
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v):
+            continue
+        if key in TIMES and abs(v) < 0.5 * sample_interval_s:
+            return (f"estimate not resolved: {key} {1000 * v:.1f} ms is shorter than half the sample interval "
+                    f"({1000 * sample_interval_s:.0f} ms)")
+        s = std.get(key)
+        if isinstance(s, (int, float)) and np.isfinite(s) and abs(v) <= s:
+            return f"estimate not resolved: {key} {v:.4g} is within its standard deviation {s:.2g} of zero"
+    return ""
+
+
+def drop_unresolved(ranked: Sequence[RankedCause], sample_interval_s: float) -> list[RankedCause]:
+    """Return the ranking with every significant cause whose estimate is not resolved (:func:`unresolved`)
+    made not significant, with the reason as its note."""
+    out = []
+    for c in ranked:
+        why = unresolved(c, sample_interval_s) if c.significant else ""
+        out.append(replace(c, significant=False, note=why) if why else c)
+    return sorted(out, key=order_key)
 
 
 def verdict(ranked: Sequence[RankedCause]) -> str:

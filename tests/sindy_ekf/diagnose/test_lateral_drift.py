@@ -40,13 +40,18 @@ def slipping():
     return model, score, test, b
 
 
+def _ends(model, test, names) -> np.ndarray:
+    """Return the 5 s position errors of ``model`` (an extended one driven by its motor inputs), a
+    diverged window (non-finite or beyond 1 km) charged 1 km."""
+    st = [model.states_for_motors(s) for s in test] if isinstance(model, ExtendedModel) else test
+    e = evaluate_model(model, st, names=names).eps_p[:, -1]
+    return np.where(np.isfinite(e) & (e < 1e3), e, 1e3)
+
+
 def _by_hand(model, extended, test, names) -> float:
-    """Return 1 - sum(e_after^2) / sum(e_before^2) of the 5 s position errors, windows finite in both."""
-    e0 = evaluate_model(model, test, names=names).eps_p[:, -1]
-    st = [extended.states_for_motors(s) for s in test]
-    e1 = evaluate_model(extended, st, names=names).eps_p[:, -1]
-    ok = np.isfinite(e0) & np.isfinite(e1) & (e0 < 1e3) & (e1 < 1e3)
-    return float(1.0 - np.sum(e1[ok] ** 2) / np.sum(e0[ok] ** 2))
+    """Return 1 - sum(e_after^2) / sum(e_before^2) of the 5 s position errors over every window."""
+    e0, e1 = _ends(model, test, names), _ends(extended, test, names)
+    return float(1.0 - np.sum(e1 ** 2) / np.sum(e0 ** 2))
 
 
 def test_more_slip_is_predicted_better_over_5s_and_less_slip_worse(slipping):
@@ -61,6 +66,19 @@ def test_more_slip_is_predicted_better_over_5s_and_less_slip_worse(slipping):
     assert g_more > 0.2  # the simulator slips 4 x more: the fitted law's drift moves the prediction towards it
     assert g_less < 0.0  # and the opposite change away from it
     assert drift_gain(model, model, test, names) == 0.0
+
+
+def test_a_law_that_runs_away_is_charged_for_the_windows_where_it_diverges(slipping):
+    model, score, test, names = slipping
+    # the lateral damping turned into a growth (40 / s added to the vy equation's vy term): vy runs away
+    runaway = ExtendedModel(model, "lateral_slip", score.theta, np.array([0.0, 40.0]), {}, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ends = _ends(runaway, test, names)
+        assert np.sum(ends >= 1e3) >= 1  # some windows diverge
+        g = drift_gain(model, runaway, test, names)
+    assert g == pytest.approx(_by_hand(model, runaway, test, names), rel=1e-9)
+    assert g < -10.0  # charged at 1 km, not left out
 
 
 def test_drift_score_keeps_both_scorings_the_better_as_the_score(slipping):

@@ -3,10 +3,12 @@ gain, then the others by gain; the verdict is the first significant one or ``non
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from sindy_ekf.diagnose.fitting import FamilyScore
-from sindy_ekf.diagnose.rank import rank_families, verdict
+from sindy_ekf.diagnose.rank import drop_unresolved, rank_families, verdict
 
 THRESHOLDS = {"input_delay": 0.02, "heading_dependence": 0.5, "position_dependence": 0.05,
               "time_dependence": 0.1, "asymmetry": 0.02, "deadband": 0.02, "lateral_slip": 0.01}
@@ -92,3 +94,45 @@ def test_a_family_is_significant_by_either_scoring_against_its_own_threshold():
     thresholds["refit"]["time_dependence"] = 0.03  # 0.83 x its threshold, the fixed scoring 0.55 x
     (c,) = rank_families([fixed], thresholds)
     assert not c.significant and c.score is refit and c.threshold == 0.03
+
+
+def test_significant_families_are_ordered_by_window_gain_not_by_a_5s_gain():
+    """The lateral law judged by its 5 s prediction (a drop of squared 5 s errors, 0.6) is sorted by its
+    window gain (0.02): a family significant with a window gain of 0.1 comes first."""
+    fixed = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.02, {}, 0.02, {"model_has_lateral_law": True},
+                        by_scoring={"fixed": 0.02, "multistep": 0.6})
+    lateral = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.6, {}, 0.02,
+                          {"model_has_lateral_law": True, "scored_with": "multistep"}, by_scoring=fixed.by_scoring,
+                          alternative=fixed)
+    thresholds = {"fixed": {**THRESHOLDS, "lateral_slip": 0.08}, "refit": {**THRESHOLDS, "lateral_slip": 0.08},
+                  "multistep": {"lateral_slip": 0.3}}
+    ranked = rank_families([lateral, _score("asymmetry", 0.1)], thresholds)
+    assert [(c.name, c.significant) for c in ranked] == [("asymmetry", True), ("lateral_slip", True)]
+    assert ranked[1].gain == 0.6 and ranked[1].window_gain == 0.02  # reported by the scoring that judged it
+    assert verdict(ranked) == "asymmetry"
+    # with a window gain above the other's, the lateral law comes first
+    fixed2 = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.15, {}, 0.15, {"model_has_lateral_law": True},
+                         by_scoring={"fixed": 0.15, "multistep": 0.6})
+    ranked = rank_families([dataclasses.replace(lateral, by_scoring=fixed2.by_scoring, alternative=fixed2),
+                            _score("asymmetry", 0.1)], thresholds)
+    assert [c.name for c in ranked] == ["lateral_slip", "asymmetry"]
+
+
+def test_a_significant_cause_whose_estimate_is_not_resolved_is_not_named():
+    """By hand at a 40 ms sample interval: a 3 ms delay (under 20 ms) and an imbalance of 0.01 with a
+    jackknife std of 0.02 are not resolved; a 100 ms delay and an imbalance of 0.05 (std 0.01) are."""
+    def ranked(*scores):
+        return drop_unresolved(rank_families(list(scores), THRESHOLDS), 0.04)
+
+    short = FamilyScore("input_delay", np.array([0.003]), np.zeros(0), 0.2, {}, 0.2, {"delay_s": 0.003})
+    r = ranked(short, _score("asymmetry", 0.05))
+    assert [(c.name, c.significant) for c in r] == [("asymmetry", True), ("input_delay", False)]
+    assert "sample interval" in r[1].note and verdict(r) == "asymmetry"
+    long = FamilyScore("input_delay", np.array([0.1]), np.zeros(0), 0.2, {}, 0.2, {"delay_s": 0.1},
+                       {"delay_s": 0.01})
+    assert verdict(ranked(long, _score("asymmetry", 0.05))) == "input_delay"
+    vague = FamilyScore("asymmetry", np.array([0.01]), np.zeros(0), 0.3, {}, 0.3, {"imbalance": 0.01},
+                        {"imbalance": 0.02})
+    assert verdict(ranked(vague)) == "none" and "standard deviation" in ranked(vague)[0].note
+    sharp = dataclasses.replace(vague, estimate={"imbalance": 0.05}, estimate_std={"imbalance": 0.01})
+    assert verdict(ranked(sharp)) == "asymmetry"

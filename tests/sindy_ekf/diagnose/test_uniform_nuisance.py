@@ -20,6 +20,7 @@ from identification.sindy.regression import fit_sindy
 from simulation.short_campaign import simulate_states_campaign
 from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.design import equation_weights, null_prediction
+from sindy_ekf.diagnose.extend import ExtendedModel
 from sindy_ekf.diagnose.families import FAMILY_SPECS, model_coefficient
 from sindy_ekf.diagnose.fitting import null_columns, null_fit, residual_and_columns, score_family
 from sindy_ekf.diagnose.rank import THRESHOLDS
@@ -78,3 +79,23 @@ def test_the_nuisance_beside_the_patch_is_the_null_s_and_a_patch_over_everything
     nuisance = X0.reshape(-1, 2)
     coef, *_ = np.linalg.lstsq(nuisance, patch, rcond=None)
     np.testing.assert_allclose(nuisance @ coef, patch, atol=1e-9 * np.abs(patch).max())
+
+
+def test_the_patch_extension_carries_the_uniform_damping_it_was_scored_with(wrongly_damped):
+    """The extension of a patch scored beside its nuisance puts the damping back where the wrong model
+    lost it: by hand, the extended model's accelerations are the wrong model's plus the patch's columns
+    plus ``-STRONGER c vx`` (vx equation) and ``-STRONGER c omega`` (omega equation)."""
+    model, wrong, tr, te = wrongly_damped
+    score = score_family("position_dependence", wrong, tr, te, uncertainty=False, refit=False)
+    assert score.uniform.shape == (2,)
+    ext = ExtendedModel.added(wrong, "position_dependence", score.theta, score.beta, dict(score.estimate),
+                              score.uniform)
+    expected = [-STRONGER * model_coefficient(model, "vx", "vx"), -STRONGER * model_coefficient(model, "omega", "omega")]
+    np.testing.assert_allclose(score.uniform, expected, rtol=0.1)
+    x6, u = tr.x6[::50], tr.u[::50]
+    patch = FAMILY_SPECS["position_dependence"].columns(x6, u, np.zeros(len(x6)), score.theta[None])[0] @ score.beta
+    by_hand = wrong.f(x6[:, 3:], u) + patch
+    by_hand[:, 0] += score.uniform[0] * x6[:, 3]
+    by_hand[:, 2] += score.uniform[1] * x6[:, 5]
+    np.testing.assert_allclose(ext.accel(x6, u), by_hand, rtol=1e-9, atol=1e-12)
+    assert ext.estimate["uniform_damping"] == {"vx": score.uniform[0], "omega": score.uniform[1]}
