@@ -14,9 +14,13 @@ from pathlib import Path
 
 import pytest
 
+from identification.preprocessing.campaigns import open_campaign
+from identification.sindy.data import states_of_runs
 from sindy_ekf import cli
+from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.inject import inject_campaign
-from sindy_ekf.diagnose.pipeline import diagnose_campaign
+from sindy_ekf.diagnose.pipeline import diagnose_campaign, load_model
+from sindy_ekf.diagnose.scoring import score_families
 from tests.support.diagnose_synth import own_coupling
 
 # the hyperparameters identify's low-rate search selects on this campaign (bench/results/real_cli.md)
@@ -77,3 +81,19 @@ def test_injected_delay_named_from_the_response_lag(wheels, model_file, tmp_path
     assert d.ranked[0].score.estimate["delay_s"] == pytest.approx(0.15, rel=0.25)
     assert d.ranked[0].score.estimate["evidence"] == "response_lag"
     assert d.after.pos_err_5s_m < d.before.pos_err_5s_m
+
+
+def test_a_refit_at_its_own_null_does_not_displace_the_fixed_scoring(wheels, model_file):
+    """On the clean runs the re-identified delay's optimum lies below the model's own dead time, so on
+    the one-sided grid it sits at 0: the null itself, a gain of exactly 0 and no estimate. The fixed
+    scoring (a gain below 0 here) is kept, not replaced by that 0 (which rank.py would prefer, 0 over
+    a negative gain)."""
+    model = load_model(model_file)
+    camp = open_campaign(wheels)
+    s, tau = float(model.hyperparameters.get("s") or 0.0), float(model.hyperparameters.get("tau") or 2.0)
+    (train, a, _), (test, b, _) = states_of_runs(camp.split("train"), s), states_of_runs(camp.split("test"), s)
+    tr, te = model_split(model, train, a, tau, what="train"), model_split(model, test, b, tau, what="test")
+    (score,), _, _ = score_families(model, tr, te, ["input_delay"], uncertainty=False)
+    assert score.by_scoring["refit"] == 0.0 and score.by_scoring["fixed"] < 0.0
+    assert score.scoring == "fixed" and score.alternative is None
+    assert score.gain == score.by_scoring["fixed"] and score.estimate["delay_s"] > 0.0
