@@ -41,6 +41,7 @@ G_M_S2 = 9.81
 PATCH_EDGE_M = 0.2  # 10-90 % width of the patch's logistic edge (assumed, not estimated)
 PATCH_GRID_SPACING_M = 0.4  # candidate patch centres over the driven area, before Nelder-Mead
 PATCH_RADII_M = (0.5, 0.8, 1.2, 1.8)  # candidate radii of the grid
+FIELD_BASIS = ("x", "y", "xx", "xy", "yy")  # the smooth damping field: quadratic in the scaled position
 
 
 def _clip(u: np.ndarray) -> np.ndarray:
@@ -154,6 +155,19 @@ def patch_indicator(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> tuple[np
     return s, ds_dd * dx / d, ds_dd * dy / d
 
 
+def field_basis(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Return the smooth field's basis ``B (C, N, 5)`` (:data:`FIELD_BASIS` at ``xi = (x - cx) / L``,
+    ``eta = (y - cy) / L``) and ``dB/dx``, ``dB/dy`` for ``theta (C, 3) = [cx, cy, L]``."""
+    theta = np.atleast_2d(theta)
+    L = theta[:, 2:3]
+    xi, eta = (x[None, :] - theta[:, 0:1]) / L, (y[None, :] - theta[:, 1:2]) / L
+    one, zero = np.ones_like(xi), np.zeros_like(xi)
+    B = np.stack([xi, eta, xi * xi, xi * eta, eta * eta], -1)
+    dB_dx = np.stack([one, zero, 2 * xi, eta, zero], -1) / L[..., None]
+    dB_dy = np.stack([zero, one, zero, xi, 2 * eta], -1) / L[..., None]
+    return B, dB_dx, dB_dy
+
+
 @dataclass(frozen=True)
 class Family:
     """A mechanism: its inputs transform or its additive columns, grid, bounds and estimates."""
@@ -174,6 +188,10 @@ class Family:
 
     def grid(self, split: Split) -> np.ndarray:
         """Return candidate ``theta (C, d)`` for the search (``(1, 0)`` when there is none)."""
+        if self.mechanism == "smooth_field":  # one candidate: the field's frame over the driven area
+            lo = np.percentile(split.pose_local[:, :2], 2, axis=0)
+            hi = np.percentile(split.pose_local[:, :2], 98, axis=0)
+            return np.array([[*(0.5 * (lo + hi)), max(0.5 * float(np.max(hi - lo)), self.bounds[2][0])]])
         if self.name == "position_dependence":
             lo = np.percentile(split.pose_local[:, :2], 2, axis=0)
             hi = np.percentile(split.pose_local[:, :2], 98, axis=0)
@@ -224,6 +242,15 @@ class Family:
             if with_jacobian:
                 jac[:, :, 0, 0, 2], jac[:, :, 0, 1, 2] = -s, c
                 jac[:, :, 1, 2, 2], jac[:, :, 1, 3, 2] = -c, -s
+        elif self.mechanism == "smooth_field":
+            B, dB_x, dB_y = field_basis(x6[:, 0], x6[:, 1], theta)
+            k = len(FIELD_BASIS)
+            cols[:, :, 0, :k] = B * vx[None, :, None]
+            cols[:, :, 2, k:] = B * om[None, :, None]
+            if with_jacobian:
+                for e, v, j, sl in ((0, vx, 3, slice(0, k)), (2, om, 5, slice(k, 2 * k))):
+                    jac[:, :, e, sl, 0], jac[:, :, e, sl, 1] = dB_x * v[None, :, None], dB_y * v[None, :, None]
+                    jac[:, :, e, sl, j] = B
         elif self.name == "position_dependence":
             s, ds_x, ds_y = patch_indicator(x6[:, 0], x6[:, 1], theta)
             cols[:, :, 0, 0] = s * vx
@@ -257,6 +284,17 @@ class Family:
     def estimate(self, theta: np.ndarray, beta: np.ndarray, model) -> dict[str, float | list]:
         """Return the physical parameters of the mechanism from ``theta (d,)`` and ``beta (m,)``."""
         theta, beta = np.asarray(theta, float), np.asarray(beta, float)
+        if self.mechanism == "smooth_field":
+            # relative change of the damping per basis function, the vx and omega rows pooled as the patch's
+            ref = np.array([model_coefficient(model, "vx", "vx"), model_coefficient(model, "omega", "omega")])
+            k = len(FIELD_BASIS)
+            frac = (beta[:k] * ref[0] + beta[k:] * ref[1]) / (ref @ ref) if ref @ ref > 0 else np.full(k, np.nan)
+            g = np.linspace(-1.0, 1.0, 9)  # over the driven area (the field's frame): its span
+            B = field_basis(*[a.ravel() for a in np.meshgrid(g, g)], np.array([0.0, 0.0, 1.0]))[0][0]
+            span = float(np.ptp(B @ frac)) if np.all(np.isfinite(frac)) else float("nan")
+            return {"field_center_local_m": [float(theta[0]), float(theta[1])], "field_scale_m": float(theta[2]),
+                    "damping_fraction_field": frac.tolist(), "damping_fraction_span": span,
+                    "mechanism": self.mechanism}
         if self.mechanism:
             return {self.theta_names[0]: float(theta[0]), "mechanism": self.mechanism}
         if self.name == "input_delay":
@@ -352,6 +390,12 @@ MECHANISMS: dict[str, tuple[Family, ...]] = {name: (spec,) for name, spec in FAM
 MECHANISMS["input_delay"] += (
     Family("input_delay", "input", ("lag_s",), bounds=((0.0, 0.6),), mechanism="first_order_lag",
            doc="the motors follow the inputs through a first-order lag", extra={"step": 0.04}),)
+MECHANISMS["position_dependence"] += (
+    Family("position_dependence", "additive", ("field_cx_m", "field_cy_m", "field_scale_m"),
+           column_names=tuple(f"field_{b}_{eq}" for eq in ("vx", "omega") for b in FIELD_BASIS),
+           bounds=((-1e3, 1e3), (-1e3, 1e3), (0.5, 1e3)), mechanism="smooth_field",
+           doc="the damping changes smoothly over the lab: quadratic in position (with the uniform nuisance, "
+               "the second-order expansion of any smooth field)"),)
 MECHANISMS["asymmetry"] += (
     Family("asymmetry", "input", ("coupling",), bounds=((-0.3, 0.3),), mechanism="throttle_to_turn_coupling",
            doc="throttle turns the robot: the motors see steering u2 + c u1", extra={"step": 0.02}),

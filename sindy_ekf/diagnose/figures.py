@@ -91,7 +91,7 @@ def plot_residual_map(rmap: dict[str, np.ndarray], path=None, patch: dict | None
         lim = np.percentile(np.abs(rmap[eq]), 98) or 1.0
         hb = ax.hexbin(rmap["x"], rmap["y"], C=rmap[eq], gridsize=25, cmap="RdBu_r", vmin=-lim, vmax=lim)
         fig.colorbar(hb, ax=ax, label=f"{eq} residual [{'m/s^2' if eq == 'vx' else 'rad/s^2'}]")
-        if patch:
+        if patch and "patch_center_local_m" in patch:  # a disc to circle (not the smooth field)
             (cx, cy), r = patch["patch_center_local_m"], patch["patch_radius_m"]
             ax.add_patch(Circle((cx, cy), r, fill=False, color="k", lw=1.5, ls="--"))
         ax.set(xlabel="x local [m]", ylabel="y local [m]", aspect="equal", title=f"mean {eq} residual per window")

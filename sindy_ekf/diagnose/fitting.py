@@ -184,6 +184,8 @@ def _sse_at(family, model, split, theta, weights, base_pred):
 def _refine(family: Family, model, split: Split, grid: np.ndarray, sse: np.ndarray, weights, base_pred):
     """Return the train-SSE minimiser near the best grid point (bounded 1-D search or Nelder-Mead)."""
     i = int(np.argmin(sse))
+    if len(grid) == 1:  # nothing to search (a mechanism whose theta is its frame, the smooth field's)
+        return grid[0]
     if grid.shape[1] == 1:
         lo_b, hi_b = family.bounds[0]
         lo = grid[max(i - 1, 0), 0]

@@ -52,8 +52,8 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
         ratios = []
         for s in specs:
             grid = s.grid(tr)
-            fixed = parabolic_min(grid[:, 0], solve_design(design_for(s, model, tr, grid, weights,
-                                                                      base_pred["train"]))[1]) / sse0_fixed
+            sse = solve_design(design_for(s, model, tr, grid, weights, base_pred["train"]))[1]
+            fixed = (parabolic_min(grid[:, 0], sse) if grid.shape[1] == 1 else float(np.nanmin(sse))) / sse0_fixed
             refit = np.inf
             if s.kind == "input":  # the null of a re-identified input form: the same form at 0 (no transform)
                 sse = refit_grid(s, model, tr, weights, grid)[2]

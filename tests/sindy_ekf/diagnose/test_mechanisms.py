@@ -92,3 +92,24 @@ def test_first_order_lag_evenly_sampled_equals_the_recursion():
     sol = solve_ivp(lambda s, y: (np.interp(s, t[150:], u[150:, 1]) - y) / 0.3, (t[150], t[-1]), [u[150, 1]],
                     t_eval=t[150:], rtol=1e-10, atol=1e-12, max_step=0.005)
     np.testing.assert_allclose(even[1, 150:, 1], sol.y[0], atol=1e-6)
+
+
+def test_smooth_field_columns_and_jacobian_by_hand():
+    """The smooth damping field (position_dependence, quadratic in the scaled position): its columns are
+    the basis [xi, eta, xi^2, xi eta, eta^2] times vx (vx equation) and times omega (omega equation),
+    written out here by hand, and its Jacobian matches central differences."""
+    f = mechanism_spec("position_dependence", "smooth_field")
+    rng = np.random.default_rng(0)
+    x6, u = rng.normal(size=(7, 6)), rng.normal(size=(7, 2))
+    theta = np.array([[0.3, -0.2, 2.0]])
+    cols, jac = f.columns(x6, u, np.zeros(7), theta, with_jacobian=True)
+    xi, eta = (x6[:, 0] - 0.3) / 2.0, (x6[:, 1] + 0.2) / 2.0
+    basis = np.stack([xi, eta, xi ** 2, xi * eta, eta ** 2], -1)
+    np.testing.assert_allclose(cols[0, :, 0, :5], basis * x6[:, 3:4])
+    np.testing.assert_allclose(cols[0, :, 2, 5:], basis * x6[:, 5:6])
+    assert not cols[0, :, 1].any() and not cols[0, :, 0, 5:].any() and not cols[0, :, 2, :5].any()
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = 1e-6
+        num = (f.columns(x6 + d, u, np.zeros(7), theta) - f.columns(x6 - d, u, np.zeros(7), theta)) / 2e-6
+        np.testing.assert_allclose(num[0], jac[0, ..., k], atol=1e-6)
