@@ -1,5 +1,6 @@
-"""The diagnosis ranking in order (issue 14, item 5): significant families first, by out-of-sample
-gain, then the others by gain; the verdict is the first significant one or ``none``."""
+"""The diagnosis ranking in order (issue 14, item 5; issue 15, item 6): significant families first, by
+strength (out-of-sample gain in units of the threshold of the scoring that judged it), then the others
+by strength; the verdict is the first significant one or ``none``."""
 
 from __future__ import annotations
 
@@ -18,17 +19,18 @@ def _score(family, gain, **estimate):
     return FamilyScore(family, np.zeros(1), np.zeros(1), gain, {}, gain, estimate)
 
 
-def test_significant_families_come_first_by_gain_then_the_rest_by_gain():
+def test_significant_families_come_first_by_strength_then_the_rest_by_strength():
     scores = [_score("deadband", 0.01), _score("input_delay", 0.05), _score("heading_dependence", 0.30),
               _score("asymmetry", 0.20), _score("time_dependence", 0.50), _score("position_dependence", 0.04)]
     ranked = rank_families(scores, THRESHOLDS)
-    # by hand: significant (gain > threshold) time_dependence 0.5, asymmetry 0.2, input_delay 0.05;
-    # then heading_dependence 0.3, position_dependence 0.04, deadband 0.01. The gain decides, not
-    # the gain over the threshold (asymmetry's 10 x would beat time_dependence's 5 x)
-    assert [c.name for c in ranked] == ["time_dependence", "asymmetry", "input_delay",
-                                        "heading_dependence", "position_dependence", "deadband"]
+    # by hand, gain / threshold: significant asymmetry 0.2 / 0.02 = 10, time_dependence 0.5 / 0.1 = 5,
+    # input_delay 0.05 / 0.02 = 2.5; then position_dependence 0.04 / 0.05 = 0.8, heading_dependence
+    # 0.3 / 0.5 = 0.6, deadband 0.01 / 0.02 = 0.5. The strength decides, not the raw gain (time_dependence's
+    # 0.5 would beat asymmetry's 0.2)
+    assert [c.name for c in ranked] == ["asymmetry", "time_dependence", "input_delay",
+                                        "position_dependence", "heading_dependence", "deadband"]
     assert [c.significant for c in ranked] == [True, True, True, False, False, False]
-    assert verdict(ranked) == "time_dependence"
+    assert verdict(ranked) == "asymmetry"
 
 
 def test_ranking_does_not_depend_on_the_order_of_the_scores():
@@ -96,9 +98,11 @@ def test_a_family_is_significant_by_either_scoring_against_its_own_threshold():
     assert not c.significant and c.score is refit and c.threshold == 0.03
 
 
-def test_significant_families_are_ordered_by_window_gain_not_by_a_5s_gain():
-    """The lateral law judged by its 5 s prediction (a drop of squared 5 s errors, 0.6) is sorted by its
-    window gain (0.02): a family significant with a window gain of 0.1 comes first."""
+def test_a_5s_scoring_and_a_window_scoring_are_compared_in_units_of_their_own_thresholds():
+    """The lateral law judged by its 5 s prediction (a drop of squared 5 s errors, 0.6 over its threshold
+    0.3: strength 2) against an asymmetry judged by its window gain (0.1 over 0.02: strength 5): by
+    hand, the asymmetry first; with the asymmetry at 0.03 (strength 1.5) the lateral law first, though
+    its window gain (0.02) is the smaller."""
     fixed = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.02, {}, 0.02, {"model_has_lateral_law": True},
                         by_scoring={"fixed": 0.02, "multistep": 0.6})
     lateral = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.6, {}, 0.02,
@@ -108,14 +112,11 @@ def test_significant_families_are_ordered_by_window_gain_not_by_a_5s_gain():
                   "multistep": {"lateral_slip": 0.3}}
     ranked = rank_families([lateral, _score("asymmetry", 0.1)], thresholds)
     assert [(c.name, c.significant) for c in ranked] == [("asymmetry", True), ("lateral_slip", True)]
-    assert ranked[1].gain == 0.6 and ranked[1].window_gain == 0.02  # reported by the scoring that judged it
+    assert ranked[1].gain == 0.6 and ranked[1].threshold == 0.3 and ranked[1].strength == 2.0
     assert verdict(ranked) == "asymmetry"
-    # with a window gain above the other's, the lateral law comes first
-    fixed2 = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.15, {}, 0.15, {"model_has_lateral_law": True},
-                         by_scoring={"fixed": 0.15, "multistep": 0.6})
-    ranked = rank_families([dataclasses.replace(lateral, by_scoring=fixed2.by_scoring, alternative=fixed2),
-                            _score("asymmetry", 0.1)], thresholds)
+    ranked = rank_families([lateral, _score("asymmetry", 0.03)], thresholds)
     assert [c.name for c in ranked] == ["lateral_slip", "asymmetry"]
+    assert verdict(ranked) == "lateral_slip"
 
 
 def test_a_significant_cause_whose_estimate_is_not_resolved_is_not_named():
