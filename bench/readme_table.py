@@ -371,6 +371,8 @@ ROWS = (
         "1 to 10", _diagnose_forms, "-"),
     Row("identify_variants", "identification on simulator variants 1 to 10 (12-min campaigns through bags; "
         "`identify` then `evaluate`): 5 s position error of the selected model on the test runs", _variants, "-"),
+    Row("identify_variants_default_length", "the same at the default campaign length (45.4-min campaigns)",
+        _variants, "-"),
     Row("identification", "real Warthog data, leave one day out (train on one day, score on the other)",
         _leave_one_day_out, "-"),
     Row("inject_real", "diagnosis of effects hidden in real Warthog data (`inject`: delay, deadband, coupling, "
