@@ -114,7 +114,7 @@ def markdown(records: list[dict], command: str, minutes: float) -> str:
         chain = "/".join(f"{1000 * v:.0f}" for v in r.get("dead_time_s", [])) + " / " + \
             "/".join(f"{1000 * v:.0f}" for v in r.get("input_lag_s", []))
         ekf = ", ".join(f"{e['status']}" + (f" ({e['recoveries']} re-init)" if e["recoveries"] else "")
-                        for e in r.get("ekf", {}).values())
+                        for e in (r.get("ekf", {}).get(n) for n in ("sindy_ekf", "lag_ekf")) if e)  # the header's order
         lag = t.get(LAG, {}).get("pos_err_5s_m", float("nan"))
         lines.append(f"| {r['variant']} | {r['motor_lag_s']:.3f} | {m['pos_err_5s_m']:.4f} / {m['yaw_err_5s_deg']:.2f} | "
                      f"{o['pos_err_5s_m']:.4f} / {o['yaw_err_5s_deg']:.2f} | {refit:.4f} | {lag:.4f} | "
