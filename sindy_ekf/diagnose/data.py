@@ -68,6 +68,12 @@ class Split:
         return self.v_body[self.end] - self.v_body[self.start]
 
     @property
+    def sample_interval_s(self) -> float:
+        """Median step between samples of the same run, s (0 without any)."""
+        step = self.dt_next[self.dt_next > 0]
+        return float(np.median(step)) if step.size else 0.0
+
+    @property
     def x6(self) -> np.ndarray:
         """(N, 6) full state ``[x, y, psi, vx, vy, omega]``."""
         return np.concatenate([self.pose_local, self.v_body], axis=-1)

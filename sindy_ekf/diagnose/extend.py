@@ -33,7 +33,6 @@ from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
 from groundfloor.types import BodyStates
 from identification.sindy.evaluate import evaluate_model
-from identification.sindy.library import parse_term
 from identification.sindy.model import SindyModel
 from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.diagnose.data import Split
@@ -42,6 +41,7 @@ from sindy_ekf.diagnose.families import (
     Family,
     mechanism_rows,
     mechanism_spec,
+    term_column,
 )
 from sindy_ekf.diagnose.fitting import null_prediction
 from sindy_ekf.estimation.ekf import run_ekf_batch
@@ -202,7 +202,9 @@ class ExtendedModel(Dynamics):
                              f"{self.vy_scale:.3g}, not expressible in the SINDy library")
         coef = self.base.coef.copy()
         for term, b in zip(("vx omega", "vy"), self.beta):
-            j = self.base.library.atoms.index(parse_term(term, self.base.library.variables))
+            j = term_column(self.base.library, term)
+            if j is None:
+                raise InputError(f"extended model {self.family!r}: the base library has no term {term!r}")
             coef[1, j] += b
         return SindyModel(library=self.base.library, coef=coef, hyperparameters=dict(self.base.hyperparameters),
                           envelope=dict(self.base.envelope), training=dict(self.base.training))
@@ -254,11 +256,10 @@ def with_uniform_damping(base: SindyModel, uniform: np.ndarray) -> SindyModel:
     :meth:`~sindy_ekf.diagnose.families.Family.uniform_columns`); InputError when its library has neither."""
     coef = np.array(base.coef, float, copy=True)
     for (eq, term), b in zip(((0, "vx"), (2, "omega")), np.asarray(uniform, float)):
-        try:
-            j = base.library.atoms.index(parse_term(term, base.library.variables))
-        except ValueError:
+        j = term_column(base.library, term)
+        if j is None:
             raise InputError(f"model library has no term {term!r}: the uniform damping of the floor patch "
-                             f"cannot be added to it") from None
+                             f"cannot be added to it")
         coef[eq, j] += b
     return base.with_coefficients(coef)
 

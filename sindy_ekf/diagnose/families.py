@@ -353,14 +353,16 @@ def mechanism_rows(family: Family, model, x6: np.ndarray, u: np.ndarray, t_run: 
     return np.any(cols != 0, axis=(0, 2))
 
 
+def term_column(library, term: str) -> int | None:
+    """Return the column of ``term`` (e.g. ``"vx omega"``) in a SINDy library, None when it has none."""
+    atoms = parse_term(term, library.variables)
+    return library.atoms.index(atoms) if atoms in library.atoms else None
+
+
 def model_coefficient(model, equation: str, term: str) -> float:
     """Return the coefficient of ``term`` in ``equation`` of a SINDy model (0 when absent)."""
-    lib = model.library
-    atoms = parse_term(term, lib.variables)
-    for j, a in enumerate(lib.atoms):
-        if a == atoms:
-            return float(model.coef[LIBRARY_STATE_NAMES.index(equation), j])
-    return 0.0
+    j = term_column(model.library, term)
+    return 0.0 if j is None else float(model.coef[LIBRARY_STATE_NAMES.index(equation), j])
 
 
 FAMILY_SPECS: dict[str, Family] = {

@@ -191,12 +191,6 @@ def check_scorable(test: Sequence[BodyStates], names: Sequence[str], window_s: f
                          f"{window_s:g} s (need {MIN_TEST_WINDOWS})")
 
 
-def sample_interval(states: Sequence[BodyStates]) -> float:
-    """Return the median sample interval of the runs, s."""
-    dt = np.concatenate([np.diff(np.asarray(st.t, float)) for st in states if len(st.t) > 1] or [np.zeros(0)])
-    return float(np.median(dt)) if dt.size else 0.0
-
-
 def median_5s(res) -> float:
     """Return the median 5 s position error of an evaluation (a diverged window counts as infinite)."""
     e = np.asarray(res.eps_p[:, -1], float)
@@ -319,7 +313,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     # the cause step: evidence that assumes no mechanism form (sindy_ekf.diagnose.cause)
     lags = {"train": response_lag(model, tr), "test": response_lag(model, te)}
     ranked = named_by_response_lag(ranked, lags["train"], lags["test"])
-    ranked = drop_unresolved(ranked, sample_interval(train))
+    ranked = drop_unresolved(ranked, tr.sample_interval_s)
     name = verdict(ranked)
     seconds["cause"] = time.perf_counter() - t0
     t0 = time.perf_counter()

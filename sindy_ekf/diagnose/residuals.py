@@ -115,7 +115,7 @@ def residual_structure(model, split: Split, n_bins: int = 8, residuals: np.ndarr
     (or of ``residuals (p, 3)`` when given)."""
     r = window_residuals(model, split) if residuals is None else residuals
     reg = regressors_of_windows(split)
-    stride = np.median(np.diff(split.start)) * np.median(split.dt_next[split.dt_next > 0])
+    stride = np.median(np.diff(split.start)) * split.sample_interval_s
     overlap = max(split.tau / max(stride, 1e-9), 1.0)
     return {eq: {name: binned_effect(r[:, i], x, name, n_bins, overlap, circular=(name == "heading"))
                  for name, x in reg.items()} for i, eq in enumerate(EQUATIONS)}
