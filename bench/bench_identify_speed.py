@@ -1,4 +1,4 @@
-"""Time ``sindy-ekf identify`` before and after the output-error speed-up (issue 13, item 7), side by side.
+"""Time ``sindy-ekf identify`` before and after a speed-up (issue 13, item 7), side by side.
 
 Usage: ``.venv/bin/python -m bench.bench_identify_speed [--base REV] [--full] [--jobs J] [--no-write]``;
 writes ``bench/results/identify_speed.md``.
@@ -13,8 +13,7 @@ other on the same data, so each is timed by wall clock and by the children's CPU
    8-minute simulated campaign of seed 0 (``simulate``, then ``preprocess``; not timed);
 2. **real cmd**: ``../shared/data/warthog-drive-cmd`` on its own train split (the low-rate grid);
 3. with ``--full``, **default campaign**: the full tracker grid (384 points, 5 folds) on the
-   default simulated campaign of seed 0 with ``--jobs`` (default 2), after only (about ten
-   minutes before; ``bench/results/identification.md`` has that figure).
+   default simulated campaign of seed 0 with ``--jobs`` (default 2), before and after alike.
 
 Each before/after pair is compared: selected candidate, hyperparameters and active terms must be
 identical, and the largest relative difference of the coefficients, dead times and input lags
@@ -90,7 +89,7 @@ def compare(before: Path, after: Path) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--base", default=BASE, help=f"the 'before' revision (default {BASE})")
-    p.add_argument("--full", action="store_true", help="also the full tracker grid on the default campaign (after only)")
+    p.add_argument("--full", action="store_true", help="also the full tracker grid on the default campaign")
     p.add_argument("--jobs", type=int, default=2, help="--jobs of the full-grid run (default 2)")
     p.add_argument("--no-write", action="store_true")
     args = p.parse_args(argv)
@@ -104,9 +103,16 @@ def main(argv=None) -> int:
         run(["simulate", str(tmp / "sim8"), "--minutes", "8", "--seed", "0"], ROOT)
         run(["preprocess", str(tmp / "sim8"), "--out", str(tmp / "traj8"), "--jobs", "1"], ROOT)
         subprocess.run([PY, "-c", WARM_UP], cwd=ROOT, check=True)  # numba compiles here, not in the timings
+        # the before tree's own compilation (its numba cache is by its source path); none before it had numba
+        subprocess.run([PY, "-c", WARM_UP], cwd=old, env=dict(os.environ, PYTHONPATH=str(old)), capture_output=True)
         cases = [("demo-sized: 8 min simulated, `--quick` (12 points, 3 folds)",
                   [str(tmp / "traj8"), "--quick"]),
                  ("real: warthog-drive-cmd, own train split (low-rate grid)", [str(DATA / "warthog-drive-cmd")])]
+        if args.full:
+            run(["simulate", str(tmp / "simfull"), "--seed", "0"], ROOT)
+            run(["preprocess", str(tmp / "simfull"), "--out", str(tmp / "trajfull"), "--jobs", "1"], ROOT)
+            cases.append((f"default campaign (45.4 min), full tracker grid (384 points, 5 folds), --jobs {args.jobs}",
+                          [str(tmp / "trajfull"), "--jobs", str(args.jobs)]))
         rows, comparisons = [], []
         for label, case in cases:
             times = {}
@@ -115,16 +121,11 @@ def main(argv=None) -> int:
                 load.append(os.getloadavg()[0])
             rows.append((label, times))
             comparisons.append((label, compare(tmp / "before.json", tmp / "after.json")))
-        full = None
-        if args.full:
-            run(["simulate", str(tmp / "simfull"), "--seed", "0"], ROOT)
-            run(["preprocess", str(tmp / "simfull"), "--out", str(tmp / "trajfull"), "--jobs", "1"], ROOT)
-            full = run(["identify", str(tmp / "trajfull"), "--jobs", str(args.jobs), "--out",
-                        str(tmp / "full.json")], ROOT)
-            load.append(os.getloadavg()[0])
-            full_model = SindyModel.load(tmp / "full.json")
-    lines = ["## identify's speed (issue 13, item 7): the output-error stage compiled, before and after", "",
-             f"Command: `.venv/bin/python -m bench.bench_identify_speed{' --full' if args.full else ''}` "
+            if case[-2:] == ["--jobs", str(args.jobs)]:
+                full_model = SindyModel.load(tmp / "after.json")
+    lines = ["## identify's speed (issue 13, item 7), before and after", "",
+             f"Command: `.venv/bin/python -m bench.bench_identify_speed{' --full' if args.full else ''}"
+             f"{'' if args.base == BASE else ' --base ' + args.base}` "
              f"(Python {platform.python_version()}, {os.cpu_count()} cores shared with other jobs; load average "
              f"(1 min) {', '.join(f'{v:.1f}' for v in load)} at the start and after each run). Before: "
              f"`{args.base}`; after: this checkout. Each run is `python -m sindy_ekf.cli identify` in a "
@@ -134,10 +135,7 @@ def main(argv=None) -> int:
     for label, t in rows:
         lines.append(f"| {label} | {t['before'][0]:.1f} | {t['before'][1]:.1f} | {t['after'][0]:.1f} | "
                      f"{t['after'][1]:.1f} | {t['before'][1] / t['after'][1]:.1f}x |")
-    if full is not None:
-        lines.append(f"| default campaign (45.4 min), full tracker grid (384 points, 5 folds), --jobs {args.jobs} | "
-                     f"521 (bench/results/identification.md) | - | {full[0]:.1f} | {full[1]:.1f} | - |")
-    lines += ["", "Same model before and after:", ""]
+    lines += ["", "The models before and after:", ""]
     for label, c in comparisons:
         lines.append(f"- {label}: selected **{c['selected'][0]}** / **{c['selected'][1]}**; hyperparameters "
                      f"identical: **{'yes' if c['same_hp'] else 'NO'}**; active terms identical: "
@@ -148,7 +146,7 @@ def main(argv=None) -> int:
         lines.append(f"  - candidates' CV 5 s errors: largest relative difference {worst:.1e}; checks passed "
                      f"alike: {'yes' if all(s for *_, s in c['cv']) else 'NO'} "
                      f"({', '.join(f'{lab}: {a:.4f}/{b:.4f} m' for lab, a, b, _ in c['cv'])})")
-    if full is not None:
+    if args.full:
         lines.append(f"- default campaign: selected {full_model.training['selected']}, "
                      f"{full_model.complexity} terms, hyperparameters {full_model.hyperparameters}")
     if not args.no_write:

@@ -17,10 +17,17 @@ of terms is what costs. So the terms are chosen on the output error too:
    by output error.
 2. **Backward**: the term with the smallest cluster-robust t statistic
    (:func:`identification.sindy.output_error.fit_output_error`'s covariance, one cluster per
-   window) below :data:`~identification.sindy.checks.MIN_T_STAT` is dropped and the structure
-   refitted, until every term is significant; the protected terms (the first-order lag's core)
-   are never dropped.
-3. Repeated until a round leaves the structure as it was, at most :data:`MAX_ROUNDS` rounds.
+   window) below :data:`~identification.sindy.checks.MIN_T_STAT` is dropped, until every term is
+   significant; the protected terms (the first-order lag's core) are never dropped. Between two
+   drops the fit is not rerun: the estimate restricted to the dropped term being zero and its
+   covariance follow from the fit's own estimate and covariance (:func:`wald_drop`, the
+   minimum-distance restriction, exact for a model linear in its parameters), and one output-error
+   refit of the pruned structure follows the whole elimination, which is repeated while the refit
+   leaves a term insignificant. Refitting after every drop cost 32 refits of a 67-term structure
+   on the default campaign (75 s of the 130 s the search took on one fold).
+3. Repeated until a round leaves the structure as it was or returns to a structure an earlier round
+   ended on (on the default campaign rounds 2 to 4 added and dropped the same few terms in turn),
+   at most :data:`MAX_ROUNDS` rounds.
 
 The forward score is a first-order guess; the backward t test on the refitted structure is what
 keeps a term. The search runs on the train windows it is given; cross-validation
@@ -54,7 +61,7 @@ STEPWISE = "stepwise"
 N_ADD = 2
 #: forward-backward rounds at most (on simulator variants the structure settles in 2 to 4)
 MAX_ROUNDS = 4
-#: least-squares evaluations of a refit after one term was dropped (it starts at the last fit)
+#: least-squares evaluations of the refit after a backward elimination (it starts at the restricted estimate)
 PRUNE_NFEV = 20
 #: the coefficient a candidate term is given to make it a parameter of the score's rollout
 _SEED = 1e-12
@@ -119,6 +126,38 @@ def term_scores(model: SindyModel, windows: Windows, fixed: np.ndarray, allowed:
     return scores
 
 
+def wald_drop(fit: OutputErrorFit, droppable: np.ndarray, min_t: float = MIN_T_STAT) -> tuple[np.ndarray, np.ndarray]:
+    """Return the parameters after backward elimination on ``fit``'s estimate and covariance, and the mask of dropped ones.
+
+    The parameter vector is ``[theta, dead times, input lags]`` (whichever were fitted,
+    ``fit.cov``'s order); only model parameters where ``droppable`` (``(p,)``) may go. While the
+    smallest ``|theta_k| / std_k`` of the droppable terms left is below ``min_t``, that term is
+    restricted to zero: ``x <- x - S[:, k] x_k / S_kk`` and ``S <- S - S[:, k] S[k, :] / S_kk``
+    (the estimate closest to ``x`` in ``S``'s metric with ``x_k = 0``, and its covariance; for a
+    model linear in ``x`` it is the refit without the term).
+    """
+    p = len(fit.theta)
+    x = np.concatenate([fit.theta, fit.dead_time_s if "d1" in fit.names else [],
+                        fit.input_lag_s if "T1" in fit.names else []]).astype(float)
+    S = np.array(fit.cov, dtype=float)
+    alive = np.asarray(droppable, bool).copy()
+    dropped = np.zeros(p, bool)
+    while alive.any():
+        sd = np.sqrt(np.clip(np.diag(S)[:p], 0.0, None))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(sd > 0, np.abs(x[:p]) / sd, np.inf)
+        t = np.where(alive, t, np.inf)
+        k = int(np.argmin(t))
+        if not t[k] < min_t:
+            break
+        x = x - S[:, k] * (x[k] / S[k, k])
+        S = S - np.outer(S[:, k], S[k, :]) / S[k, k]
+        alive[k], dropped[k] = False, True
+        x[np.flatnonzero(dropped)] = 0.0  # exactly (the updates leave rounding there)
+        S[k, :], S[:, k] = 0.0, 0.0
+    return x[:p], dropped
+
+
 def stepwise_output_error(model: SindyModel, windows: Windows, allowed: np.ndarray, protected: np.ndarray,
                           fixed: np.ndarray | None = None, n_add: int = N_ADD, max_rounds: int = MAX_ROUNDS,
                           max_nfev: int = 40) -> StepwiseFit:
@@ -132,6 +171,7 @@ def stepwise_output_error(model: SindyModel, windows: Windows, allowed: np.ndarr
     fixed = np.zeros(model.coef.shape, bool) if fixed is None else np.asarray(fixed, bool)
     current, fit, spec = _fit(model, windows, fixed, max_nfev)
     history = [(current.complexity, fit.rms_pos_m)]
+    seen = {(current.coef != 0).tobytes()}
     rounds = 0
     for rounds in range(1, max_rounds + 1):
         before = current.coef != 0
@@ -144,17 +184,17 @@ def stepwise_output_error(model: SindyModel, windows: Windows, allowed: np.ndarr
         current, fit, spec = _fit(current.with_coefficients(coef, current.dead_time_s, current.input_lag_s),
                                   windows, fixed, max_nfev)
         while True:
-            t = fit.t_stat
-            weak = np.flatnonzero((t < MIN_T_STAT) & ~protected[spec.eq, spec.col])
-            if not len(weak):
+            theta, dropped = wald_drop(fit, ~protected[spec.eq, spec.col])
+            if not dropped.any():
                 break
-            k = weak[np.argmin(t[weak])]
             coef = current.coef.copy()
-            coef[spec.eq[k], spec.col[k]] = 0.0
+            coef[spec.eq, spec.col] = np.where(dropped, 0.0, theta)
             current, fit, spec = _fit(current.with_coefficients(coef, current.dead_time_s, current.input_lag_s),
                                       windows, fixed, PRUNE_NFEV)
         history.append((current.complexity, fit.rms_pos_m))
         log.debug("stepwise output error, round %d: %d terms, RMS %.4f m", rounds, current.complexity, fit.rms_pos_m)
-        if np.array_equal(before, current.coef != 0):
+        structure = (current.coef != 0).tobytes()
+        if np.array_equal(before, current.coef != 0) or structure in seen:
             break
+        seen.add(structure)
     return StepwiseFit(current, fit, rounds, tuple(history))
