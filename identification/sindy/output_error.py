@@ -32,6 +32,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import LinAlgError, cholesky, qr
 from scipy.optimize import least_squares
 
 from groundfloor.dynamics import Dynamics
@@ -55,6 +56,9 @@ OE_WINDOW_S = 3.0
 OE_DT = 0.05
 #: at most this many windows enter one fit (evenly spread; a 45-minute campaign has 900)
 OE_MAX_WINDOWS = 200
+#: smallest pivot of the Cholesky factor of :func:`compressed` relative to the largest (unit
+#: columns: the sine of a column's angle to the others' span) before it takes the QR decomposition
+MIN_CHOLESKY_PIVOT = 1e-5
 #: residual of a window whose prediction left the finite numbers (a diverging candidate), m
 DIVERGED_RESIDUAL_M = 100.0
 
@@ -273,6 +277,45 @@ def pose_residuals(pred: np.ndarray, windows: Windows) -> np.ndarray:
     return d
 
 
+def compressed(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the residuals ``(n + 1,)`` and Jacobian ``(n + 1, n)`` of a least-squares problem
+    equivalent to ``r (m,)``, ``J (m, n)`` at this point: ``[Q^T r, |r_perp|]`` and ``[R; 0]``
+    for ``J = Q R``.
+
+    Their squared norm is ``|r|^2``, ``J'^T J' = J^T J`` and ``J'^T r' = J^T r``, and the
+    Jacobian of the last entry, ``|(I - Q Q^T) r|``, is zero where it is taken (``(I - Q Q^T) J = 0``),
+    so a trust-region method takes the same steps and judges them by the same cost, on ``n + 1``
+    rows: ``scipy.optimize.least_squares``' exact solver takes an SVD of the Jacobian at every
+    step, a third of an output-error fit's time on 36,000 rows (measured on the default campaign).
+    ``R`` comes from the Cholesky factor of the Gram matrix of ``[J r]`` with ``J``'s columns
+    scaled to unit norm (about 20 times cheaper than the QR decomposition on such shapes), and
+    from the QR decomposition when that matrix is not numerically positive definite.
+    """
+    n = J.shape[1]
+    gram = J.T @ J
+    norms = np.sqrt(np.clip(np.diag(gram), 0.0, None))
+    live = np.flatnonzero(norms > 0)  # a column of zeros adds nothing to either side
+    k = len(live)
+    s = norms[live]
+    G = np.empty((k + 1, k + 1))  # the Gram matrix of [J / norms, r], without forming that matrix
+    G[:k, :k] = gram[np.ix_(live, live)] / np.outer(s, s)
+    G[:k, k] = G[k, :k] = (J.T @ r)[live] / s
+    G[k, k] = r @ r
+    try:
+        R = cholesky(G, lower=False, check_finite=False)
+        d = np.abs(np.diag(R)[:k])
+        if not np.all(np.isfinite(R)) or (k and d.min() < MIN_CHOLESKY_PIVOT * d.max()):
+            raise LinAlgError("ill-conditioned Gram matrix")
+    except LinAlgError:
+        R = qr(np.concatenate([J[:, live] / s, r[:, None]], axis=1), mode="r", check_finite=False)[0]
+        R = np.vstack([R, np.zeros((k + 1 - R.shape[0], k + 1))]) if R.shape[0] < k + 1 else R[: k + 1]
+    r_c = np.zeros(n + 1)
+    r_c[:k], r_c[n] = R[:k, k], abs(R[k, k])
+    J_c = np.zeros((n + 1, n))
+    J_c[:k, live] = R[:k, :k] * norms[live]
+    return r_c, J_c
+
+
 def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Windows, dead_time0=(0.0, 0.0),
                      fit_dead_time: bool = True, max_nfev: int = 40, input_lag0=(0.0, 0.0),
                      fit_input_lag: bool = False, compiled: bool = True) -> OutputErrorFit:
@@ -321,12 +364,15 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
             bad = ~np.isfinite(r).all(axis=(1, 2)) | ~np.isfinite(J).all(axis=(1, 2, 3))
             r[bad] = DIVERGED_RESIDUAL_M
             J[bad] = 0.0
-            cache[key] = (r.reshape(-1), J.reshape(-1, J.shape[-1]), bad)
+            r, J = r.reshape(-1), J.reshape(-1, J.shape[-1])
+            cache[key] = (r, J, bad) + compressed(r, J)
         return cache[key]
 
-    sol = least_squares(lambda x: evaluate(x)[0], x0, jac=lambda x: evaluate(x)[1], bounds=(lower, upper),
+    # the optimiser sees the (n + 1)-row problem of compressed(): the same cost, gradient and
+    # Gauss-Newton matrix at every point, without an SVD of the tall Jacobian per step
+    sol = least_squares(lambda x: evaluate(x)[3], x0, jac=lambda x: evaluate(x)[4], bounds=(lower, upper),
                         method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-8, ftol=1e-6)
-    r, J, bad = evaluate(sol.x)
+    r, J, bad = evaluate(sol.x)[:3]
     n_w = windows.n_windows
     per = J.shape[0] // n_w
     Jw = J.reshape(n_w, per, -1)
