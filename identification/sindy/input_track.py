@@ -14,7 +14,7 @@ from functools import cached_property
 
 import numpy as np
 
-from groundfloor.input_chain import first_order_lag, lag_grid
+from groundfloor.input_chain import first_order_lag_1d, lag_grid
 
 
 @dataclass(frozen=True)
@@ -55,8 +55,14 @@ class InputTrack:
         lag = np.asarray(lag_s, dtype=float)
         if not np.any(lag > 0.0) or len(self.t) < 2:
             return self
-        grid = self._on_lag_grid[0]
-        return InputTrack(grid, np.column_stack([self._lag_channel(i, float(lag[i])) for i in range(2)]), "linear")
+        key = (float(lag[0]), float(lag[1]))
+        memo = self.__dict__.setdefault("_lagged_memo", {})  # the inputs and their rates ask in turn
+        if key not in memo:
+            if len(memo) >= 4:
+                memo.clear()
+            grid = self._on_lag_grid[0]
+            memo[key] = InputTrack(grid, np.column_stack([self._lag_channel(i, key[i]) for i in range(2)]), "linear")
+        return memo[key]
 
     def _lag_channel(self, i: int, lag_s: float) -> np.ndarray:
         """Return input ``i`` on the lag grid through a first-order lag ``lag_s``, remembered: a fit
@@ -66,9 +72,7 @@ class InputTrack:
             if len(memo) >= 16:
                 memo.clear()
             grid, u_grid = self._on_lag_grid
-            one = np.zeros(2)
-            one[i] = lag_s  # first_order_lag treats the inputs one by one: the other is left as it is
-            memo[(i, lag_s)] = first_order_lag(u_grid, float(grid[1] - grid[0]), one)[:, i]
+            memo[(i, lag_s)] = first_order_lag_1d(u_grid[:, i], float(grid[1] - grid[0]), lag_s)
         return memo[(i, lag_s)]
 
     def lagged_at(self, i: int, lag_s, t_query: np.ndarray, delay_s) -> np.ndarray:
