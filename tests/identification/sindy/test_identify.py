@@ -14,7 +14,8 @@ from identification.sindy.baselines import LagModel, LagParameters, fit_lag
 from identification.sindy.checks import dissipativity, not_excited, run_checks
 from identification.sindy.data import pose_noise_std
 from identification.sindy.evaluate import make_windows, rollout
-from identification.sindy.identify import identify, refine
+from identification.sindy.candidate_fit import refine
+from identification.sindy.identify import identify
 from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
 from identification.sindy.output_error import SindyStructure, rollout_with_sensitivities
 from identification.sindy.reference import cv_folds, reference, run_group
@@ -326,3 +327,24 @@ def test_significance_reads_the_adjustments_terms_when_a_fixed_damping_is_not_am
     t[-1] = 0.5  # the weakest free term
     sig = run_checks(model, ref.states, kept, t)["significance"]
     assert not sig["passed"] and sig["weakest"] == kept[-1]
+
+
+def test_the_stepwise_search_started_from_the_candidate_pass_scores_as_one_started_afresh(sparse_runs, monkeypatch):
+    """identify hands each fold's stepwise search the start the candidate pass refined on that
+    fold (and splits a fold's candidates over tasks); the search refining its start itself, one
+    task per fold, gives the same candidates and scores."""
+    import identification.sindy.identify as identify_module
+
+    grid = SearchGrid(s=(1.0,), tau=(0.5,), alpha=(1e-3,), T=(0.05,), library=("poly2",), n_folds=3,
+                      normalize=True, dt_eval=0.05)
+    reused = identify(sparse_runs, grid)
+    fold_pass = identify_module._fold_pass
+    monkeypatch.setattr(identify_module, "TASKS_PER_FOLD", 1)
+    monkeypatch.setattr(identify_module, "_fold_pass",
+                        lambda specs, shared, n, jobs, what, started=None: fold_pass(specs, shared, n, jobs, what))
+    afresh = identify(sparse_runs, grid)
+    assert any(c.label.endswith("stepwise") for c in reused.candidates)
+    assert [c.label for c in reused.candidates] == [c.label for c in afresh.candidates]
+    for a, b in zip(reused.candidates, afresh.candidates):
+        np.testing.assert_allclose(a.fold_rms_m, b.fold_rms_m, rtol=1e-9, err_msg=a.label)
+    np.testing.assert_array_equal(reused.model.coef, afresh.model.coef)

@@ -8,7 +8,8 @@ import pytest
 
 from identification.sindy.checks import lag_core
 from identification.sindy.evaluate import evaluate_model
-from identification.sindy.identify import _stepwise_spec, refine
+from identification.sindy.candidate_fit import refine
+from identification.sindy.identify import _stepwise_spec
 from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
 from identification.sindy.reference import reference
 from identification.sindy.selection import Candidate
