@@ -38,7 +38,7 @@ from bench.bench_variants import DEFAULT_OUT, _indices, variant_campaigns
 from groundfloor.files import atomic_write_json, atomic_write_text
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.evaluate import evaluate_model
-from identification.sindy.identify import refine
+from identification.sindy.candidate_fit import refine
 from identification.sindy.model import envelope_from_data, model_from_terms
 from identification.sindy.output_error import OE_DT, OE_MAX_WINDOWS, OE_WINDOW_S
 from identification.sindy.reference import reference, thin_windows
