@@ -154,6 +154,14 @@ def test_the_backward_elimination_without_refits_equals_least_squares_refitted_w
     refit, *_ = np.linalg.lstsq(X[:, keep], y, rcond=None)
     np.testing.assert_allclose(restricted[keep], refit, rtol=1e-9, atol=1e-12)
     assert np.all(restricted[dropped] == 0.0)
+    # one drop at a time (the search's backward step): the weakest term alone, by its t statistic
+    # written out here, and the estimate the lstsq refit without it
+    t = np.abs(theta) / np.sqrt(np.diag(cov))
+    weakest = int(np.argmin(np.where(droppable, t, np.inf)))
+    first, one = wald_drop(fit, droppable, max_drops=1)
+    assert np.flatnonzero(one).tolist() == [weakest]
+    keep = np.arange(5) != weakest
+    np.testing.assert_allclose(first[keep], np.linalg.lstsq(X[:, keep], y, rcond=None)[0], rtol=1e-9, atol=1e-12)
     # nothing below the bound: nothing dropped, the estimate as it was
     same, none = wald_drop(fit, droppable, min_t=0.0)
     assert not none.any() and np.array_equal(same, theta)
