@@ -258,6 +258,16 @@ def _variants(r: Source) -> str:
             f"{floor.group(2)}x")
 
 
+def _identify_speed(r: Source) -> str:
+    full = [c for c in r.table("case | before wall s") if c[0].startswith("default campaign")]
+    if not full:
+        raise ReadmeTableError(f"bench/results/{r.name}.md: no row of the full grid on the default campaign "
+                               "(rerun bench/bench_identify_speed.py with --full)")
+    c = full[0]
+    base = r.find(r"Before: `(\w+)`").group(1)
+    return f"{c[3]} s wall ({c[4]} s CPU); {c[1]} s ({c[2]} s CPU) at `{base}`; target 120 s"
+
+
 def _leave_one_day_out(r: Source) -> str:
     parts = []
     for cells in r.table("campaign | train -> test"):
@@ -373,6 +383,8 @@ ROWS = (
         "`identify` then `evaluate`): 5 s position error of the selected model on the test runs", _variants, "-"),
     Row("identify_variants_default_length", "the same at the default campaign length (45.4-min campaigns)",
         _variants, "-"),
+    Row("identify_speed", "`identify`, full tracker grid (384 points, 5 folds, `--jobs 2`) on the default campaign "
+        "(45.4 min): this checkout against an earlier commit, run after run", _identify_speed, "-"),
     Row("identification", "real Warthog data, leave one day out (train on one day, score on the other)",
         _leave_one_day_out, "-"),
     Row("inject_real", "diagnosis of effects hidden in real Warthog data (`inject`: delay, deadband, coupling, "
