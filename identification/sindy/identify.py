@@ -19,8 +19,9 @@
    among them), the terms that are not significant in the least-squares adjustment of thesis
    5.3.9 are dropped one by one (:func:`identification.sindy.adjust.prune_insignificant`, over
    non-overlapping windows), then output error fits the coefficients and the dead times
-   (:mod:`identification.sindy.candidate_fit`); each is checked (:func:`identification.sindy.checks.run_checks`) and scored
-   on the held-out group's reference windows. The one-standard-error rule over the folds picks the
+   (:mod:`identification.sindy.candidate_fit`); each is checked
+   (:func:`identification.sindy.checks.run_checks`) and scored on the held-out group's reference
+   windows. The one-standard-error rule over the folds picks the
    sparsest candidate that passes the checks in most folds (more than half): a fold's model is
    fitted on less data, and a structure whose refit on one fold's groups leans on a term the
    data barely excite fails there without being fragile on all train runs, which the final
@@ -30,8 +31,9 @@
    picks (a grid structure; the best grid structure by CV error when it picks the lag) is the
    start of a search that adds terms by their score on the output error and drops them by its t
    statistics; refitted in every fold the same way (from the start the candidate pass refined
-   on that fold), it joins the candidates and the rule picks again. On simulator variants the regression's choice of terms, not the coefficients, kept the
-   refined models at about twice the true dynamics' error on their own train windows.
+   on that fold), it joins the candidates and the rule picks again. On simulator variants the
+   regression's choice of terms, not the coefficients, kept the refined models at about twice
+   the true dynamics' error on their own train windows.
 7. **Final model**: the picked candidate refitted on all train runs the same way; if it fails
    the checks, the next candidate by CV error is taken (never a failing model).
 """
