@@ -180,10 +180,6 @@ class OutputErrorFit:
     success: bool
     message: str = ""
     input_lag_s: tuple[float, float] = (0.0, 0.0)
-    # per window w (when the fit was asked to keep them): J_w^T J_w (W, q, q) and J_w^T r_w (W, q) at the
-    # solution, for the refit-free restrictions of identification.sindy.stepwise.wald_drop
-    window_gram: np.ndarray | None = None
-    window_score: np.ndarray | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -322,16 +318,14 @@ def compressed(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Windows, dead_time0=(0.0, 0.0),
                      fit_dead_time: bool = True, max_nfev: int = 40, input_lag0=(0.0, 0.0),
-                     fit_input_lag: bool = False, compiled: bool = True,
-                     keep_window_gram: bool = False) -> OutputErrorFit:
+                     fit_input_lag: bool = False, compiled: bool = True) -> OutputErrorFit:
     """Return the output-error least-squares fit of ``model``'s parameters (and dead times, and
     first-order input lags) on ``windows``.
 
     ``windows`` should not overlap (the covariance takes windows as independent clusters).
     Windows whose prediction diverges count :data:`DIVERGED_RESIDUAL_M` per residual with a zero
     Jacobian, so the optimiser steps back from parameters that make a window run away.
-    ``compiled`` as in :func:`rollout_with_sensitivities`. ``keep_window_gram``: the fit carries
-    each window's Gram matrix and score (``window_gram``, ``window_score``).
+    ``compiled`` as in :func:`rollout_with_sensitivities`.
     """
     theta0 = np.asarray(theta0, dtype=float)
     p = len(theta0)
@@ -396,6 +390,4 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
         log.info("output-error fit: %d of %d windows diverge at the solution", int(bad.sum()), n_w)
     return OutputErrorFit(names=names, theta=sol.x[:p].copy(), dead_time_s=d, cov=cov, rms_pos_m=rms,
                           n_windows=n_w, nfev=int(sol.nfev), success=bool(sol.success) and not bad.any(),
-                          message=str(sol.message), input_lag_s=lag,
-                          window_gram=np.einsum("wkp,wkq->wpq", Jw, Jw) if keep_window_gram else None,
-                          window_score=g if keep_window_gram else None)
+                          message=str(sol.message), input_lag_s=lag)

@@ -19,21 +19,19 @@ of terms is what costs. So the terms are chosen on the output error too:
    (:func:`identification.sindy.output_error.fit_output_error`'s covariance, one cluster per
    window) below :data:`~identification.sindy.checks.MIN_T_STAT` is dropped, until every term is
    significant; the protected terms (the first-order lag's core) are never dropped. After each
-   drop the pruned structure is refitted (at most :data:`PRUNE_NFEV` evaluations), started where
-   a refit without the term goes for a model linear in its parameters (:func:`wald_drop` on the
-   fit's per-window Gram matrices and scores).
-
-   Fewer refits were tried and measured (12-min simulator variants bench, 2026-11-25 and 11-27;
-   ``docs/identification.md``): eliminating every term under ``MIN_T_STAT`` in one pass on the
-   covariance alone (the sandwich standing in for ``(J^T J)^-1`` in the step, never rebuilt)
-   dropped terms a refit keeps on variant 10 (search CV 7.0 -> 18.2 mm, selected model 1.42x ->
-   3.05x the true dynamics); capping it by the joint Wald test of the dropped set did not help
-   (3.05x); the one pass on the per-window algebra fixed variant 10 (1.44x) but not variants 4 and
-   7 (1.38x -> 1.73x, 1.28x -> 1.49x); a pass over the clearly null terms only (t < 1), then one
-   drop per refit, selected the same models on variants 4, 7 and 10 and made identify 1.2x faster
-   on the default campaign, but its stepwise candidate's CV error went 21.4 -> 124.5 mm there
-   (and 324 -> 43 mm on the demo-sized campaign). The models are not linear in their parameters:
-   which terms survive depends on the refits, so each drop keeps its refit.
+   drop the pruned structure is refitted (at most :data:`PRUNE_NFEV` evaluations), started from
+   the estimate restricted to the dropped term being zero (:func:`wald_drop`, the minimum-distance
+   restriction on the fit's estimate and covariance; the refit's for a model linear in its
+   parameters only when the covariance is a multiple of ``(J^T J)^-1``),
+   so the refit starts next to its optimum. Eliminating every insignificant term on the first
+   fit's covariance with one refit at the end was tried (2026-11-25): 5 times faster on the
+   default campaign, but on simulator variant 10 it dropped terms that a refit would have kept
+   (t statistics of correlated terms change once one of them goes, and the cluster-robust
+   covariance is not the refit's): the search's CV error went 7.0 -> 18.2 mm and the selected
+   model from 1.42x to 3.05x the true dynamics' test error. Exact linear algebra for the
+   restrictions (per-window Gram matrices and scores, the sandwich rebuilt after each drop; commit
+   336e506, reverted) fixed variant 10 in one pass but lost variants 4 and 7, and only starting
+   each refit there changed nothing measurable but the search path (``docs/identification.md``).
 3. Repeated until a round leaves the structure as it was or returns to a structure an earlier round
    ended on (on the default campaign rounds 2 to 4 added and dropped the same few terms in turn),
    at most :data:`MAX_ROUNDS` rounds.
@@ -46,7 +44,7 @@ keeps a term. The search runs on the train windows it is given; cross-validation
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -101,7 +99,7 @@ def _fit(model: SindyModel, windows: Windows, fixed: np.ndarray,
     """Return ``model`` refitted by output error (terms, dead times, input lags), its fit and its structure."""
     spec = SindyStructure(model, fixed)
     fit = fit_output_error(spec, spec.theta0, windows, model.dead_time_s, True, max_nfev=max_nfev,
-                           input_lag0=model.input_lag_s, fit_input_lag=True, keep_window_gram=True)
+                           input_lag0=model.input_lag_s, fit_input_lag=True)
     return spec.build(fit.theta, fit.dead_time_s, fit.input_lag_s), fit, spec
 
 
@@ -142,53 +140,17 @@ def wald_drop(fit: OutputErrorFit, droppable: np.ndarray, min_t: float = MIN_T_S
     The parameter vector is ``[theta, dead times, input lags]`` (whichever were fitted,
     ``fit.cov``'s order); only model parameters where ``droppable`` (``(p,)``) may go. While the
     smallest ``|theta_k| / std_k`` of the droppable terms left is below ``min_t``, that term is
-    restricted to zero and the others move to the estimate a refit without it would reach, to
-    first order. At most ``max_drops`` terms go (all that qualify when None).
-
-    With the fit's per-window Gram matrices and scores (``fit.window_gram``, ``window_score``)
-    this is the refit of a model linear in its parameters, cluster-robust covariance included:
-    the estimate moves by ``-A^-1 e_k x_k / (A^-1)_kk`` (``A = J^T J``, the fit's metric), each
-    window's score by ``A_w`` times that step (its residuals change with the dropped term's
-    share), and the t statistics of the next drop come from the sandwich rebuilt on the terms
-    left. Without them, the covariance stands in for ``A^-1`` (:func:`_restrict_on_cov`).
+    restricted to zero: ``x <- x - S[:, k] x_k / S_kk`` and ``S <- S - S[:, k] S[k, :] / S_kk``
+    (the estimate closest to ``x`` in ``S``'s metric with ``x_k = 0``, and its covariance; for a
+    model linear in ``x`` it is the refit without the term when ``S`` is a multiple of ``(J^T J)^-1``,
+    not for the cluster sandwich). At most ``max_drops`` terms go (all
+    that qualify when None).
     """
+    p = len(fit.theta)
     x = np.concatenate([fit.theta, fit.dead_time_s if "d1" in fit.names else [],
                         fit.input_lag_s if "T1" in fit.names else []]).astype(float)
+    S = np.array(fit.cov, dtype=float)
     alive = np.asarray(droppable, bool).copy()
-    if fit.window_gram is None:
-        return _restrict_on_cov(x, np.array(fit.cov, dtype=float), alive, len(fit.theta), min_t, max_drops)
-    p = len(fit.theta)
-    gram, score = fit.window_gram, np.array(fit.window_score, dtype=float)
-    n_w = len(score)
-    keep = np.ones(len(x), bool)
-    dropped = np.zeros(p, bool)
-    while alive.any() and (max_drops is None or dropped.sum() < max_drops):
-        idx = np.flatnonzero(keep)
-        a_inv = np.linalg.pinv(gram.sum(axis=0)[np.ix_(idx, idx)])
-        g = score[:, idx]
-        cov = a_inv @ (g.T @ g * (n_w / max(n_w - len(idx), 1))) @ a_inv
-        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        model_term = idx < p
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(sd > 0, np.abs(x[idx]) / sd, np.inf)
-        t = np.where(model_term & alive[np.minimum(idx, p - 1)], t, np.inf)
-        k = int(np.argmin(t))
-        if not t[k] < min_t or a_inv[k, k] <= 0:
-            break
-        step = -a_inv[:, k] * (x[idx[k]] / a_inv[k, k])
-        x[idx] += step
-        score += gram[:, :, idx] @ step
-        j = idx[k]
-        x[j], keep[j], alive[j], dropped[j] = 0.0, False, False, True
-    return x[:p], dropped
-
-
-def _restrict_on_cov(x: np.ndarray, S: np.ndarray, alive: np.ndarray, p: int, min_t: float,
-                     max_drops: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """Return :func:`wald_drop` on the covariance ``S`` alone: ``x <- x - S[:, k] x_k / S_kk`` and
-    ``S <- S - S[:, k] S[k, :] / S_kk`` (the estimate closest to ``x`` in ``S``'s metric with
-    ``x_k = 0``, and its covariance; the refit without the term when ``S`` is the fit's ``A^-1``
-    up to a factor, as for independent equal-variance residuals)."""
     dropped = np.zeros(p, bool)
     while alive.any() and (max_drops is None or dropped.sum() < max_drops):
         sd = np.sqrt(np.clip(np.diag(S)[:p], 0.0, None))
@@ -245,5 +207,4 @@ def stepwise_output_error(model: SindyModel, windows: Windows, allowed: np.ndarr
         if np.array_equal(before, current.coef != 0) or structure in seen:
             break
         seen.add(structure)
-    # the per-window algebra (about 10 MB for 200 windows of 80 terms) served the elimination only
-    return StepwiseFit(current, replace(fit, window_gram=None, window_score=None), rounds, tuple(history))
+    return StepwiseFit(current, fit, rounds, tuple(history))
