@@ -67,10 +67,9 @@ class SaturatedLagParameters(LagParameters):
     def accel_param_jacobian(self, dynamics: SaturatedLag, x6, u):
         x6 = np.asarray(x6, dtype=float)
         u = np.broadcast_to(u, x6.shape[:-1] + (N_U,))
-        lag = LagModel(*dynamics.params)
-        raw = LagModel.accel_and_jacobians(lag, x6, u)[0]
+        raw = LagModel.accel_and_jacobians(dynamics, x6, u)[0]  # the lag's own, before the limit
         J = np.zeros(x6.shape[:-1] + (3, 6))
-        J[..., :4] = LagParameters().accel_param_jacobian(lag, x6, u)
+        J[..., :4] = LagParameters().accel_param_jacobian(dynamics, x6, u)
         for i, limit, col in ((0, dynamics.a_v, 4), (2, dynamics.a_w, 5)):
             r = raw[..., i] / limit
             slope = 1.0 / np.cosh(r) ** 2
@@ -84,11 +83,10 @@ def p99_rate(values_and_times) -> float:
     return float(np.mean([np.percentile(np.abs(np.diff(v) / np.diff(t)), 99) for v, t in values_and_times]))
 
 
-def one(name: str, train_day: str, test_day: str) -> dict:
-    """Return the lag and the saturated lag fitted on ``train_day`` and scored on ``test_day``."""
-    camp = open_campaign(DATA / name)
-    train_ref = reference([r for r in camp.runs if run_group(r) == train_day])
-    test_ref = reference([r for r in camp.runs if run_group(r) == test_day])
+def one(name: str, runs, train_day: str, test_day: str) -> dict:
+    """Return the lag and the saturated lag fitted on ``train_day`` and scored on ``test_day`` of ``runs``."""
+    train_ref = reference([r for r in runs if run_group(r) == train_day])
+    test_ref = reference([r for r in runs if run_group(r) == test_day])
     lag = fit_lag(train_ref)
     windows = thin_windows(train_ref.windows(OE_WINDOW_S, 0.0, OE_DT), OE_MAX_WINDOWS)
     start = np.r_[lag.params, p99_rate((s.vx, s.t) for s in train_ref.states),
@@ -108,9 +106,10 @@ def one(name: str, train_day: str, test_day: str) -> dict:
 def main() -> int:
     rows = []
     for name in CAMPAIGNS:
-        days = list(dict.fromkeys(run_group(r) for r in open_campaign(DATA / name).runs))
+        runs = open_campaign(DATA / name).runs
+        days = list(dict.fromkeys(run_group(r) for r in runs))
         for train_day, test_day in permutations(days, 2):
-            rows.append(one(name, train_day, test_day))
+            rows.append(one(name, runs, train_day, test_day))
             print(rows[-1], file=sys.stderr, flush=True)
     ratios = [r["saturated"] / r["lag"] for r in rows]
     md = ["## An acceleration-limited lag on held-out real days (issue 13)", "",
