@@ -192,11 +192,12 @@ class ExtendedModel(Dynamics):
     def as_sindy(self) -> SindyModel:
         """Return the extended model as a plain :class:`SindyModel` when its mechanism is library terms.
 
-        Only ``lateral_slip`` qualifies (its columns are ``vx omega`` and ``vy`` of the lateral
-        equation); raises InputError for the other families.
+        Only the linear ``lateral_slip`` qualifies (its columns are ``vx omega`` and ``vy`` of the
+        lateral equation); raises InputError for the other families and mechanisms.
         """
-        if self.family != "lateral_slip":
-            raise InputError(f"extended model {self.family!r}: not expressible in the SINDy library")
+        if self.family != "lateral_slip" or self.spec.mechanism:
+            raise InputError(f"extended model {self.family!r} ({self.spec.mechanism or 'linear'}): "
+                             "not expressible in the SINDy library")
         if self.vy_scale != 1.0:
             raise InputError(f"extended model {self.family!r}: its vx and omega equations see vy / "
                              f"{self.vy_scale:.3g}, not expressible in the SINDy library")

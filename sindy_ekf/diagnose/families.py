@@ -26,7 +26,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 from identification.sindy.library import (
     LIBRARY_INPUT_NAMES,
@@ -34,6 +33,15 @@ from identification.sindy.library import (
     parse_term,
 )
 from sindy_ekf.diagnose.data import Split
+from sindy_ekf.diagnose.input_transforms import (  # noqa: F401  (re-exported: the transforms are the families')
+    inputs_battery,
+    inputs_coupling,
+    inputs_deadband,
+    inputs_delayed,
+    inputs_imbalance,
+    inputs_lagged,
+    inputs_steering_offset,
+)
 
 FAMILIES = ("input_delay", "heading_dependence", "position_dependence", "time_dependence", "asymmetry",
             "deadband", "lateral_slip")
@@ -42,100 +50,6 @@ PATCH_EDGE_M = 0.2  # 10-90 % width of the patch's logistic edge (assumed, not e
 PATCH_GRID_SPACING_M = 0.4  # candidate patch centres over the driven area, before Nelder-Mead
 PATCH_RADII_M = (0.5, 0.8, 1.2, 1.8)  # candidate radii of the grid
 FIELD_BASIS = ("x", "y", "xx", "xy", "yy")  # the smooth damping field: quadratic in the scaled position
-
-
-def _clip(u: np.ndarray) -> np.ndarray:
-    return np.clip(u, -1.0, 1.0)
-
-
-# -- input-side mechanisms ---------------------------------------------------------------------
-def inputs_delayed(t_run: np.ndarray, u: np.ndarray, slices, delay_s: np.ndarray) -> np.ndarray:
-    """Return inputs ``(C, N, 2)`` delayed by each ``delay_s`` (C,): ``u_m(t) = u(t - d)`` per run.
-
-    Linear interpolation between samples, the first sample held before a run's start.
-    """
-    delay_s = np.atleast_1d(np.asarray(delay_s, float))
-    out = np.empty((len(delay_s),) + u.shape)
-    for sl in slices:  # a handful of runs; vectorised over candidates and samples
-        t = t_run[sl]
-        tq = (t[None, :] - delay_s[:, None]).ravel()
-        for j in range(2):
-            out[:, sl, j] = np.interp(tq, t, u[sl, j]).reshape(len(delay_s), -1)
-    return out
-
-
-def inputs_deadband(u: np.ndarray, threshold: np.ndarray) -> np.ndarray:
-    """Return ``sign(u) max(|u| - v, 0) / (1 - v)`` per threshold ``v`` (C,), shape ``(C, N, 2)``."""
-    v = np.atleast_1d(np.asarray(threshold, float))[:, None, None]
-    return _clip(np.sign(u) * np.maximum(np.abs(u) - v, 0.0) / (1.0 - v))
-
-
-def inputs_battery(u: np.ndarray, t_run: np.ndarray, decay_per_10min: np.ndarray) -> np.ndarray:
-    """Return ``u (1 - r t / 600 s)`` per decay ``r`` (C,) with ``t`` since the run start, ``(C, N, 2)``."""
-    r = np.atleast_1d(np.asarray(decay_per_10min, float))[:, None]
-    return _clip(u[None] * np.maximum(1.0 - r * t_run[None, :] / 600.0, 0.0)[..., None])
-
-
-def inputs_coupling(u: np.ndarray, coupling: np.ndarray) -> np.ndarray:
-    """Return throttle-to-turn coupled inputs ``[u1, u2 + c u1]`` per coupling ``c`` (C,), ``(C, N, 2)``."""
-    c = np.atleast_1d(np.asarray(coupling, float))[:, None]
-    out = np.repeat(u[None], len(c), axis=0)
-    out[..., 1] = u[None, :, 1] + c * u[None, :, 0]
-    return _clip(out)
-
-
-def inputs_steering_offset(u: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """Return inputs with the steering offset by ``o`` (C,): ``[u1, u2 + o]``, ``(C, N, 2)``."""
-    o = np.atleast_1d(np.asarray(offset, float))[:, None]
-    out = np.repeat(u[None], len(o), axis=0)
-    out[..., 1] = u[None, :, 1] + o
-    return _clip(out)
-
-
-def inputs_lagged(t_run: np.ndarray, u: np.ndarray, slices, lag_s: np.ndarray) -> np.ndarray:
-    """Return inputs through a first-order actuator lag ``T u_m' = u - u_m`` per ``T`` (C,), ``(C, N, 2)``.
-
-    Exact for inputs linear between samples (the first-order hold's discretisation); each run
-    starts at rest on its first input; ``T = 0`` passes the inputs through.
-    """
-    T = np.atleast_1d(np.asarray(lag_s, float))
-    out = np.repeat(u[None], len(T), axis=0).astype(float)
-    live = T > 0
-    if not live.any():
-        return out
-    Tl = T[live][:, None, None]
-    for sl in slices:
-        t, uu = t_run[sl], u[sl]
-        h = np.diff(t)[None, :, None]  # (1, N-1, 1)
-        a = np.exp(-h / Tl)  # (C, N-1, 1)
-        slope = np.divide(np.diff(uu, axis=0)[None], h, out=np.zeros((1,) + uu[1:].shape), where=h > 0)
-        # over a step of length h with u(s) = u0 + slope s: y1 = u1 - slope T - (u0 - slope T - y0) exp(-h/T)
-        c = uu[1:][None] - slope * Tl - (uu[:-1][None] - slope * Tl) * a  # (C, N-1, 2)
-        ys = np.empty((len(Tl), len(t), 2))
-        ys[:, 0] = uu[0]
-        hv = h[0, :, 0]
-        edges = np.concatenate([[0], np.flatnonzero(np.abs(np.diff(hv)) > 1e-9 * hv[1:]) + 1, [len(hv)]])
-        if len(t) > 1 and len(edges) < len(t) / 20:  # stretches of even sampling: a linear filter each
-            y = ys[:, 0].copy()
-            for s0, e0 in zip(edges[:-1], edges[1:]):
-                for i in range(len(Tl)):
-                    ai = a[i, s0, 0]
-                    ys[i, s0 + 1:e0 + 1] = lfilter([1.0], [1.0, -ai], c[i, s0:e0], axis=0, zi=ai * y[i][None])[0]
-                y = ys[:, e0].copy()
-            out[live, sl] = ys
-            continue
-        y = ys[:, 0].copy()
-        for k in range(len(t) - 1):  # the recursion itself, vectorised over candidates
-            y = c[:, k] + a[:, k] * y
-            ys[:, k + 1] = y
-        out[live, sl] = ys
-    return out
-
-
-def inputs_imbalance(u: np.ndarray, imbalance: np.ndarray) -> np.ndarray:
-    """Return track-imbalance inputs ``[u1 + a/2 u2, u2 + a/2 u1]`` per imbalance ``a`` (C,), ``(C, N, 2)``."""
-    h = np.atleast_1d(np.asarray(imbalance, float))[:, None, None] / 2.0
-    return _clip(u[None] + h * u[None, :, ::-1])
 
 
 # -- additive mechanisms -----------------------------------------------------------------------
@@ -258,12 +172,29 @@ class Family:
             if with_jacobian:
                 jac[:, :, 0, 0, 0], jac[:, :, 0, 0, 1], jac[:, :, 0, 0, 3] = ds_x * vx, ds_y * vx, s
                 jac[:, :, 2, 1, 0], jac[:, :, 2, 1, 1], jac[:, :, 2, 1, 5] = ds_x * om, ds_y * om, s
+        elif self.mechanism == "track_friction":
+            # one track drags more: a yaw toward it proportional to speed, and a loss of speed in
+            # turns (the faster track's share of the friction grows), to first order in the difference
+            cols[:, :, 0, 0] = om
+            cols[:, :, 2, 1] = vx
+            if with_jacobian:
+                jac[:, :, 0, 0, 5] = 1.0
+                jac[:, :, 2, 1, 3] = 1.0
         elif self.name == "lateral_slip":
             cols[:, :, 1, 0] = vx * om
             cols[:, :, 1, 1] = vy
             if with_jacobian:
                 jac[:, :, 1, 0, 3], jac[:, :, 1, 0, 5] = om, vx
                 jac[:, :, 1, 1, 4] = 1.0
+            if self.mechanism == "saturating":  # the drift's cubic in the demand: odd, either sign
+                d = vx * om
+                cols[:, :, 1, 2] = d ** 3
+                if with_jacobian:
+                    jac[:, :, 1, 2, 3], jac[:, :, 1, 2, 5] = 3 * d * d * om, 3 * d * d * vx
+            elif self.mechanism == "speed_dependent":  # the drift per unit demand changing with speed
+                cols[:, :, 1, 2] = vx ** 3 * om
+                if with_jacobian:
+                    jac[:, :, 1, 2, 3], jac[:, :, 1, 2, 5] = 3 * vx * vx * om, vx ** 3
         return (cols, jac) if with_jacobian else cols
 
     def uniform_columns(self, x6: np.ndarray) -> np.ndarray:
@@ -295,7 +226,9 @@ class Family:
             return {"field_center_local_m": [float(theta[0]), float(theta[1])], "field_scale_m": float(theta[2]),
                     "damping_fraction_field": frac.tolist(), "damping_fraction_span": span,
                     "mechanism": self.mechanism}
-        if self.mechanism:
+        if self.mechanism == "track_friction":
+            return track_friction_estimate(beta, model)
+        if self.mechanism and self.kind == "input":
             return {self.theta_names[0]: float(theta[0]), "mechanism": self.mechanism}
         if self.name == "input_delay":
             return {"delay_s": float(theta[0])}
@@ -328,8 +261,14 @@ class Family:
             c_new, k_new = c + beta[0], k + beta[1]
             drift = float(c_new / k_new) if k_new != 0 else float("nan")
             has_law = c != 0 and k != 0
-            return {"coupling": float(c_new), "damping_1_s": float(-k_new), "drift_s": drift,
-                    "slip_gain": float(drift / (c / k)) if has_law else None, "model_has_lateral_law": has_law}
+            out = {"coupling": float(c_new), "damping_1_s": float(-k_new), "drift_s": drift,
+                   "slip_gain": float(drift / (c / k)) if has_law else None, "model_has_lateral_law": has_law}
+            if self.mechanism:  # the nonlinear part of the drift, relative to its linear part at the
+                # edge of the usual demand (|vx omega| = 0.4 m/s^2, or vx = 1 m/s for the speed term)
+                ref = 0.4 ** 2 if self.mechanism == "saturating" else 1.0
+                out |= {"mechanism": self.mechanism, "nonlinear_coef": float(beta[2]),
+                        "nonlinear_share": float(beta[2] * ref / c_new) if c_new else float("nan")}
+            return out
         return {}
 
 
@@ -383,7 +322,8 @@ FAMILY_SPECS: dict[str, Family] = {
                                   bounds=((-1e3, 1e3), (-1e3, 1e3), (0.2, 4.0)),
                                   doc="a floor patch with more rolling resistance"),
     "lateral_slip": Family("lateral_slip", "additive", column_names=("vx_omega", "vy"),
-                           doc="the lateral drift in turns is larger than the model's"),
+                           doc="the lateral drift in turns is larger than the model's",
+                           extra={"library_columns": True}),
 }
 
 # Every family a set of mechanisms (issue 15, item 1): the first is FAMILY_SPECS' (its estimate keys
@@ -404,6 +344,35 @@ MECHANISMS["asymmetry"] += (
     Family("asymmetry", "input", ("steering_offset",), bounds=((-0.2, 0.2),), mechanism="steering_offset",
            doc="zero steering turns the robot: the motors see u2 + o", extra={"step": 0.02}),
 )
+
+
+MECHANISMS["asymmetry"] += (
+    Family("asymmetry", "additive", column_names=("omega_in_vx", "vx_in_omega"), mechanism="track_friction",
+           doc="one track drags more: yaw toward it proportional to speed, speed lost in turns",
+           extra={"library_columns": True}),)
+MECHANISMS["lateral_slip"] = (FAMILY_SPECS["lateral_slip"],) + tuple(
+    Family("lateral_slip", "additive", column_names=("vx_omega", "vy", extra), mechanism=mech, doc=doc,
+           extra={"library_columns": True})
+    for mech, extra, doc in (
+        ("saturating", "vx_omega_cubed",
+         "the drift grows faster (saturating tyre) or slower (hardening tyre) than linearly with vx omega"),
+        ("speed_dependent", "vx_cubed_omega", "the drift per unit vx omega changes with speed (cornering stiffness)")))
+
+
+def track_friction_estimate(beta: np.ndarray, model) -> dict:
+    """Return the per-track friction difference from the columns ``beta = [omega in vx, vx in omega]``.
+
+    Tracks at ``vx -/+ b omega`` with linear resistance ``(1 -/+ f/2)`` times the mean add
+    ``-f d_vx b / 2 omega`` to ``vx_dot`` and ``-f d_omega / (2 b) vx`` to ``omega_dot`` (``d_vx``,
+    ``d_omega`` the model's linear damping, ``b`` the half track): their product gives ``f`` without
+    ``b``, their ratio ``b``. Opposite signs fit no friction difference: ``f`` is then ``nan``.
+    """
+    d_vx, d_om = -model_coefficient(model, "vx", "vx"), -model_coefficient(model, "omega", "omega")
+    prod = beta[0] * beta[1] / (d_vx * d_om) if d_vx > 0 and d_om > 0 else float("nan")
+    ok = np.isfinite(prod) and prod > 0
+    return {"friction_difference": float(-np.sign(beta[1]) * 2 * np.sqrt(prod)) if ok else float("nan"),
+            "half_track_m": float(np.sqrt(beta[0] * d_om / (beta[1] * d_vx))) if ok else float("nan"),
+            "yaw_per_speed_1_m_s": float(beta[1]), "mechanism": "track_friction"}
 
 
 def mechanism_spec(family: str, mechanism: str | None = None) -> Family:

@@ -421,7 +421,8 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
     uniform = beta_all[family.n_columns:] if family.kind != "input" else np.zeros(0)
     score = FamilyScore(family.name, np.asarray(theta, float), np.asarray(beta, float), gain, gain_runs,
                         float(1.0 - sse_train[0] / sse0_train), estimate, std, profile, uniform=np.array(uniform))
-    if refit and family.name != "lateral_slip":  # lateral terms are library terms: a refit absorbs them
+    if refit and not family.extra.get("library_columns"):  # library terms (the lateral law, a track's
+        # friction): a refit on the model's support absorbs them
         alt = refit_score(family, model, train, test, weights, theta)
         by = {"fixed": gain, "refit": alt["gain"]}
         fixed = dataclasses.replace(score, by_scoring=by)
