@@ -9,7 +9,8 @@ response is a first-order exponential while the robot's velocity controller limi
 per axis the lag's acceleration through a smooth limit, ``a_max tanh(a_lag / a_max)`` (``a_v`` on
 ``vx``, ``a_w`` on ``omega``; the lag itself as ``identification.sindy.baselines.LagModel``), fitted
 with its dead times by the same output-error least squares on the train day's windows as the lag
-(started at the lag's fit and the train day's 99th percentile of ``|dv/dt|``), and scored beside it
+(started at the lag's fit and the train day's largest measured accelerations,
+``identification.sindy.checks.measured_accel_max``), and scored beside it
 on the test day's windows from the same start states (``evaluate``'s reference, 5 s windows).
 A limit the data do not support goes to its upper bound (50, no saturation) and scores as the lag.
 """
@@ -27,6 +28,7 @@ from bench.publish import publish
 from groundfloor.dynamics import N_U
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.baselines import LagModel, LagParameters, fit_lag
+from identification.sindy.checks import measured_accel_max
 from identification.sindy.evaluate import evaluate_model
 from identification.sindy.output_error import OE_DT, OE_MAX_WINDOWS, OE_WINDOW_S, fit_output_error
 from identification.sindy.reference import reference, run_group, thin_windows
@@ -78,19 +80,13 @@ class SaturatedLagParameters(LagParameters):
         return J
 
 
-def p99_rate(values_and_times) -> float:
-    """Return the mean over segments of the 99th percentile of ``|dv/dt|``."""
-    return float(np.mean([np.percentile(np.abs(np.diff(v) / np.diff(t)), 99) for v, t in values_and_times]))
-
-
 def one(name: str, runs, train_day: str, test_day: str) -> dict:
     """Return the lag and the saturated lag fitted on ``train_day`` and scored on ``test_day`` of ``runs``."""
     train_ref = reference([r for r in runs if run_group(r) == train_day])
     test_ref = reference([r for r in runs if run_group(r) == test_day])
     lag = fit_lag(train_ref)
     windows = thin_windows(train_ref.windows(OE_WINDOW_S, 0.0, OE_DT), OE_MAX_WINDOWS)
-    start = np.r_[lag.params, p99_rate((s.vx, s.t) for s in train_ref.states),
-                  p99_rate((s.omega, s.t) for s in train_ref.states)]
+    start = np.r_[lag.params, measured_accel_max(train_ref.states)[[0, 2]]]
     start[4:] = np.clip(start[4:], *A_BOUNDS)
     spec = SaturatedLagParameters()
     fit = fit_output_error(spec, start, windows, lag.dead_time_s, True, max_nfev=80)

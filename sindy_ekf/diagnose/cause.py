@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.families import inputs_delayed
+from sindy_ekf.diagnose.input_transforms import inputs_delayed
 from sindy_ekf.diagnose.rank import order_key
 from sindy_ekf.diagnose.residuals import EQUATIONS, residual_structure, window_residuals
 

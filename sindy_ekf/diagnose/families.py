@@ -33,7 +33,7 @@ from identification.sindy.library import (
     parse_term,
 )
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.input_transforms import (  # noqa: F401  (re-exported: the transforms are the families')
+from sindy_ekf.diagnose.input_transforms import (
     inputs_battery,
     inputs_coupling,
     inputs_deadband,
@@ -50,6 +50,9 @@ PATCH_EDGE_M = 0.2  # 10-90 % width of the patch's logistic edge (assumed, not e
 PATCH_GRID_SPACING_M = 0.4  # candidate patch centres over the driven area, before Nelder-Mead
 PATCH_RADII_M = (0.5, 0.8, 1.2, 1.8)  # candidate radii of the grid
 FIELD_BASIS = ("x", "y", "xx", "xy", "yy")  # the smooth damping field: quadratic in the scaled position
+# where a nonlinear lateral law's share of the drift is reported: the edge of the usual centripetal
+# demand |vx omega| of a Husky-sized robot (m/s^2), and 1 m/s for the speed-dependent law
+DEMAND_REF_M_S2, SPEED_REF_M_S = 0.4, 1.0
 
 
 # -- additive mechanisms -----------------------------------------------------------------------
@@ -263,9 +266,8 @@ class Family:
             has_law = c != 0 and k != 0
             out = {"coupling": float(c_new), "damping_1_s": float(-k_new), "drift_s": drift,
                    "slip_gain": float(drift / (c / k)) if has_law else None, "model_has_lateral_law": has_law}
-            if self.mechanism:  # the nonlinear part of the drift, relative to its linear part at the
-                # edge of the usual demand (|vx omega| = 0.4 m/s^2, or vx = 1 m/s for the speed term)
-                ref = 0.4 ** 2 if self.mechanism == "saturating" else 1.0
+            if self.mechanism:  # the nonlinear part of the drift relative to its linear part at the references
+                ref = DEMAND_REF_M_S2 ** 2 if self.mechanism == "saturating" else SPEED_REF_M_S ** 2
                 out |= {"mechanism": self.mechanism, "nonlinear_coef": float(beta[2]),
                         "nonlinear_share": float(beta[2] * ref / c_new) if c_new else float("nan")}
             return out

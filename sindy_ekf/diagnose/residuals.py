@@ -31,7 +31,7 @@ from identification.sindy.evaluate import (
     rollout,
 )
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.families import inputs_delayed
+from sindy_ekf.diagnose.input_transforms import inputs_delayed
 
 EQUATIONS = ("vx", "vy", "omega")
 

@@ -48,9 +48,11 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
     """
     specs = MECHANISMS[name]
     if len(specs) > 1:  # compared on their grids: the refinement and the scoring only for the one kept
-        ratios = []
+        ratios, nulls = [], {}
         for s in specs:  # each against its own null: an input form's has the gain nuisance, an additive one's not
-            sse0_fixed = null_fit(model, tr, weights, base_pred["train"], s)[1]
+            if s.kind not in nulls:
+                nulls[s.kind] = null_fit(model, tr, weights, base_pred["train"], s)[1]
+            sse0_fixed = nulls[s.kind]
             grid = s.grid(tr)
             sse = solve_design(design_for(s, model, tr, grid, weights, base_pred["train"]))[1]
             fixed = (parabolic_min(grid[:, 0], sse) if grid.shape[1] == 1 else float(np.nanmin(sse))) / sse0_fixed

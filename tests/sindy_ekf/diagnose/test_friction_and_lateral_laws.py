@@ -13,6 +13,7 @@ import warnings
 import numpy as np
 import pytest
 
+from groundfloor.errors import InputError
 from identification.sindy.library import make_library
 from identification.sindy.model import SindyModel
 from simulation.effects import Effect
@@ -102,7 +103,7 @@ def test_only_the_linear_lateral_law_is_a_sindy_model(tmp_path):
     model = _damped_model(4.0, 3.0)
     ext = ExtendedModel.added(model, "lateral_slip", np.zeros(0), np.array([-0.5, -1.0, 2.0]),
                               {"mechanism": "saturating"})
-    with pytest.raises(Exception, match="not expressible"):
+    with pytest.raises(InputError, match="not expressible"):
         ext.as_sindy()
     back = ExtendedModel.load(ext.to_json(tmp_path / "ext.json"))
     x6 = np.array([[0, 0, 0, 0.6, 0.02, 0.5]])
