@@ -350,6 +350,11 @@ _mutation = _filled(r"### seed (?P<seed>\d+) \(a fresh draw[^)]*\): \*\*(?P<kill
                     "{killed} of {n} killed, {share} % (fresh draw, seed {seed}; target 90 %)")
 
 
+_lodo_ceiling = _filled(r"reaches (?P<target>[\d.]+)x the other day's lag in (?P<k>\d+) of (?P<n>\d+) directions "
+                        r"\((?P<ratios>[^)]*)\)",
+                        "{ratios} the other day's lag: {target}x reached in {k} of {n} directions even in sample")
+
+
 _demo_wall = _filled(r"\*\*`sindy-ekf demo`: (?P<wall>\d+) s wall, (?P<cpu>\d+) s CPU\*\*.*?"
                      r"load average (?P<before>[\d.]+) before, (?P<after>[\d.]+) after",
                      "{wall} s wall, {cpu} s CPU (load average {before} before, {after} after, 2 cores)")
@@ -387,6 +392,8 @@ ROWS = (
         "(45.4 min): this checkout against an earlier commit, run after run", _identify_speed, "-"),
     Row("identification", "real Warthog data, leave one day out (train on one day, score on the other)",
         _leave_one_day_out, "-"),
+    Row("lodo_ceiling", "real Warthog data, leave one day out: the better of the lag and `identify`'s model fitted "
+        "on the test day itself (in sample, an optimistic bound), against the other day's lag", _lodo_ceiling, "-"),
     Row("inject_real", "diagnosis of effects hidden in real Warthog data (`inject`: delay, deadband, coupling, "
         "decay at 0.5, 1, 2 x moderate)", _inject_real, "-"),
     Row("real_cli", "real Warthog data, `sindy-ekf identify` on the train runs then `evaluate`: 5 s position error "
