@@ -42,6 +42,7 @@ from sindy_ekf.diagnose.design import (
     solve_design,
 )
 from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, mechanism_rows
+from sindy_ekf.diagnose.grids import parabolic_argmin
 
 log = logging.getLogger(__name__)
 
@@ -211,18 +212,6 @@ def _refine(family: Family, model, split: Split, grid: np.ndarray, sse: np.ndarr
     return grid[i]
 
 
-def _parabolic_argmin(grid: np.ndarray, sse: np.ndarray) -> np.ndarray:
-    """Return the vertex of the parabola through the best grid point and its neighbours (1-D)."""
-    i = int(np.argmin(sse))
-    if grid.shape[1] != 1 or i == 0 or i == len(grid) - 1 or not np.all(np.isfinite(sse[i - 1:i + 2])):
-        return grid[i]
-    x, y = grid[i - 1:i + 2, 0], sse[i - 1:i + 2]
-    den = (x[0] - x[1]) * (x[0] - x[2]) * (x[1] - x[2])
-    a = (x[2] * (y[1] - y[0]) + x[1] * (y[0] - y[2]) + x[0] * (y[2] - y[1])) / den
-    b = (x[2] ** 2 * (y[0] - y[1]) + x[1] ** 2 * (y[2] - y[0]) + x[0] ** 2 * (y[1] - y[2])) / den
-    return np.array([-b / (2 * a)]) if a > 0 else grid[i]
-
-
 def _jackknife(values: list[dict]) -> dict:
     """Return jackknife standard deviations of the numeric (and list) entries of estimate dicts."""
     if len(values) < 2:
@@ -333,7 +322,7 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
         X = refit_columns(family, model, train, th)
         return X, solve_design(normal_equations(y_tr, X[None], weights, train.window_run, R))[0][0]
 
-    theta = _parabolic_argmin(grid, sse) if grid.shape[1] == 1 else grid[0]
+    theta = parabolic_argmin(grid, sse) if grid.shape[1] == 1 else grid[0]
     X_tr, sol = refit_at(theta)
     entered = _entered(family, model, train, theta)
     if not stable_at_rest(_coef_from_refit(model, sol, entered)):
@@ -350,7 +339,7 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
     beta = sol[len(sol) - m:] if m else np.zeros(0)
     std = {}
     if family.kind == "input" and R > 1:
-        loo = [{family.theta_names[0]: float(_parabolic_argmin(
+        loo = [{family.theta_names[0]: float(parabolic_argmin(
                    grid, np.where(ok, solve_design(d, np.flatnonzero(np.arange(R) != r))[1], np.inf))[0])}
                for r in range(R)]
         std = _jackknife(loo)
@@ -408,7 +397,7 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
         for r in range(len(train.names)):
             keep = np.flatnonzero(np.arange(len(train.names)) != r)
             _, sse_r = solve_design(design, keep)
-            th_r = _parabolic_argmin(grid, sse_r) if grid.shape[1] == 1 else grid[int(np.argmin(sse_r))]
+            th_r = parabolic_argmin(grid, sse_r) if grid.shape[1] == 1 else grid[int(np.argmin(sse_r))]
             if grid.shape[1] == 3:  # patch geometry kept at the full-data optimum (the grid is coarser
                 th_r = theta  # than the patch); the spread of beta given the patch is resampled
             yr, Xr = residual_and_columns(family, model, train, np.atleast_1d(th_r)[None], base_pred["train"])

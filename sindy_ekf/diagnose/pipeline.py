@@ -45,6 +45,7 @@ from sindy_ekf.diagnose.extend import (
 )
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
+from sindy_ekf.diagnose.per_input import with_per_input
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
     RankedCause,
@@ -320,6 +321,10 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     res_before, windows = multistep_errors_by_window(model, test, test_names)  # end states kept for the structure
     extended, res_after = None, res_before
     if name != "none":
+        # a significant delay, lag or deadband gets its values per input (per_input.py), in its
+        # extension when the inputs' values differ
+        ranked = [dataclasses.replace(c, score=with_per_input(c.score, model, tr, weights)) if c.significant else c
+                  for c in ranked]
         ranked, extended = confirm_on_train(model, ranked, tr, weights, train, train_names)
         name = verdict(ranked)
         if extended is not None:

@@ -17,22 +17,7 @@ from sindy_ekf.diagnose.design import equation_weights, gain_recalibrated, null_
 from sindy_ekf.diagnose.drift import drift_score
 from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
 from sindy_ekf.diagnose.fitting import FamilyScore, design_for, null_fit, refit_grid, score_family
-
-
-def parabolic_min(grid: np.ndarray, sse: np.ndarray) -> float:
-    """Return the minimum of the parabola through the best of ``sse`` on ``grid`` and its neighbours
-    (the best value itself at an edge or without curvature): mechanisms on grids of different
-    spacing compared near their optima, not at wherever their grid points happen to fall."""
-    i = int(np.nanargmin(np.where(np.isfinite(sse), sse, np.inf)))
-    if i == 0 or i == len(sse) - 1 or not np.all(np.isfinite(sse[i - 1:i + 2])):
-        return float(sse[i])
-    (x0, x1, x2), (y0, y1, y2) = grid[i - 1:i + 2], sse[i - 1:i + 2]
-    c2 = ((y2 - y1) / (x2 - x1) - (y1 - y0) / (x1 - x0)) / (x2 - x0)  # second divided difference
-    if c2 <= 0:
-        return float(y1)
-    c1 = (y1 - y0) / (x1 - x0) - c2 * (x0 + x1)  # y = c2 x^2 + c1 x + c0 through the three points
-    x_min = -c1 / (2 * c2)
-    return float(min(y1, y1 + c1 * (x_min - x1) + c2 * (x_min ** 2 - x1 ** 2)))
+from sindy_ekf.diagnose.grids import parabolic_min
 
 
 def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:

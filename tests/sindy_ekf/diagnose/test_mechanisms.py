@@ -15,7 +15,7 @@ from identification.sindy.library import make_library
 from identification.sindy.model import SindyModel
 from sindy_ekf.diagnose.extend import ExtendedModel
 from sindy_ekf.diagnose.families import FAMILY_SPECS, MECHANISMS, mechanism_spec
-from sindy_ekf.diagnose.scoring import parabolic_min
+from sindy_ekf.diagnose.grids import parabolic_min
 
 
 def test_first_order_lag_against_an_ode_solver():
