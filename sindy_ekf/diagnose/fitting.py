@@ -1,11 +1,14 @@
-"""Families fitted on train runs and scored on test runs, on the integral regression.
+"""Families fitted on train runs and scored out of sample, on the integral regression.
 
 Everything is scored on the integral regression (eqs. 5.55 to 5.57): over windows of ``tau``
 the residual ``Delta v - int f(x, T_theta(u)) dt - int C beta dt`` per equation, each equation
 weighted by the inverse of the model's residual variance on the train runs. ``theta`` and
-``beta`` come from the train runs; the gain is the relative drop of the weighted residual sum
-of squares on the *test* runs (out of sample, by run). Per-run sums are kept so that the
-leave-one-run-out (jackknife) uncertainty of every estimate costs no new design matrices.
+``beta`` (the estimate) come from the train runs. With the model kept fixed, the gain is the
+relative drop of the weighted residual sum of squares out of sample: for an input-side mechanism
+with every run held out once, train and test runs alike (:mod:`sindy_ekf.diagnose.crossval`), for
+an additive one on the *test* runs; re-identified, on the *test* runs with the refit from the train
+runs (:func:`refit_score`). Per-run sums are kept so that folds and the
+leave-one-run-out (jackknife) uncertainty of every estimate cost no new design matrices.
 With the model kept fixed, the null of an input-side mechanism is the model with its input gains
 fitted on the train runs, and the mechanism is fitted together with a gain nuisance (two more
 columns): it is credited only for what one constant gain per input cannot explain
@@ -30,13 +33,13 @@ from identification.sindy.checks import (
     stable_at_rest,
 )
 from identification.sindy.model import SindyModel
+from sindy_ekf.diagnose.columns import design_for, null_fit, null_residual, residual_and_columns
+from sindy_ekf.diagnose.crossval import cross_validated_gain
 from sindy_ekf.diagnose.data import Split
 from sindy_ekf.diagnose.design import (
     ActiveTerms,
     Design,
-    chunks,
     equation_weights,
-    model_and_gain_columns,
     normal_equations,
     null_prediction,
     solve_design,
@@ -45,98 +48,6 @@ from sindy_ekf.diagnose.families import FAMILY_SPECS, Family, mechanism_rows
 from sindy_ekf.diagnose.grids import parabolic_argmin
 
 log = logging.getLogger(__name__)
-
-def residual_and_columns(family: Family, model, split: Split, theta: np.ndarray,
-                         base_pred: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Return window targets ``y (C, p, 3)`` after the fixed part and columns ``X (C, p, 3, m + n)``:
-    the mechanism's ``m`` columns, then its ``n`` nuisance columns (2 for an input-side mechanism: its
-    gain nuisance; 2 for the floor patch: its uniform nuisance; 0 for the other additive ones).
-
-    An input-side mechanism gets two more columns, its nuisance: the model's response to a change of
-    its input gains (linearised at the given gains, the derivative by ``log g_i``), fitted with the
-    mechanism. What a constant gain per input explains is credited to no mechanism, and a gain-shaped
-    mechanism (a decay, a deadband) is fitted around the gains it would otherwise have to mimic
-    (:func:`sindy_ekf.diagnose.design.gain_recalibrated` is the null's nonlinear counterpart). An additive mechanism acts where
-    the robot is or how it heads and cannot mimic a gain; it gets no gain nuisance: given one, a floor patch
-    bought a better fit of the gains on the train runs by absorbing the runs that disagree and credited
-    that to itself (measured: 26 % on the clean real cmd test run, which never enters the patch; the
-    extension changed its 5 s error by 1e-12). The floor patch gets its own uniform nuisance instead
-    (:func:`uniform_nuisance`): a patch grown over the whole driven area is a damping wrong everywhere,
-    which a battery sag or a soft deadband also looks like (issue 15's forms suite: a patch of radius
-    4 m won over both, 0/3 and 1/3 named).
-    """
-    theta = np.atleast_2d(theta)
-    C, p, m = len(theta), split.n_windows, family.n_columns
-    dv = split.delta_v
-    act = ActiveTerms(model)
-    if family.kind == "input":
-        y, X = np.empty((C, p, 3)), np.empty((C, p, 3, 2))
-        k = act.library.n_features
-        for sl in chunks(C, len(split.t_run) * k * 3):
-            u_m = family.motor_inputs(split.t_run, split.u, split.runs_slices(), theta[sl])
-            pred, X[sl] = model_and_gain_columns(act, split, u_m)
-            y[sl] = dv - pred
-        return y, X
-    base_pred = null_prediction(model, split) if base_pred is None else base_pred
-    y = np.broadcast_to(dv - base_pred, (C, p, 3))
-    nuisance = uniform_nuisance(family, split)
-    X = np.empty((C, p, 3, m + nuisance.shape[-1]))
-    X[..., m:] = nuisance
-    x6 = split.x6
-    for sl in chunks(C, len(split.t_run) * 3 * m):
-        cols = family.columns(x6, split.u, split.t_run, theta[sl])
-        n = cols.shape[0]
-        X[sl, ..., :m] = split.integrate(cols.reshape(n, len(x6), 3 * m)).reshape(n, p, 3, m)
-    return y, X
-
-
-def uniform_nuisance(family: Family, split: Split) -> np.ndarray:
-    """Return the window integrals ``(p, 3, n)`` of an additive family's uniform nuisance
-    (:meth:`Family.uniform_columns`), fitted beside the mechanism and in its null."""
-    cols = family.uniform_columns(split.x6)
-    n = cols.shape[-1]
-    return split.integrate(cols.reshape(len(cols), 3 * n)).reshape(-1, 3, n) if n else np.zeros((split.n_windows, 3, 0))
-
-
-def null_columns(model, split: Split, base_pred: np.ndarray | None = None,
-                 family: Family | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Return the null of ``family``'s fixed-model scoring as ``y (p, 3)``, ``X (p, 3, n)``: the given
-    model with its gain nuisance (``n = 2``) for an input-side mechanism (also when ``family`` is
-    None), with its uniform nuisance for an additive one (:func:`uniform_nuisance`, ``n = 0`` for most):
-    :func:`residual_and_columns` fits the same nuisance beside the mechanism."""
-    base_pred = null_prediction(model, split) if base_pred is None else base_pred
-    y = split.delta_v - base_pred
-    if family is not None and family.kind != "input":
-        return y, uniform_nuisance(family, split)
-    return y, model_and_gain_columns(ActiveTerms(model), split, split.u[None])[1][0]
-
-
-def null_fit(model, split: Split, weights: np.ndarray, base_pred: np.ndarray | None = None,
-             family: Family | None = None):
-    """Return ``(nuisance coefficients, weighted SSE)`` of the null of ``family`` fitted on ``split``."""
-    y, X = null_columns(model, split, base_pred, family)
-    beta, sse = solve_design(normal_equations(y[None], X[None], weights, split.window_run, len(split.names)))
-    return beta[0], float(sse[0])
-
-
-def null_residual(model, split: Split, beta0: np.ndarray, base_pred: np.ndarray | None = None,
-                  family: Family | None = None) -> np.ndarray:
-    """Return the window residual ``(p, 3)`` on ``split`` of the null of ``family`` with nuisance
-    coefficients ``beta0``."""
-    y, X = null_columns(model, split, base_pred, family)
-    return y - np.einsum("pem,m->pe", X, beta0)
-
-
-def design_for(family: Family, model, split: Split, grid: np.ndarray, weights: np.ndarray,
-               base_pred: np.ndarray | None = None) -> Design:
-    """Return the per-run normal equations of all candidates ``grid``, built in memory-bounded chunks."""
-    parts = []
-    per = split.n_windows * 3 * (family.n_columns + 2)
-    for sl in chunks(len(grid), per):
-        y, X = residual_and_columns(family, model, split, grid[sl], base_pred)
-        parts.append(normal_equations(y, X, weights, split.window_run, len(split.names)))
-    return Design(*(np.concatenate([getattr(d, k) for d in parts]) for k in ("G", "b", "yy")))
-
 
 @dataclass(frozen=True)
 class FamilyScore:
@@ -210,6 +121,20 @@ def _refine(family: Family, model, split: Split, grid: np.ndarray, sse: np.ndarr
         th[2] = np.clip(th[2], *family.bounds[2])
         return th if res.fun <= sse[i] else grid[i]
     return grid[i]
+
+
+def _test_gain(family: Family, model, test: Split, theta: np.ndarray, beta_all: np.ndarray, beta0: np.ndarray,
+               weights: np.ndarray, base_pred: np.ndarray) -> tuple[float, dict[str, float]]:
+    """Return the gain on the test runs of the mechanism at ``theta``, ``beta_all`` (fitted on the train
+    runs) against the null with ``beta0``, and per test run."""
+    y_t, X_t = residual_and_columns(family, model, test, theta[None], base_pred)
+    res_t = y_t[0] - np.einsum("pem,m->pe", X_t[0], beta_all)
+    r0_t = null_residual(model, test, beta0, base_pred, family)
+    per_win_ext = np.sum(res_t * res_t * weights, axis=1)
+    per_win_0 = np.sum(r0_t * r0_t * weights, axis=1)
+    gain_runs = {name: float(1.0 - per_win_ext[sel].sum() / per_win_0[sel].sum())
+                 for i, name in enumerate(test.names) for sel in [test.window_run == i] if sel.any()}
+    return float(1.0 - per_win_ext.sum() / per_win_0.sum()), gain_runs
 
 
 def _jackknife(values: list[dict]) -> dict:
@@ -377,19 +302,12 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
     beta_all = beta_all[0]
     beta = beta_all[:family.n_columns]  # the mechanism's; an input-side one's nuisance follows
     beta0, sse0_train = null_fit(model, train, weights, base_pred["train"], family)
-    # out of sample: the test runs with theta and beta from the train runs, against the null from them
-    y_t, X_t = residual_and_columns(family, model, test, theta[None], base_pred["test"])
-    res_t = y_t[0] - np.einsum("pem,m->pe", X_t[0], beta_all)
-    r0_t = null_residual(model, test, beta0, base_pred["test"], family)
-    per_win_ext = np.sum(res_t * res_t * weights, axis=1)
-    per_win_0 = np.sum(r0_t * r0_t * weights, axis=1)
-    run_w = test.window_run
-    gain_runs = {}
-    for i, name in enumerate(test.names):
-        sel = run_w == i
-        if sel.any():
-            gain_runs[name] = float(1.0 - per_win_ext[sel].sum() / per_win_0[sel].sum())
-    gain = float(1.0 - per_win_ext.sum() / per_win_0.sum())
+    if family.kind == "input":  # out of sample: every run held out once, mechanism and null fitted on the others
+        gain, per_run = cross_validated_gain(family, model, [(train, base_pred["train"]), (test, base_pred["test"])],
+                                             grid, theta, weights)
+        gain_runs = {n: g for n, g in zip(test.names, per_run[len(train.names):]) if np.isfinite(g)}
+    else:  # out of sample: the test runs, with theta and beta from the train runs
+        gain, gain_runs = _test_gain(family, model, test, theta, beta_all, beta0, weights, base_pred["test"])
     estimate = family.estimate(theta, beta, model)
     std = {}
     if uncertainty and len(train.names) > 1:

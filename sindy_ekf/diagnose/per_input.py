@@ -28,7 +28,8 @@ import numpy as np
 
 from sindy_ekf.diagnose.design import gain_recalibrated, null_prediction, solve_design
 from sindy_ekf.diagnose.families import PER_INPUT, Family, mechanism_spec
-from sindy_ekf.diagnose.fitting import FamilyScore, design_for, refit_grid
+from sindy_ekf.diagnose.columns import design_for
+from sindy_ekf.diagnose.fitting import FamilyScore, refit_grid
 from sindy_ekf.diagnose.grids import parabolic_argmin
 
 #: the per-input values replace the pooled one when they differ by more than this many combined

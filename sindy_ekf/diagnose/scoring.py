@@ -16,7 +16,8 @@ from groundfloor.parallel import Workers, parallel_map
 from sindy_ekf.diagnose.design import equation_weights, gain_recalibrated, null_prediction, solve_design
 from sindy_ekf.diagnose.drift import drift_score
 from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
-from sindy_ekf.diagnose.fitting import FamilyScore, design_for, null_fit, refit_grid, score_family
+from sindy_ekf.diagnose.columns import design_for, null_fit
+from sindy_ekf.diagnose.fitting import FamilyScore, refit_grid, score_family
 from sindy_ekf.diagnose.grids import parabolic_min
 
 
@@ -73,7 +74,7 @@ def score_families(model, tr, te, families: Sequence[str] = FAMILIES, uncertaint
     floor patch, a lateral law) is scored against the model as given: recalibrated gains would absorb
     part of it (a patch that slows the robot looks like a lower gain on the runs that cross it: the
     suite's 0.32 patch fell from a gain of 0.37 to 0.05); the patch is fitted beside its uniform nuisance,
-    a damping changed everywhere (:func:`sindy_ekf.diagnose.fitting.uniform_nuisance`). Given the test runs'
+    a damping changed everywhere (:func:`sindy_ekf.diagnose.columns.uniform_nuisance`). Given the test runs'
     body states ``test_states`` (as ``te`` was made from them), the lateral law is also scored by its 5 s
     prediction of them (:func:`sindy_ekf.diagnose.drift.drift_score`). The thresholds' calibration
     (``bench/bench_diagnose.py``) scores through this too.

@@ -22,7 +22,8 @@ from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.design import equation_weights, null_prediction
 from sindy_ekf.diagnose.extend import ExtendedModel
 from sindy_ekf.diagnose.families import FAMILY_SPECS, model_coefficient
-from sindy_ekf.diagnose.fitting import null_columns, null_fit, residual_and_columns, score_family
+from sindy_ekf.diagnose.columns import null_columns, null_fit, residual_and_columns
+from sindy_ekf.diagnose.fitting import score_family
 from sindy_ekf.diagnose.rank import THRESHOLDS
 
 STRONGER = 0.15
