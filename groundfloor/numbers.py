@@ -37,7 +37,9 @@ def format_with_std(value: float, std: float, digits: int = 2, unit: str = "", s
 
 def format_sig(value, digits: int = 3) -> str:
     """Return ``value`` with ``digits`` significant digits (``"inf"``, ``"nan"`` as such); lists and
-    arrays element by element in brackets, other values as ``str``."""
+    arrays element by element in brackets, dicts entry by entry in braces, other values as ``str``."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {format_sig(v, digits)}" for k, v in value.items()) + "}"
     if isinstance(value, (list, tuple, np.ndarray)):
         return "[" + ", ".join(format_sig(v, digits) for v in np.ravel(value)) + "]"
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):

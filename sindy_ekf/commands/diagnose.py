@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
+from groundfloor.numbers import format_sig
 from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.diagnose import Diagnosis, diagnose_campaign
 from sindy_ekf.diagnose.figures import write_diagnosis_figures
@@ -30,7 +31,7 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
     lines = [f"diagnosis of {model.name} on {campaign}: most likely cause: {d.verdict}",
              f"{'family':20} {'test gain %':>11} {'threshold %':>11}  estimate"]
     for c in d.ranked:
-        est = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.score.estimate.items())
+        est = ", ".join(f"{k}={format_sig(v, 4)}" for k, v in c.score.estimate.items())
         flag = "*" if c.significant else " "
         lines.append(f"{c.name:20} {100 * c.gain:11.2f} {100 * c.threshold:11.2f} {flag} {est}")
         if c.note:

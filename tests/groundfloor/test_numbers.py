@@ -19,6 +19,7 @@ def test_estimate_with_std_keeps_two_digits_of_the_std():
 def test_sig_digits_and_other_values():
     assert format_sig(0.000123456) == "0.000123"
     assert format_sig(123456.0) == "1.23e+05"
+    assert format_sig({"u1": 0.1367203, "u2": True}) == "{u1: 0.137, u2: True}"
     assert format_sig(float("inf")) == "inf" and format_sig(np.float64("nan")) == "nan"
     assert format_sig(7) == "7" and format_sig(True) == "True" and format_sig("x") == "x"
     assert format_sig([1.23456, np.array(2.0)]) == "[1.23, 2]"
