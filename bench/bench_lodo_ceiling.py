@@ -39,9 +39,9 @@ from bench.publish import publish
 from groundfloor.files import atomic_write_json
 from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.baselines import fit_lag
-from identification.sindy.candidate_fit import refine
+from identification.sindy.candidate_fit import lag_as_sindy, refine
 from identification.sindy.evaluate import evaluate_model
-from identification.sindy.model import envelope_from_data, model_from_terms
+from identification.sindy.model import envelope_from_data
 from identification.sindy.output_error import OE_DT, OE_MAX_WINDOWS, OE_WINDOW_S
 from identification.sindy.reference import reference, run_group, thin_windows
 from identification.sindy.search import grid_for_runs
@@ -60,11 +60,11 @@ def cubic_input_lag(ref):
     lag = fit_lag(ref)
     x = np.vstack([s.state for s in ref.states])
     u = np.vstack([s.inputs for s in ref.states])
-    terms = {"vx": {"vx": -1.0 / lag.tau_v_, "u1": lag.k_v_ / lag.tau_v_, "u1^3": 1e-6},
-             "vy": {"vy": -1.0 / lag.tau_v_},
-             "omega": {"omega": -1.0 / lag.tau_w_, "u2": lag.k_w_ / lag.tau_w_, "u2^3": 1e-6}}
-    start = model_from_terms(terms, "poly3", envelope=envelope_from_data(x, u), dead_time_s=lag.dead_time_s,
-                             extrapolation="frozen")
+    start = lag_as_sindy(lag, envelope_from_data(x, u), "poly3")
+    coef = start.coef.copy()
+    for eq, term in ((0, "u1^3"), (2, "u2^3")):  # the cubic terms active, at zero
+        coef[eq, start.library.feature_names.index(term)] = 1e-6
+    start = start.with_coefficients(coef)
     with threadpool_limits(limits=1, user_api="blas"):
         model, fit = refine(start, thin_windows(ref.windows(OE_WINDOW_S, 0.0, OE_DT), OE_MAX_WINDOWS),
                             fit_input_lag=False)

@@ -25,11 +25,11 @@ from identification.sindy.search import SearchResult, refit
 from identification.sindy.stepwise import STEPWISE, stepwise_output_error
 
 
-def lag_as_sindy(lag: LagModel, envelope: dict) -> SindyModel:
-    """Return the lag as a sparse SINDy model of library ``poly1`` (its dead times, frozen extrapolation)."""
+def lag_as_sindy(lag: LagModel, envelope: dict, library: str = "poly1") -> SindyModel:
+    """Return the lag as a sparse SINDy model of ``library`` (its dead times, frozen extrapolation)."""
     terms = {"vx": {"vx": -1.0 / lag.tau_v_, "u1": lag.k_v_ / lag.tau_v_}, "vy": {"vy": -1.0 / lag.tau_v_},
              "omega": {"omega": -1.0 / lag.tau_w_, "u2": lag.k_w_ / lag.tau_w_}}
-    return model_from_terms(terms, "poly1", envelope=envelope, dead_time_s=lag.dead_time_s, extrapolation="frozen",
+    return model_from_terms(terms, library, envelope=envelope, dead_time_s=lag.dead_time_s, extrapolation="frozen",
                             hyperparameters={"structure": "lag"})
 
 

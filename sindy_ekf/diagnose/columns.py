@@ -17,6 +17,7 @@ from sindy_ekf.diagnose.design import (
     ActiveTerms,
     Design,
     chunks,
+    concat_designs,
     model_and_gain_columns,
     normal_equations,
     null_prediction,
@@ -114,4 +115,4 @@ def design_for(family: Family, model, split: Split, grid: np.ndarray, weights: n
     for sl in chunks(len(grid), per):
         y, X = residual_and_columns(family, model, split, grid[sl], base_pred)
         parts.append(normal_equations(y, X, weights, split.window_run, len(split.names)))
-    return Design(*(np.concatenate([getattr(d, k) for d in parts]) for k in ("G", "b", "yy")))
+    return concat_designs(parts)

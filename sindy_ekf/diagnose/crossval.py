@@ -28,14 +28,9 @@ import numpy as np
 
 from sindy_ekf.diagnose.columns import design_for, null_columns
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.design import Design, normal_equations, solve_design
+from sindy_ekf.diagnose.design import Design, concat_designs, normal_equations, solve_design
 from sindy_ekf.diagnose.families import Family
 from sindy_ekf.diagnose.grids import parabolic_argmin
-
-
-def _stacked(parts: list[Design]) -> Design:
-    """Return the per-run normal equations of several splits as one design (runs in order)."""
-    return Design(*(np.concatenate([getattr(p, k) for p in parts], axis=1) for k in ("G", "b", "yy")))
 
 
 def _held_out_sse(d: Design, beta: np.ndarray, r: int) -> np.ndarray:
@@ -53,13 +48,13 @@ def cross_validated_gain(family: Family, model, splits: list[tuple[Split, np.nda
     mechanism whose parameters are a geometry, not one number). A run without windows gains ``nan``.
     """
     def design(thetas):
-        return _stacked([design_for(family, model, s, thetas, weights, bp) for s, bp in splits])
+        return concat_designs([design_for(family, model, s, thetas, weights, bp) for s, bp in splits], axis=1)
 
     nulls = []
     for s, bp in splits:
         y0, X0 = null_columns(model, s, bp, family)
         nulls.append(normal_equations(y0[None], X0[None], weights, s.window_run, len(s.names)))
-    d0 = _stacked(nulls)
+    d0 = concat_designs(nulls, axis=1)
     R = d0.yy.shape[1]
     others = [np.flatnonzero(np.arange(R) != r) for r in range(R)]
     if grid.shape[1] == 1 and len(grid) > 1:  # one parameter: its own profile per fold

@@ -169,6 +169,11 @@ def normal_equations(y: np.ndarray, X: np.ndarray, weights: np.ndarray, window_r
     return Design(G, b, yy)
 
 
+def concat_designs(parts, axis: int = 0) -> Design:
+    """Return the designs ``parts`` as one: candidates one after another (``axis`` 0) or runs (``axis`` 1)."""
+    return Design(*(np.concatenate([getattr(p, k) for p in parts], axis=axis) for k in ("G", "b", "yy")))
+
+
 def solve_design(d: Design, runs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Return ``beta (C, m)`` and the weighted residual sum of squares ``(C,)`` over ``runs``."""
     sel = slice(None) if runs is None else runs

@@ -39,6 +39,7 @@ from sindy_ekf.diagnose.data import Split
 from sindy_ekf.diagnose.design import (
     ActiveTerms,
     Design,
+    concat_designs,
     equation_weights,
     normal_equations,
     null_prediction,
@@ -137,7 +138,7 @@ def _test_gain(family: Family, model, test: Split, theta: np.ndarray, beta_all: 
     return float(1.0 - per_win_ext.sum() / per_win_0.sum()), gain_runs
 
 
-def _jackknife(values: list[dict]) -> dict:
+def jackknife_std(values: list[dict]) -> dict:
     """Return jackknife standard deviations of the numeric (and list) entries of estimate dicts."""
     if len(values) < 2:
         return {}
@@ -208,7 +209,7 @@ def refit_grid(family: Family, model, train: Split, weights: np.ndarray, grid: n
     y_tr = train.delta_v[None]
     designs = [normal_equations(y_tr, refit_columns(family, model, train, th)[None], weights, train.window_run, R)
                for th in grid]
-    d = Design(*(np.concatenate([getattr(x, k) for x in designs]) for k in ("G", "b", "yy")))
+    d = concat_designs(designs)
     sols, sse = solve_design(d)
     # Admissible as in the identification's search (identification.sindy.search.admissible): a
     # re-identified model that runs away at rest is no explanation, however well its windows fit
@@ -267,7 +268,7 @@ def refit_score(family: Family, model, train: Split, test: Split, weights: np.nd
         loo = [{family.theta_names[0]: float(parabolic_argmin(
                    grid, np.where(ok, solve_design(d, np.flatnonzero(np.arange(R) != r))[1], np.inf))[0])}
                for r in range(R)]
-        std = _jackknife(loo)
+        std = jackknife_std(loo)
     return {"gain": float(1 - w1.sum() / w0.sum()), "gain_runs": gain_runs, "theta": np.asarray(theta, float),
             "beta": beta, "estimate": family.estimate(theta, beta, _coef_from_refit(model, sol, entered)), "std": std,
             "profile": {"theta": grid[:, 0].tolist(), "train_sse": sse.tolist()} if grid.shape[1] == 1 else {}}
@@ -321,7 +322,7 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
             yr, Xr = residual_and_columns(family, model, train, np.atleast_1d(th_r)[None], base_pred["train"])
             b_r = solve_design(normal_equations(yr, Xr, weights, train.window_run, len(train.names)), keep)[0][0]
             loo.append(family.estimate(np.atleast_1d(th_r), b_r[:family.n_columns], model))
-        std = _jackknife(loo)
+        std = jackknife_std(loo)
     profile = {}
     if grid.shape[1] == 1:
         profile = {"theta": grid[:, 0].tolist(), "train_sse": sse_grid.tolist()}

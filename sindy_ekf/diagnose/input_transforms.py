@@ -110,6 +110,11 @@ def inputs_lagged(t_run: np.ndarray, u: np.ndarray, slices, lag_s: np.ndarray) -
             y = ys[:, 0].copy()
             for s0, e0 in zip(edges[:-1], edges[1:]):
                 for i in range(len(Tl)):
+                    if Tl[i, 0, 0] == Tl[i, 0, 1]:  # one lag for both inputs: one filter over both
+                        ai = a[i, s0, 0]
+                        ys[i, s0 + 1:e0 + 1] = lfilter([1.0], [1.0, -ai], c[i, s0:e0], axis=0,
+                                                       zi=ai * y[i][None])[0]
+                        continue
                     for j in range(2):
                         ai = a[i, s0, j]
                         ys[i, s0 + 1:e0 + 1, j] = lfilter([1.0], [1.0, -ai], c[i, s0:e0, j], zi=[ai * y[i, j]])[0]

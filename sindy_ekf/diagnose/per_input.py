@@ -26,10 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sindy_ekf.diagnose.design import gain_recalibrated, null_prediction, solve_design
-from sindy_ekf.diagnose.families import PER_INPUT, Family, mechanism_spec
 from sindy_ekf.diagnose.columns import design_for
-from sindy_ekf.diagnose.fitting import FamilyScore, refit_grid
+from sindy_ekf.diagnose.design import null_prediction, solve_design
+from sindy_ekf.diagnose.families import PER_INPUT, Family, mechanism_spec
+from sindy_ekf.diagnose.fitting import FamilyScore, jackknife_std, refit_grid
 from sindy_ekf.diagnose.grids import parabolic_argmin
 
 #: the per-input values replace the pooled one when they differ by more than this many combined
@@ -45,7 +45,6 @@ class PerInput:
     spec: Family  # the per-input mechanism (families.PER_INPUT)
     theta: np.ndarray  # (2,)
     std: np.ndarray  # (2,) jackknife standard deviations (nan with one train run)
-    pooled: float
     differ: bool  # the values differ by more than DIFFER_SIGMAS combined standard deviations and a grid step
 
     def to_dict(self) -> dict:
@@ -71,18 +70,17 @@ def _profile(spec: Family, model, train, cand: np.ndarray, weights, base_pred, s
     return d, np.ones(len(cand), bool), solve_design(d)[1]
 
 
-def refine_per_input(pooled: Family, theta, model, train, weights: np.ndarray, scoring: str = "fixed",
-                     base_pred: np.ndarray | None = None) -> PerInput:
+def refine_per_input(pooled: Family, theta, model, train, weights: np.ndarray, scoring: str = "fixed") -> PerInput:
     """Return ``pooled``'s mechanism fitted with a value per input on ``train`` (module docstring).
 
     ``model`` is the model the family was scored on (for an input-side family the given model with
     its input gains recalibrated on the train runs), ``scoring`` how it was judged (``"fixed"`` or
-    ``"refit"``), ``base_pred`` the model's window predictions on ``train`` (computed when None).
+    ``"refit"``).
     """
     spec = per_input_form(pooled)
     theta = float(np.asarray(theta, float).reshape(-1)[0])
     grid = pooled.grid(train)[:, 0]
-    base_pred = null_prediction(model, train) if base_pred is None and scoring == "fixed" else base_pred
+    base_pred = null_prediction(model, train) if scoring == "fixed" else None
     th = np.array([theta, theta])
     if "axis" in pooled.extra:  # a one-axis form: the other input starts without the mechanism
         th[1 - pooled.extra["axis"]] = 0.0
@@ -103,11 +101,10 @@ def refine_per_input(pooled: Family, theta, model, train, weights: np.ndarray, s
             if last[j] is None:
                 continue
             d, ok = last[j]
-            loo = [float(parabolic_argmin(grid[:, None],
-                                           np.where(ok, solve_design(d, np.flatnonzero(np.arange(R) != r))[1],
-                                                    np.inf))[0]) for r in range(R)]
-            std[j] = float(np.sqrt((R - 1) / R * np.sum((np.array(loo) - np.mean(loo)) ** 2)))
-    return PerInput(spec, th, std, theta, resolved_difference(th, std, pooled.extra["step"]))
+            loo = [{"v": float(parabolic_argmin(grid[:, None], np.where(
+                ok, solve_design(d, np.flatnonzero(np.arange(R) != r))[1], np.inf))[0])} for r in range(R)]
+            std[j] = jackknife_std(loo)["v"]
+    return PerInput(spec, th, std, resolved_difference(th, std, pooled.extra["step"]))
 
 
 def resolved_difference(theta: np.ndarray, std: np.ndarray, step: float) -> bool:
@@ -121,18 +118,17 @@ def resolved_difference(theta: np.ndarray, std: np.ndarray, step: float) -> bool
     return bool(np.all(np.isfinite(std)) and gap > DIFFER_SIGMAS * float(np.hypot(*std)) and gap > step)
 
 
-def with_per_input(score: FamilyScore, model, train, weights: np.ndarray) -> FamilyScore:
+def with_per_input(score: FamilyScore, null_model, train, weights: np.ndarray) -> FamilyScore:
     """Return ``score`` with its mechanism's per-input values in the estimate, and the per-input
     mechanism in place of the pooled one when the inputs' values differ (:func:`refine_per_input`).
 
-    ``model`` is the given model; an input family's fixed scoring is judged on it with its input
-    gains recalibrated on ``train`` (as :func:`sindy_ekf.diagnose.scoring.score_families` does).
+    ``null_model`` is the model the input-side families were scored on: the given model with its input
+    gains recalibrated on ``train`` (:func:`sindy_ekf.diagnose.scoring.score_families` fits them).
     Families without a per-input form are returned as they are.
     """
     pooled = mechanism_spec(score.family, score.estimate.get("mechanism"))
     if per_input_form(pooled) is None:
         return score
-    null_model, _ = gain_recalibrated(model, train, weights)
     per = refine_per_input(pooled, score.theta, null_model, train, weights, score.scoring)
     estimate = {**score.estimate, **per.to_dict()}
     if not per.differ:

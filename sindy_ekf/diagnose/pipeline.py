@@ -43,6 +43,7 @@ from sindy_ekf.diagnose.extend import (
     outage_errors,
     reidentify,
 )
+from sindy_ekf.diagnose.design import with_input_gains
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.per_input import with_per_input
@@ -323,8 +324,9 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     if name != "none":
         # a significant delay, lag or deadband gets its values per input (per_input.py), in its
         # extension when the inputs' values differ
-        ranked = [dataclasses.replace(c, score=with_per_input(c.score, model, tr, weights)) if c.significant else c
-                  for c in ranked]
+        null_model = with_input_gains(model, gains)  # the input-side families' null, as scored
+        ranked = [dataclasses.replace(c, score=with_per_input(c.score, null_model, tr, weights)) if c.significant
+                  else c for c in ranked]
         ranked, extended = confirm_on_train(model, ranked, tr, weights, train, train_names)
         name = verdict(ranked)
         if extended is not None:

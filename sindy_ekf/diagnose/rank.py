@@ -157,6 +157,12 @@ NULL_AT_ZERO = ("delay_s", "lag_s", "threshold", "imbalance", "coupling", "steer
 TIMES = ("delay_s", "lag_s")
 
 
+def _parameter(key: str) -> str:
+    """Return the parameter an estimate key names: a one-axis or per-input key's without its input
+    (``delay_s_u2`` -> ``delay_s``)."""
+    return key.removesuffix("_u1").removesuffix("_u2")
+
+
 def unresolved(cause: RankedCause, sample_interval_s: float) -> str:
     """Return why the estimate of a significant ``cause`` is not resolved, or ``""`` when it is.
 
@@ -168,11 +174,11 @@ def unresolved(cause: RankedCause, sample_interval_s: float) -> str:
     est, std = cause.score.estimate, cause.score.estimate_std or {}
     if mechanism_spec(cause.name, est.get("mechanism")).kind != "input":
         return ""  # an additive mechanism's keys are not zero without it (lateral_slip's coupling is the law's)
-    for key in [k for k in est if k.removesuffix("_u1").removesuffix("_u2") in NULL_AT_ZERO]:
-        v = est.get(key)  # a one-axis form's parameter is its input's (``delay_s_u2``)
+    for key in [k for k in est if _parameter(k) in NULL_AT_ZERO]:
+        v = est.get(key)
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v):
             continue
-        if key.removesuffix("_u1").removesuffix("_u2") in TIMES and abs(v) < 0.5 * sample_interval_s:
+        if _parameter(key) in TIMES and abs(v) < 0.5 * sample_interval_s:
             return (f"estimate not resolved: {key} {1000 * v:.1f} ms is shorter than half the sample interval "
                     f"({1000 * sample_interval_s:.0f} ms)")
         s = std.get(key)
