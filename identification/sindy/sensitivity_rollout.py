@@ -77,7 +77,10 @@ def _sensitivity_rollout(x0, u_half, u_rate, u_dlag, dt, param_eq, param_factors
 
     Per stage ``s`` at ``x_s = x + c_s k_{s-1}``, ``S_s = S + c_s K_{s-1}``:
     ``k_s = f(x_s, u)`` (eq. 5.75) and ``K_s = J_f_x S_s + d f / d p``; the step adds
-    ``h / 6 (k_1 + 2 k_2 + 2 k_3 + k_4)`` to both (classical RK4, eqs. 5.70, 5.71).
+    ``h / 6 (k_1 + 2 k_2 + 2 k_3 + k_4)`` to both (classical RK4, eqs. 5.70, 5.71). The loops over the
+    parameters run along a row's contiguous slice with the stage's branches outside them, so that
+    they compile to vector instructions (a third faster than the one loop over ``q`` with a
+    conditional inside, to the same bits).
     """
     n_w, n = out_s.shape[0], out_s.shape[1]
     n_par = out_S.shape[3]
@@ -103,12 +106,23 @@ def _sensitivity_rollout(x0, u_half, u_rate, u_dlag, dt, param_eq, param_factors
                 out_S[w, 0, r, q] = 0.0
         for i in range(n - 1):
             for s in range(4):
-                c = 0.0 if s == 0 else (0.5 * dt if s < 3 else dt)
                 j = 2 * i + (0 if s == 0 else (1 if s < 3 else 2))
-                for r in range(6):
-                    xs[r] = x[r] + c * k[s - 1, r] if s > 0 else x[r]
-                    for q in range(n_par):
-                        Ss[r, q] = S[r, q] + c * K[s - 1, r, q] if s > 0 else S[r, q]
+                if s == 0:
+                    for r in range(6):
+                        xs[r] = x[r]
+                        Sr = S[r]
+                        Ssr = Ss[r]
+                        for q in range(n_par):
+                            Ssr[q] = Sr[q]
+                else:
+                    c = 0.5 * dt if s < 3 else dt
+                    for r in range(6):
+                        xs[r] = x[r] + c * k[s - 1, r]
+                        Sr = S[r]
+                        Ssr = Ss[r]
+                        Kr = K[s - 1, r]
+                        for q in range(n_par):
+                            Ssr[q] = Sr[q] + c * Kr[q]
                 z[0], z[1], z[2], z[3], z[4] = xs[3], xs[4], xs[5], u_half[w, j, 0], u_half[w, j, 1]
                 _accel_into(acc, table, z, zc, True, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight,
                             frozen, lo, hi, lin_b, lin_W)
@@ -119,13 +133,25 @@ def _sensitivity_rollout(x0, u_half, u_rate, u_dlag, dt, param_eq, param_factors
                 for e in range(3):
                     k[s, 3 + e] = acc[e]
                 # J_f_x S: the pose rows of eq. 5.75's Jacobian, the accelerations' on the velocities
+                nk1 = -k[s, 1]
+                k0 = k[s, 0]
+                S2 = Ss[2]
+                S3 = Ss[3]
+                S4 = Ss[4]
+                S5 = Ss[5]
+                K0 = K[s, 0]
+                K1 = K[s, 1]
+                K2 = K[s, 2]
                 for q in range(n_par):
-                    K[s, 0, q] = -k[s, 1] * Ss[2, q] + cp * Ss[3, q] - sp * Ss[4, q]
-                    K[s, 1, q] = k[s, 0] * Ss[2, q] + sp * Ss[3, q] + cp * Ss[4, q]
-                    K[s, 2, q] = Ss[5, q]
-                    for e in range(3):
-                        b = 3 + 6 * e + 3
-                        K[s, 3 + e, q] = acc[b] * Ss[3, q] + acc[b + 1] * Ss[4, q] + acc[b + 2] * Ss[5, q]
+                    K0[q] = nk1 * S2[q] + cp * S3[q] - sp * S4[q]
+                    K1[q] = k0 * S2[q] + sp * S3[q] + cp * S4[q]
+                    K2[q] = S5[q]
+                for e in range(3):
+                    b = 3 + 6 * e + 3
+                    a0, a1, a2 = acc[b], acc[b + 1], acc[b + 2]
+                    Ke = K[s, 3 + e]
+                    for q in range(n_par):
+                        Ke[q] = a0 * S3[q] + a1 * S4[q] + a2 * S5[q]
                 _atoms_into(atoms, z)
                 if frozen:
                     _atoms_into(atoms_c, zc)  # _accel_into left the clamped variables in zc
@@ -139,9 +165,16 @@ def _sensitivity_rollout(x0, u_half, u_rate, u_dlag, dt, param_eq, param_factors
                 for v in range(n_lag):  # d f / d T_v = J_f_u[:, v] du_v/dT_v
                     for e in range(3):
                         K[s, 3 + e, p + n_d + v] += acc[21 + 2 * e + v] * u_dlag[w, j, v]
+            h6 = dt / 6.0
             for r in range(6):
-                x[r] = x[r] + dt / 6.0 * (k[0, r] + 2.0 * k[1, r] + 2.0 * k[2, r] + k[3, r])
+                x[r] = x[r] + h6 * (k[0, r] + 2.0 * k[1, r] + 2.0 * k[2, r] + k[3, r])
                 out_s[w, i + 1, r] = x[r]
+                Sr = S[r]
+                K0 = K[0, r]
+                K1 = K[1, r]
+                K2 = K[2, r]
+                K3 = K[3, r]
+                o = out_S[w, i + 1, r]
                 for q in range(n_par):
-                    S[r, q] = S[r, q] + dt / 6.0 * (K[0, r, q] + 2.0 * K[1, r, q] + 2.0 * K[2, r, q] + K[3, r, q])
-                    out_S[w, i + 1, r, q] = S[r, q]
+                    Sr[q] = Sr[q] + h6 * (K0[q] + 2.0 * K1[q] + 2.0 * K2[q] + K3[q])
+                    o[q] = Sr[q]
