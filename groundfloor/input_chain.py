@@ -58,18 +58,55 @@ def first_order_lag_1d(u: np.ndarray, step_s: float, lag_s: float, hold: str = "
     u = np.ascontiguousarray(u, dtype=float)
     if lag_s <= 0.0 or len(u) < 2:
         return u
-    a = float(np.exp(-step_s / lag_s))
-    c = lag_s * (1.0 - a) / step_s if hold == "linear" else 1.0
-    return _lag_recursion(u, a, 1.0 - c, c - a)
+    return first_order_lags(u[None], step_s, [0], [lag_s], hold)[0]
+
+
+def first_order_lags(u: np.ndarray, step_s: float, rows, lags_s, hold: str = "linear") -> np.ndarray:
+    """Return ``(k, n)``: :func:`first_order_lag_1d` of ``u[rows[j]]`` with time constant ``lags_s[j]``
+    for each ``j``, from the inputs ``u (c, n)`` (one per row) in one compiled pass.
+
+    The recursion's steps each wait on the one before (a multiply-add's latency per sample); run
+    side by side, independent recursions fill that wait: an output-error fit asks for a lag of both
+    inputs and the two either side of each (the lag sensitivities) at every step, six recursions in
+    the time of two, to the same bits. A row with
+    ``lags_s[j] <= 0`` is its input unchanged.
+    """
+    u = np.ascontiguousarray(u, dtype=float)
+    coef = np.empty((3, len(lags_s)))
+    for j, T in enumerate(lags_s):
+        if T <= 0.0:
+            coef[:, j] = 0.0, 1.0, 0.0  # w_{k+1} = u_{k+1}
+            continue
+        a = float(np.exp(-step_s / T))
+        c = T * (1.0 - a) / step_s if hold == "linear" else 1.0
+        coef[:, j] = a, 1.0 - c, c - a
+    return _lag_recursions(u, np.asarray(rows, dtype=np.intp), coef[0], coef[1], coef[2])
 
 
 @njit(cache=True)
-def _lag_recursion(u: np.ndarray, a: float, b0: float, b1: float) -> np.ndarray:
-    """Return ``w`` with ``w_0 = u_0`` and ``w_{k+1} = a w_k + b0 u_{k+1} + b1 u_k``."""
-    w = np.empty_like(u)
-    w[0] = u[0]
-    for k in range(len(u) - 1):
-        w[k + 1] = a * w[k] + b0 * u[k + 1] + b1 * u[k]
+def _lag_recursions(u: np.ndarray, rows: np.ndarray, a: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
+    """Return ``w (k, n)`` with ``w_j0 = u_(r_j, 0)`` and ``w_(j, k+1) = a_j w_jk + b0_j u_(r_j, k+1) + b1_j u_(r_j, k)``.
+
+    Four recursions at a time, each carried in a scalar (a register: four cost what one does); a
+    group short of four repeats its last recursion.
+    """
+    k, n = rows.shape[0], u.shape[1]
+    w = np.empty((k, n))
+    for g in range(0, k, 4):
+        j0, j1, j2, j3 = g, min(g + 1, k - 1), min(g + 2, k - 1), min(g + 3, k - 1)
+        u0, u1, u2, u3 = u[rows[j0]], u[rows[j1]], u[rows[j2]], u[rows[j3]]
+        w0, w1, w2, w3 = w[j0], w[j1], w[j2], w[j3]
+        a0, a1, a2, a3 = a[j0], a[j1], a[j2], a[j3]
+        p0, p1, p2, p3 = b0[j0], b0[j1], b0[j2], b0[j3]
+        q0, q1, q2, q3 = b1[j0], b1[j1], b1[j2], b1[j3]
+        c0, c1, c2, c3 = u0[0], u1[0], u2[0], u3[0]
+        w0[0], w1[0], w2[0], w3[0] = c0, c1, c2, c3
+        for t in range(n - 1):
+            c0 = a0 * c0 + p0 * u0[t + 1] + q0 * u0[t]
+            c1 = a1 * c1 + p1 * u1[t + 1] + q1 * u1[t]
+            c2 = a2 * c2 + p2 * u2[t + 1] + q2 * u2[t]
+            c3 = a3 * c3 + p3 * u3[t + 1] + q3 * u3[t]
+            w0[t + 1], w1[t + 1], w2[t + 1], w3[t + 1] = c0, c1, c2, c3
     return w
 
 

@@ -14,7 +14,10 @@ from functools import cached_property
 
 import numpy as np
 
-from groundfloor.input_chain import first_order_lag_1d, lag_grid
+from groundfloor.input_chain import first_order_lags, lag_grid
+
+#: lagged channels a track remembers (a fit's inputs, their lag sensitivities and the step before)
+_LAG_MEMO = 16
 
 
 @dataclass(frozen=True)
@@ -61,19 +64,27 @@ class InputTrack:
             if len(memo) >= 4:
                 memo.clear()
             grid = self._on_lag_grid[0]
-            memo[key] = InputTrack(grid, np.column_stack([self._lag_channel(i, key[i]) for i in range(2)]), "linear")
+            memo[key] = InputTrack(grid, np.column_stack(self.lag_channels([(0, key[0]), (1, key[1])])), "linear")
         return memo[key]
 
-    def _lag_channel(self, i: int, lag_s: float) -> np.ndarray:
-        """Return input ``i`` on the lag grid through a first-order lag ``lag_s``, remembered: a fit
-        asks for each channel's lag again with the other channel's perturbed (the lag sensitivities)."""
+    def lag_channels(self, keys) -> list[np.ndarray]:
+        """Return input ``i`` on the lag grid through a first-order lag ``T`` for each ``(i, T)`` of
+        ``keys``, remembered (a fit asks for each channel's lag again with the other channel's
+        perturbed, the lag sensitivities); those not remembered computed side by side in one pass
+        (:func:`groundfloor.input_chain.first_order_lags`)."""
         memo = self.__dict__.setdefault("_lag_memo", {})
-        if (i, lag_s) not in memo:
-            if len(memo) >= 16:
+        keys = [(int(i), float(T)) for i, T in keys]
+        found = {k: memo[k] if k[1] > 0.0 else self._grid_channels[k[0]] for k in keys if k in memo or k[1] <= 0.0}
+        missing = [k for k in dict.fromkeys(keys) if k not in found]
+        if missing:
+            grid, _ = self._on_lag_grid
+            rows = first_order_lags(self._grid_channels, float(grid[1] - grid[0]), [i for i, _ in missing],
+                                    [T for _, T in missing])
+            if len(memo) + len(missing) > _LAG_MEMO:
                 memo.clear()
-            grid, u_grid = self._on_lag_grid
-            memo[(i, lag_s)] = first_order_lag_1d(u_grid[:, i], float(grid[1] - grid[0]), lag_s)
-        return memo[(i, lag_s)]
+            for k, row in zip(missing, rows):
+                memo[k] = found[k] = row
+        return [found[k] for k in keys]
 
     def lagged_at(self, i: int, lag_s, t_query: np.ndarray, delay_s) -> np.ndarray:
         """Return input ``i`` of ``self.lagged(lag_s).at(t_query, delay_s)``, the other input not evaluated."""
@@ -81,7 +92,7 @@ class InputTrack:
         if not np.any(lag > 0.0) or len(self.t) < 2:
             return self.at(t_query, delay_s)[..., i]
         return np.interp(np.asarray(t_query, float) - float(np.asarray(delay_s, float)[i]), self._on_lag_grid[0],
-                         self._lag_channel(i, float(lag[i])))
+                         self.lag_channels([(i, lag[i])])[0])
 
     def __getstate__(self) -> dict:
         """Return the fields alone (what is pickled): the cached tables are rebuilt where needed."""
@@ -94,9 +105,9 @@ class InputTrack:
         return grid, self.at(grid)
 
     @cached_property
-    def _slope(self) -> np.ndarray:
-        """Return the slopes ``(m - 1, 2)`` of the straight lines between the samples."""
-        return np.diff(self.u, axis=0) / np.diff(self.t)[:, None]
+    def _grid_channels(self) -> np.ndarray:
+        """Return the inputs on the lag grid as rows ``(2, m)`` (each contiguous: what the lags filter)."""
+        return np.ascontiguousarray(self._on_lag_grid[1].T)
 
     def at(self, t_query: np.ndarray, delay_s=(0.0, 0.0)) -> np.ndarray:
         """Return the inputs ``u_i(t - d_i)`` ``(*t_query.shape, 2)``; ``delay_s`` is ``(2,)`` or
@@ -114,13 +125,18 @@ class InputTrack:
             return np.stack([self._eval(tq, row, rate) for row in d])
         out = np.empty(tq.shape + (2,))
         if self.hold == "linear":
-            slope = self._slope
             for i in range(2):
                 q = tq - d[i]
-                if rate:
+                if rate:  # the slope of the line the query falls on (taken at the queries alone: a
+                    # lagged track is new at every step of a fit, and far longer than its queries)
                     k = np.searchsorted(self.t, q, side="right") - 1
                     inside = (k >= 0) & (k < len(self.t) - 1)
-                    out[..., i] = np.where(inside, slope[np.clip(k, 0, len(slope) - 1), i], 0.0) if len(slope) else 0.0
+                    if len(self.t) < 2:
+                        out[..., i] = 0.0
+                        continue
+                    k = np.clip(k, 0, len(self.t) - 2)
+                    slope = (self.u[k + 1, i] - self.u[k, i]) / (self.t[k + 1] - self.t[k])
+                    out[..., i] = np.where(inside, slope, 0.0)
                 else:
                     out[..., i] = np.interp(q, self.t, self.u[:, i])
             return out

@@ -202,10 +202,19 @@ def lag_sensitivity(windows: Windows, delay_s, lag_s) -> np.ndarray:
     if not windows.tracks:
         raise InputError("windows without input tracks cannot apply an input dead time or lag")
     out = np.empty(windows.u_half.shape)
+    sides = []
     for i in range(2):
         eps = max(1e-3, 0.02 * lag[i])
         lo, hi = lag.copy(), lag.copy()
         lo[i], hi[i] = max(lag[i] - eps, 0.0), lag[i] + eps
+        sides.append((lo, hi))
+    # the lagged channels each run's differences take, and the inputs' own (Windows.inputs_for's,
+    # asked for next), filtered side by side in one pass
+    keys = [(i, side[i]) for i, pair in enumerate(sides) for side in pair if np.any(side > 0.0)]
+    keys += [(0, lag[0]), (1, lag[1])] if np.any(lag > 0.0) else []
+    for r, _, _ in windows.run_queries:
+        windows.tracks[r].lag_channels(keys)
+    for i, (lo, hi) in enumerate(sides):
         # Windows.inputs_for's values, in one pass over the runs (the fits' inner loop)
         for r, sel, tq in windows.run_queries:
             track = windows.tracks[r]
@@ -228,9 +237,9 @@ def rollout_with_sensitivities(dynamics: Dynamics, model: ParametricModel, windo
     """
     delay = np.asarray(dynamics.dead_time_s, dtype=float)
     lag = np.asarray(getattr(dynamics, "input_lag_s", (0.0, 0.0)), dtype=float)
+    u_dlag = lag_sensitivity(windows, delay, lag) if fit_input_lag else None  # first: it filters the lags at once
     u_half = windows.inputs_for(delay, lag_s=lag)
     u_rate = windows.inputs_for(delay, rate=True, lag_s=lag) if fit_dead_time else None
-    u_dlag = lag_sensitivity(windows, delay, lag) if fit_input_lag else None
     if compiled and isinstance(model, SindyStructure):
         return sensitivity_rollout(dynamics._active_terms(), model.eq, model.factors, model.linear, windows.x0,
                                    u_half, windows.t_rel[1] - windows.t_rel[0], len(windows.t_rel), u_rate, u_dlag)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from groundfloor.input_chain import chain_inputs, first_order_lag
+from groundfloor.input_chain import chain_inputs, first_order_lag, first_order_lags
 
 
 def _reference(t_query, t, u, dead_s, lag_s):
@@ -47,3 +47,28 @@ def test_no_lag_is_a_pure_shift_and_the_lag_starts_at_rest():
         [np.interp(t - 0.2, t, u[:, 0]), u[:, 1]]), atol=1e-12)
     w = chain_inputs(t, t, u, (0.0, 0.0), (0.3, 0.3))
     assert w[0, 0] == pytest.approx(2.0) and np.allclose(w[:, 1], -1.0)
+
+
+@pytest.mark.parametrize("k", [1, 3, 4, 6, 9])
+def test_lags_side_by_side_equal_the_ode_solution_and_one_recursion_at_a_time(k):
+    """Groups of four with a short last group (k = 1, 3, 6, 9) and rows repeated, a zero lag among them."""
+    h = 0.01
+    t = np.arange(0.0, 6.0, h)
+    u = np.vstack([np.sin(1.3 * t) + (t > 2.0) * 0.5, np.cos(2.0 * t) * (t < 4.0), np.sign(np.sin(0.7 * t))])
+    rows = [(0, 2, 1)[j % 3] for j in range(k)]
+    lags = [0.0 if j == 1 else 0.05 + 0.04 * j for j in range(k)]
+    w = first_order_lags(u, h, rows, lags)
+    assert w.shape == (k, len(t))
+    for j, (r, T) in enumerate(zip(rows, lags)):
+        if T == 0.0:
+            np.testing.assert_array_equal(w[j], u[r])
+            continue
+        # the recursion written out, one sample at a time (the same arithmetic, so the same bits)
+        a = float(np.exp(-h / T))
+        c = T * (1.0 - a) / h
+        ref = np.empty(len(t))
+        ref[0] = u[r, 0]
+        for n in range(len(t) - 1):
+            ref[n + 1] = a * ref[n] + (1.0 - c) * u[r, n + 1] + (c - a) * u[r, n]
+        np.testing.assert_array_equal(w[j], ref)
+        np.testing.assert_allclose(w[j], _reference(t, t, u[r], 0.0, T), atol=2e-3)
