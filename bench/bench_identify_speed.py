@@ -43,7 +43,7 @@ DATA = ROOT.parent.parent / "shared" / "data" if (ROOT.parent.parent / "shared")
 #: the commit the speed-up started from (main before issue 13, item 7)
 BASE = "92f8906"
 PY = sys.executable
-#: compiles (or loads from numba's cache) the compiled output-error rollout on a tiny problem
+#: compiles (or loads from numba's cache) the compiled output-error rollout and input lag on a tiny problem
 WARM_UP = """
 import numpy as np
 from identification.sindy.model import model_from_terms
@@ -52,6 +52,8 @@ m = model_from_terms({"vx": {"vx": -1.0, "u1": 1.0}}, "poly1")
 u = np.zeros((1, 3, 2))
 sensitivity_rollout(m._active_terms(), np.zeros(1, int), np.zeros((1, 3), int), np.ones(1, bool), np.zeros((1, 6)),
                     u, 0.05, 2, u, u)
+from groundfloor.input_chain import first_order_lag_1d
+first_order_lag_1d(np.zeros(3), 0.01, 0.1)
 """
 
 
