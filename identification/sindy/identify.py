@@ -67,6 +67,8 @@ log = logging.getLogger(__name__)
 
 #: distinct structures of the screening refined by output error and cross-validated (plus the lag)
 N_CANDIDATES = 4
+#: the fold of a pass's job that refits a candidate on all train runs (:func:`_refit_on_all`)
+ALL_RUNS = "all train runs"
 
 
 @dataclass(frozen=True)
@@ -126,11 +128,18 @@ def _stepwise_spec(candidates: Sequence[Candidate]) -> tuple[str, dict] | None:
     return f"{c.label.split(',')[0]}, stepwise", c.hyperparameters | {"output_error": STEPWISE}
 
 
-def _fold_job(job) -> tuple[dict, dict]:
-    """Return the scores of some candidates on one fold, and those refined by output error (:func:`_fold_pass`)."""
+def _fold_job(job) -> tuple[dict, dict] | tuple | InputError:
+    """Return the scores of some candidates on one fold, and those refined by output error
+    (:func:`_fold_pass`); for a job ``("all train runs", ...)``, :func:`_refit_on_all`'s result
+    (or its :class:`InputError`)."""
     # Small SVDs and least squares (the adjustments, the output-error steps): multi-threaded BLAS
     # on a loaded 2-core machine made each about 30 times slower (measured); parallelism is per process.
     with threadpool_limits(limits=1, user_api="blas"):
+        if job[0] == ALL_RUNS:
+            try:
+                return _refit_on_all(*job[1:])
+            except InputError as exc:
+                return exc
         return _fold_job_serial(job)
 
 
@@ -189,38 +198,66 @@ def _split(specs: Sequence[tuple[str, dict | None]], n: int) -> list[list[tuple[
     return chunks
 
 
-def _fold_pass(specs, shared: tuple, n_folds: int, n_jobs, what: str, started=None) -> list[tuple[dict, dict]]:
+def _fold_pass(specs, shared: tuple, n_folds: int, n_jobs, what: str, started=None, on_all: tuple | None = None
+               ) -> tuple[list[tuple[dict, dict]], tuple | InputError | None]:
     """Return, per fold, the merged :func:`_fold_job` results of ``specs``, :data:`TASKS_PER_FOLD`
-    tasks per fold (``started``: per fold, label -> the model to start the stepwise search from)."""
+    tasks per fold (``started``: per fold, label -> the model to start the stepwise search from),
+    and the result of :func:`_refit_on_all` of the arguments ``on_all`` computed beside them (None without)."""
     chunks = _split(specs, TASKS_PER_FOLD)
     jobs, names, where = [], [], []
+    if on_all is not None:
+        jobs.append((ALL_RUNS,) + on_all)
+        names.append(f"{what}, all train runs")
+        where.append(-1)
     for f in range(n_folds):
         for i, chunk in enumerate(chunks):
             jobs.append((f, tuple(chunk), i == 0, (started or [{}] * n_folds)[f]) + shared)
             names.append(f"{what}, fold {f}" + (f", part {i + 1}" if len(chunks) > 1 else ""))
             where.append(f)
     per_fold: list[tuple[dict, dict]] = [({}, {}) for _ in range(n_folds)]
-    for f, (scores, refined) in zip(where, parallel_map(_fold_job, jobs, n_jobs, desc=what, names=names)):
-        per_fold[f][0].update(scores)
-        per_fold[f][1].update(refined)
-    return per_fold
+    ready = None
+    for f, out in zip(where, parallel_map(_fold_job, jobs, n_jobs, desc=what, names=names)):
+        if f < 0:
+            ready = out
+            continue
+        per_fold[f][0].update(out[0])
+        per_fold[f][1].update(out[1])
+    return per_fold, ready
+
+
+def _refit_on_all(label: str, hp: dict | None, result: SearchResult, cache: dict, excluded, lag: LagModel,
+                  ref: Reference, all_oe: Windows, accel_max) -> tuple[SindyModel, OutputErrorFit | None, dict]:
+    """Return a candidate refitted on all train runs as in the folds, its output-error fit and its checks.
+
+    Raises
+    ------
+    InputError
+        More active terms than independent windows (its significance cannot be judged).
+    """
+    start, adj = start_model(label, hp, result, cache, excluded, None, lag, ref.states)
+    model, fit, significance = candidate_model(start, adj, hp, all_oe, excluded)
+    return model, fit, run_checks(model, ref.states, *significance, accel_max)
 
 
 def _final(candidates, chosen: int, order, result: SearchResult, excluded, lag: LagModel, ref: Reference,
-           oe_windows: Windows, accel_max) -> tuple[int, SindyModel, OutputErrorFit | None, dict]:
+           oe_windows: Windows, accel_max, ready: dict | None = None) -> tuple[int, SindyModel, OutputErrorFit | None, dict]:
     """Return the index, model, output-error fit and checks of the first candidate (``chosen``,
-    then the others that passed by CV error) that passes the checks refitted on all train runs."""
+    then the others that passed by CV error) that passes the checks refitted on all train runs
+    (``ready``: label -> :func:`_refit_on_all`'s result or its :class:`InputError`, computed already)."""
     all_oe = thin_windows(oe_windows, OE_MAX_WINDOWS)
     cache: dict = {}
+    ready = ready or {}
     for i in [chosen] + [j for j in order if j != chosen and candidates[j].passed]:
         c = candidates[i]
         try:
-            start, adj = start_model(c.label, c.hyperparameters, result, cache, excluded, None, lag, ref.states)
+            got = ready.get(c.label)
+            if isinstance(got, InputError):
+                raise got
+            model, fit, checks = got if got is not None else _refit_on_all(
+                c.label, c.hyperparameters, result, cache, excluded, lag, ref, all_oe, accel_max)
         except InputError as exc:  # more active terms than independent windows: significance unjudgeable
             log.warning("identification: candidate %s refitted on all train runs: %s; trying the next", c.label, exc)
             continue
-        model, fit, significance = candidate_model(start, adj, c.hyperparameters, all_oe, excluded)
-        checks = run_checks(model, ref.states, *significance, accel_max)
         if checks["passed"]:
             return i, model, fit, checks
         log.warning("identification: candidate %s refitted on all train runs fails the checks (%s); trying the next",
@@ -258,7 +295,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     slim = replace(result, top_models=[], model=result.model)  # what the folds need of the screening
 
     shared = (ref, folds.fold, slim, excluded, oe_windows, score_windows, accel_max)
-    passes = _fold_pass(specs, shared, n_f, n_jobs, "output-error candidates")
+    passes, _ = _fold_pass(specs, shared, n_f, n_jobs, "output-error candidates")
     per_fold = [scores for scores, _ in passes]
 
     def collect(label, complexity=None):
@@ -274,11 +311,17 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
 
     candidates = tuple(Candidate(label, hp, *collect(label)) for label, hp in specs)
     step = _stepwise_spec(candidates)
+    ready = {}
     if step is not None:  # the stepwise search from the structure the rule picks, cross-validated the same way
         # each fold's search starts from that structure as the candidate pass refined it on the fold
         origin = step[0].split(",")[0]
         started = [{step[0]: refined.get(origin)} for _, refined in passes]
-        for p, (q, _) in zip(per_fold, _fold_pass([step], shared, n_f, n_jobs, "stepwise output error", started)):
+        # and its search on all train runs, which the final model needs if the rule picks it, runs
+        # beside them: with 5 folds on 2 workers it takes the slot the last fold leaves idle
+        # (on simulator variants the stepwise candidate is picked in 7 of 10) instead of running after
+        on_all = (step[0], step[1], slim, {}, excluded, lag, ref, thin_windows(oe_windows, OE_MAX_WINDOWS), accel_max)
+        steps, ready[step[0]] = _fold_pass([step], shared, n_f, n_jobs, "stepwise output error", started, on_all)
+        for p, (q, _) in zip(per_fold, steps):
             p.update(q)
         candidates += (Candidate(step[0], step[1], *collect(step[0])),)
     lag_cv = collect("lag baseline", complexity=6.0)
@@ -286,7 +329,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     chosen = select_candidate(candidates)
     with threadpool_limits(limits=1, user_api="blas"):  # as in _fold_job
         chosen, model, fit, checks = _final(candidates, chosen, order, result, excluded, lag, ref, oe_windows,
-                                            accel_max)
+                                            accel_max, ready)
     c = candidates[chosen]
     training = {**model.training, "runs": list(ref.names), "reference_smoothing": ref.smoothing,
                 "cv": {"kind": folds.kind, "note": folds.note, "held_out": [list(h) for h in folds.held_out],

@@ -9,6 +9,7 @@ import logging
 import numpy as np
 import pytest
 
+from groundfloor.errors import InputError
 from identification.sindy import search as search_module
 from identification.sindy.baselines import LagModel, LagParameters, fit_lag
 from identification.sindy.checks import dissipativity, not_excited, run_checks
@@ -341,10 +342,46 @@ def test_the_stepwise_search_started_from_the_candidate_pass_scores_as_one_start
     fold_pass = identify_module._fold_pass
     monkeypatch.setattr(identify_module, "TASKS_PER_FOLD", 1)
     monkeypatch.setattr(identify_module, "_fold_pass",
-                        lambda specs, shared, n, jobs, what, started=None: fold_pass(specs, shared, n, jobs, what))
+                        lambda specs, shared, n, jobs, what, started=None, on_all=None:
+                        fold_pass(specs, shared, n, jobs, what))
     afresh = identify(sparse_runs, grid)
     assert any(c.label.endswith("stepwise") for c in reused.candidates)
     assert [c.label for c in reused.candidates] == [c.label for c in afresh.candidates]
     for a, b in zip(reused.candidates, afresh.candidates):
         np.testing.assert_allclose(a.fold_rms_m, b.fold_rms_m, rtol=1e-9, err_msg=a.label)
     np.testing.assert_array_equal(reused.model.coef, afresh.model.coef)
+
+
+def test_the_stepwise_candidate_refitted_on_all_runs_beside_the_folds_is_the_refit_after_them(sparse_runs, monkeypatch):
+    """identify refits the stepwise candidate on all train runs as a task of the stepwise pass (in a
+    worker); the final step taking it gives what the final step computes itself without it."""
+    import identification.sindy.identify as identify_module
+
+    final = identify_module._final
+    seen = {}
+
+    def outcome(candidates, i, *args):
+        try:
+            _, model, fit, checks = final(candidates, i, [i], *args)
+        except InputError as exc:
+            return str(exc)
+        return model.coef, model.dead_time_s, model.input_lag_s, fit.cov, json.dumps(checks, sort_keys=True, default=str)
+
+    def spy(candidates, chosen, order, *args):
+        i = next(k for k, c in enumerate(candidates) if c.label.endswith("stepwise"))
+        seen["ready"] = args[-1]
+        seen["beside"] = outcome(candidates, i, *args)
+        seen["after"] = outcome(candidates, i, *args[:-1])  # nothing computed beforehand
+        return final(candidates, chosen, order, *args)
+
+    monkeypatch.setattr(identify_module, "_final", spy)
+    grid = SearchGrid(s=(1.0,), tau=(0.5,), alpha=(1e-3,), T=(0.05,), library=("poly2",), n_folds=3,
+                      normalize=True, dt_eval=0.05)
+    identify(sparse_runs, grid, n_jobs=2)
+    assert list(seen["ready"]) and all(label.endswith("stepwise") for label in seen["ready"])
+    assert not isinstance(seen["after"], str), seen["after"]  # the case compared is a model, not an error
+    for a, b in zip(seen["beside"], seen["after"]):
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(a, b)
+        else:
+            assert a == b
