@@ -35,7 +35,9 @@
    regression's choice of terms, not the coefficients, kept the refined models at about twice
    the true dynamics' error on their own train windows.
 7. **Final model**: the picked candidate refitted on all train runs the same way; if it fails
-   the checks, the next candidate by CV error is taken (never a failing model).
+   the checks, the next candidate by CV error is taken (never a failing model). The stepwise
+   candidate's refit, a search of its own, runs as a task of its folds' pass where the last
+   round leaves a worker idle, so that it is ready when the rule picks it.
 """
 
 from __future__ import annotations
@@ -225,6 +227,16 @@ def _fold_pass(specs, shared: tuple, n_folds: int, n_jobs, what: str, started=No
     return per_fold, ready
 
 
+def _room_beside(n_tasks: int, n_jobs) -> bool:
+    """Return whether one task more runs beside ``n_tasks`` without another round: local processes
+    whose last round leaves one idle, or a Dask cluster (its concurrency is its own). One process
+    has no room: a refit that may not be needed would only add its time."""
+    workers = Workers.of(n_jobs)
+    if workers.dask is not None:
+        return True
+    return workers.jobs > 1 and -(-(n_tasks + 1) // workers.jobs) == -(-n_tasks // workers.jobs)
+
+
 def _refit_on_all(label: str, hp: dict | None, result: SearchResult, cache: dict, excluded, lag: LagModel,
                   ref: Reference, all_oe: Windows, accel_max) -> tuple[SindyModel, OutputErrorFit | None, dict]:
     """Return a candidate refitted on all train runs as in the folds, its output-error fit and its checks.
@@ -317,10 +329,13 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
         origin = step[0].split(",")[0]
         started = [{step[0]: refined.get(origin)} for _, refined in passes]
         # and its search on all train runs, which the final model needs if the rule picks it, runs
-        # beside them: with 5 folds on 2 workers it takes the slot the last fold leaves idle
-        # (on simulator variants the stepwise candidate is picked in 7 of 10) instead of running after
+        # beside them where a slot is free: with 5 folds on 2 workers the one the last fold leaves
+        # idle (on simulator variants the stepwise candidate is picked in 7 of 10), instead of after
         on_all = (step[0], step[1], slim, {}, excluded, lag, ref, thin_windows(oe_windows, OE_MAX_WINDOWS), accel_max)
-        steps, ready[step[0]] = _fold_pass([step], shared, n_f, n_jobs, "stepwise output error", started, on_all)
+        steps, got = _fold_pass([step], shared, n_f, n_jobs, "stepwise output error", started,
+                                on_all if _room_beside(n_f, n_jobs) else None)
+        if got is not None:
+            ready[step[0]] = got
         for p, (q, _) in zip(per_fold, steps):
             p.update(q)
         candidates += (Candidate(step[0], step[1], *collect(step[0])),)

@@ -385,3 +385,13 @@ def test_the_stepwise_candidate_refitted_on_all_runs_beside_the_folds_is_the_ref
             np.testing.assert_array_equal(a, b)
         else:
             assert a == b
+
+
+def test_the_refit_on_all_runs_goes_beside_the_folds_only_where_a_worker_would_idle():
+    """By hand: 5 folds on 2 processes take 3 rounds with one slot free; 4 on 2 take 2 full ones."""
+    from groundfloor.parallel import Workers
+    from identification.sindy.identify import _room_beside
+
+    assert _room_beside(5, 2) and _room_beside(3, 2) and _room_beside(5, 6) and _room_beside(2, 4)
+    assert not _room_beside(4, 2) and not _room_beside(5, 5) and not _room_beside(5, 1)
+    assert _room_beside(5, Workers(dask="tcp://scheduler:8786"))
