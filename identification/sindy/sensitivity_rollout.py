@@ -12,6 +12,11 @@ feature ``theta_j`` (clamped like the accelerations' nonlinear terms), and each 
 ``J_f_x S + d f / d p`` with the dead times' and input lags' columns from the input rates and lag
 sensitivities the caller computed. The tests hold it against the numpy recursion and against
 finite differences of :func:`identification.sindy.evaluate.rollout`.
+
+numba keys the cache of the compiled kernel by this file alone: after editing
+:func:`identification.sindy.active_terms._accel_into` (which it compiles in), remove this folder's
+``__pycache__/*.nbi`` files, or the kernel runs the evaluation it was cached with. An install
+writes every file anew and invalidates them all.
 """
 
 from __future__ import annotations
@@ -54,7 +59,8 @@ def sensitivity_rollout(terms: ActiveTerms, param_eq: np.ndarray, param_factors:
                          float(dt), np.asarray(param_eq, dtype=np.intp),
                          np.ascontiguousarray(param_factors, dtype=np.intp), np.asarray(param_linear, dtype=np.bool_),
                          n_d, n_lag, t._n_table, t.monomials, t._prod_rows, t._prod_f0, t._prod_f1, t.index,
-                         t._rows, t.weight, t.frozen, t.lo, t.hi, t.lin_b, t.lin_W, out_s, out_S)
+                         t._sp_rows, t._sp_ptr, t._sp_col, t._sp_w, t.frozen, t.lo, t.hi, t.lin_b, t.lin_W, out_s,
+                         out_S)
     return out_s, out_S
 
 
@@ -71,8 +77,8 @@ def _atoms_into(table: np.ndarray, z: np.ndarray) -> None:
 
 @njit(cache=True)
 def _sensitivity_rollout(x0, u_half, u_rate, u_dlag, dt, param_eq, param_factors, param_linear, n_d, n_lag,
-                         n_table, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight, frozen, lo, hi,
-                         lin_b, lin_W, out_s, out_S) -> None:
+                         n_table, monomials, prod_rows, prod_f0, prod_f1, index, sp_rows, sp_ptr, sp_col, sp_w, frozen,
+                         lo, hi, lin_b, lin_W, out_s, out_S) -> None:
     """Write :func:`sensitivity_rollout`'s states and sensitivities into ``out_s``, ``out_S``.
 
     Per stage ``s`` at ``x_s = x + c_s k_{s-1}``, ``S_s = S + c_s K_{s-1}``:
@@ -124,8 +130,8 @@ def _sensitivity_rollout(x0, u_half, u_rate, u_dlag, dt, param_eq, param_factors
                         for q in range(n_par):
                             Ssr[q] = Sr[q] + c * Kr[q]
                 z[0], z[1], z[2], z[3], z[4] = xs[3], xs[4], xs[5], u_half[w, j, 0], u_half[w, j, 1]
-                _accel_into(acc, table, z, zc, True, monomials, prod_rows, prod_f0, prod_f1, index, rows, weight,
-                            frozen, lo, hi, lin_b, lin_W)
+                _accel_into(acc, table, z, zc, True, monomials, prod_rows, prod_f0, prod_f1, index, sp_rows, sp_ptr,
+                            sp_col, sp_w, frozen, lo, hi, lin_b, lin_W)
                 cp, sp = math.cos(xs[2]), math.sin(xs[2])
                 k[s, 0] = cp * xs[3] - sp * xs[4]
                 k[s, 1] = sp * xs[3] + cp * xs[4]
