@@ -85,7 +85,7 @@ def first_order_lags(u: np.ndarray, step_s: float, rows, lags_s, hold: str = "li
 
 @njit(cache=True)
 def _lag_recursions(u: np.ndarray, rows: np.ndarray, a: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
-    """Return ``w (k, n)`` with ``w_j0 = u_(r_j, 0)`` and ``w_(j, k+1) = a_j w_jk + b0_j u_(r_j, k+1) + b1_j u_(r_j, k)``.
+    """Return ``w (k, n)``: ``w_j0 = u_(r_j, 0)``, ``w_(j, k+1) = a_j w_jk + b0_j u_(r_j, k+1) + b1_j u_(r_j, k)``.
 
     Four recursions at a time, each carried in a scalar (a register: four cost what one does); a
     group short of four repeats its last recursion.

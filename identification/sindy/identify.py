@@ -252,7 +252,8 @@ def _refit_on_all(label: str, hp: dict | None, result: SearchResult, cache: dict
 
 
 def _final(candidates, chosen: int, order, result: SearchResult, excluded, lag: LagModel, ref: Reference,
-           oe_windows: Windows, accel_max, ready: dict | None = None) -> tuple[int, SindyModel, OutputErrorFit | None, dict]:
+           oe_windows: Windows, accel_max, ready: dict | None = None
+           ) -> tuple[int, SindyModel, OutputErrorFit | None, dict]:
     """Return the index, model, output-error fit and checks of the first candidate (``chosen``,
     then the others that passed by CV error) that passes the checks refitted on all train runs
     (``ready``: label -> :func:`_refit_on_all`'s result or its :class:`InputError`, computed already)."""

@@ -365,7 +365,8 @@ def test_the_stepwise_candidate_refitted_on_all_runs_beside_the_folds_is_the_ref
             _, model, fit, checks = final(candidates, i, [i], *args)
         except InputError as exc:
             return str(exc)
-        return model.coef, model.dead_time_s, model.input_lag_s, fit.cov, json.dumps(checks, sort_keys=True, default=str)
+        checks = json.dumps(checks, sort_keys=True, default=str)
+        return model.coef, model.dead_time_s, model.input_lag_s, fit.cov, checks
 
     def spy(candidates, chosen, order, *args):
         i = next(k for k, c in enumerate(candidates) if c.label.endswith("stepwise"))
