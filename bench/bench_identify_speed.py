@@ -52,8 +52,8 @@ m = model_from_terms({"vx": {"vx": -1.0, "u1": 1.0}}, "poly1")
 u = np.zeros((1, 3, 2))
 sensitivity_rollout(m._active_terms(), np.zeros(1, int), np.zeros((1, 3), int), np.ones(1, bool), np.zeros((1, 6)),
                     u, 0.05, 2, u, u)
-from groundfloor.input_chain import first_order_lag_1d
-first_order_lag_1d(np.zeros(3), 0.01, 0.1)
+from groundfloor.input_chain import first_order_lag
+first_order_lag(np.zeros((3, 2)), 0.01, (0.1, 0.1))
 """
 
 

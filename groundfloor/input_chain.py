@@ -46,41 +46,35 @@ def first_order_lag(u: np.ndarray, step_s: float, lag_s, hold: str = "linear") -
     """
     u = np.asarray(u, dtype=float)
     out = u.copy()
-    for i, T in enumerate(np.asarray(lag_s, dtype=float).reshape(-1)[:2]):
-        out[:, i] = first_order_lag_1d(u[:, i], step_s, float(T), hold)
+    lags = np.asarray(lag_s, dtype=float).reshape(-1)[:2]
+    out[:, :len(lags)] = first_order_lags(u.T, step_s, range(len(lags)), lags, hold).T
     return out
 
 
-def first_order_lag_1d(u: np.ndarray, step_s: float, lag_s: float, hold: str = "linear") -> np.ndarray:
-    """Return :func:`first_order_lag` of one input ``u (n,)`` with time constant ``lag_s`` (``u``
-    itself when it is 0). Compiled: the output-error fits ask for a few hundred lags of every
-    segment's inputs, where a filter call's overhead outweighed the filtering."""
-    u = np.ascontiguousarray(u, dtype=float)
-    if lag_s <= 0.0 or len(u) < 2:
-        return u
-    return first_order_lags(u[None], step_s, [0], [lag_s], hold)[0]
-
-
 def first_order_lags(u: np.ndarray, step_s: float, rows, lags_s, hold: str = "linear") -> np.ndarray:
-    """Return ``(k, n)``: :func:`first_order_lag_1d` of ``u[rows[j]]`` with time constant ``lags_s[j]``
-    for each ``j``, from the inputs ``u (c, n)`` (one per row) in one compiled pass.
+    """Return ``(k, n)``: row ``u[rows[j]]`` of the inputs ``u (c, n)`` through a first-order lag
+    of time constant ``lags_s[j]`` (:func:`first_order_lag`'s recursion), for each ``j``, in one
+    compiled pass; a row with ``lags_s[j] <= 0`` is its input unchanged.
 
     The recursion's steps each wait on the one before (a multiply-add's latency per sample); run
     side by side, independent recursions fill that wait: an output-error fit asks for a lag of both
     inputs and the two either side of each (the lag sensitivities) at every step, six recursions in
-    the time of two, to the same bits. A row with
-    ``lags_s[j] <= 0`` is its input unchanged.
+    the time of two, to the same bits. Compiled: the fits ask for a few hundred lags of every
+    segment's inputs, where a filter call's overhead outweighed the filtering.
     """
     u = np.ascontiguousarray(u, dtype=float)
-    coef = np.empty((3, len(lags_s)))
-    for j, T in enumerate(lags_s):
-        if T <= 0.0:
-            coef[:, j] = 0.0, 1.0, 0.0  # w_{k+1} = u_{k+1}
-            continue
+    rows = np.asarray(rows, dtype=np.intp)
+    lags = np.asarray(lags_s, dtype=float)
+    on = np.flatnonzero(lags > 0.0)
+    coef = np.empty((3, len(on)))
+    for j, T in enumerate(lags[on]):
         a = float(np.exp(-step_s / T))
         c = T * (1.0 - a) / step_s if hold == "linear" else 1.0
         coef[:, j] = a, 1.0 - c, c - a
-    return _lag_recursions(u, np.asarray(rows, dtype=np.intp), coef[0], coef[1], coef[2])
+    out = u[rows].copy()  # the unlagged rows as they are
+    if len(on):
+        out[on] = _lag_recursions(u, rows[on], coef[0], coef[1], coef[2])
+    return out
 
 
 @njit(cache=True)

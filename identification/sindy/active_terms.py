@@ -136,8 +136,7 @@ class ActiveTerms:
             self.index = np.array(index, dtype=np.intp).reshape(-1, 3).T.copy()  # (3, rows)
             self.weight = np.array(weight, dtype=float).reshape(-1, 27)
         self.weight_a = np.ascontiguousarray(self.weight[:, :3])  # accelerations alone: a smaller product
-        # the compiled step's view of the same tables: the degree-by-degree products flattened,
-        # and only the rows that carry a weight
+        # the compiled step's view of the same tables: the degree-by-degree products flattened
         if self.monomials:
             self._prod_rows = np.concatenate([np.arange(r.start, r.stop) for r, _ in self.products])
             self._prod_f0, self._prod_f1 = np.concatenate([f for _, f in self.products], axis=1)
@@ -145,15 +144,14 @@ class ActiveTerms:
         else:
             self._prod_rows = self._prod_f0 = self._prod_f1 = np.zeros(0, dtype=np.intp)
             self._n_table = 1 + 6 * nv
-        self._rows = np.flatnonzero(np.any(self.weight != 0, axis=1))
-        # the compiled evaluation's weights: the non-zero entries, row by row (about an eighth of the
-        # dense table for a model of a few dozen poly3 terms, and half the time of the dense product)
-        # (row sp_rows[q] holds the entries sp_ptr[q]:sp_ptr[q + 1] of sp_col and sp_w)
-        r, c = np.nonzero(self.weight[self._rows])
-        self._sp_rows = self._rows.astype(np.intp)
-        self._sp_ptr = np.searchsorted(r, np.arange(len(self._rows) + 1)).astype(np.intp)
+        # the compiled evaluation's weights: the non-zero entries of the rows that carry one, row by
+        # row (about an eighth of the dense table for a model of a few dozen poly3 terms): row
+        # _sp_rows[q] holds the entries _sp_ptr[q]:_sp_ptr[q + 1] of _sp_col and _sp_w
+        self._sp_rows = np.flatnonzero(np.any(self.weight != 0, axis=1)).astype(np.intp)
+        r, c = np.nonzero(self.weight[self._sp_rows])
+        self._sp_ptr = np.searchsorted(r, np.arange(len(self._sp_rows) + 1)).astype(np.intp)
         self._sp_col = c.astype(np.intp)
-        self._sp_w = self.weight[self._rows[r], c].copy()
+        self._sp_w = self.weight[self._sp_rows[r], c].copy()
 
     def __call__(self, v_body: np.ndarray, u: np.ndarray, jacobians: bool = True):
         """Return ``a (..., 3)``, ``J_a_x (..., 3, 6)`` and ``J_a_u (..., 3, 2)`` at body velocities

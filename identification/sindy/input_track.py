@@ -74,7 +74,7 @@ class InputTrack:
         (:func:`groundfloor.input_chain.first_order_lags`)."""
         memo = self.__dict__.setdefault("_lag_memo", {})
         keys = [(int(i), float(T)) for i, T in keys]
-        found = {k: memo[k] if k[1] > 0.0 else self._grid_channels[k[0]] for k in keys if k in memo or k[1] <= 0.0}
+        found = {k: memo[k] for k in keys if k in memo}
         missing = [k for k in dict.fromkeys(keys) if k not in found]
         if missing:
             grid, _ = self._on_lag_grid
@@ -127,13 +127,12 @@ class InputTrack:
         if self.hold == "linear":
             for i in range(2):
                 q = tq - d[i]
-                if rate:  # the slope of the line the query falls on (taken at the queries alone: a
+                if rate and len(self.t) < 2:
+                    out[..., i] = 0.0
+                elif rate:  # the slope of the line the query falls on (taken at the queries alone: a
                     # lagged track is new at every step of a fit, and far longer than its queries)
                     k = np.searchsorted(self.t, q, side="right") - 1
                     inside = (k >= 0) & (k < len(self.t) - 1)
-                    if len(self.t) < 2:
-                        out[..., i] = 0.0
-                        continue
                     k = np.clip(k, 0, len(self.t) - 2)
                     slope = (self.u[k + 1, i] - self.u[k, i]) / (self.t[k + 1] - self.t[k])
                     out[..., i] = np.where(inside, slope, 0.0)

@@ -371,7 +371,12 @@ def test_the_stepwise_candidate_refitted_on_all_runs_beside_the_folds_is_the_ref
     def spy(candidates, chosen, order, *args):
         i = next(k for k, c in enumerate(candidates) if c.label.endswith("stepwise"))
         seen["ready"] = args[-1]
-        seen["beside"] = outcome(candidates, i, *args)
+        refit = identify_module._refit_on_all
+        try:  # taken from the worker, not refitted here
+            identify_module._refit_on_all = None
+            seen["beside"] = outcome(candidates, i, *args)
+        finally:
+            identify_module._refit_on_all = refit
         seen["after"] = outcome(candidates, i, *args[:-1])  # nothing computed beforehand
         return final(candidates, chosen, order, *args)
 
