@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -54,11 +55,12 @@ def one_campaign(task: tuple) -> dict:
     from sindy_ekf.diagnose import diagnose_states
 
     model, job = task
-    seed, family, value, flow, form, params, variant = (tuple(job) + ("reference", "", {}, None)[len(job) - 3:])[:7]
+    seed, family, value, flow, form, params, variant, run_s = (
+        tuple(job) + ("reference", "", {}, None, RUN_S)[len(job) - 3:])[:8]
     effect = Effect(family, value, form=form, params=params) if family else None
-    train, test, a, b = simulate_states_campaign(seed, effect, run_s=RUN_S, rate_hz=RATE_HZ, variant=variant)
+    train, test, a, b = simulate_states_campaign(seed, effect, run_s=run_s, rate_hz=RATE_HZ, variant=variant)
     if variant and flow == "reference":  # the variant's own lab model (an effect-free campaign of it)
-        model = variant_reference(variant, RUN_S, RATE_HZ)
+        model = variant_reference(variant, run_s, RATE_HZ)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -94,8 +96,9 @@ FORM_ESTIMATE = {("input_delay", "transport"): "delay_s", ("input_delay", "motor
 VARIANTS = tuple(range(1, 11))
 
 
-def forms_jobs(per_form: int = 3, n_free: int = 10):
-    """Return the forms suite: ``per_form`` campaigns per form on simulator variants, plus effect-free ones."""
+def forms_jobs(per_form: int = 3, n_free: int = 10, run_s: float = RUN_S):
+    """Return the forms suite: ``per_form`` campaigns per form on simulator variants, plus effect-free ones,
+    of runs of ``run_s`` (the same draws of seed, effect, magnitude and variant whatever ``run_s``)."""
     rng = np.random.default_rng([MASTER_SEED, 5])
     jobs, k = [], 0
     for fam, spec in EFFECTS.items():
@@ -105,23 +108,27 @@ def forms_jobs(per_form: int = 3, n_free: int = 10):
             for _ in range(per_form):
                 v = float(np.clip(fs.moderate * np.exp(rng.uniform(np.log(0.5), np.log(1.5))), *fs.valid_range))
                 params = {"seed": int(rng.integers(2**31))} if form in DRAWN_FORMS else {}
-                jobs.append((int(rng.integers(2**31)), fam, v, "reference", form, params, VARIANTS[k % len(VARIANTS)]))
+                jobs.append((int(rng.integers(2**31)), fam, v, "reference", form, params, VARIANTS[k % len(VARIANTS)],
+                             run_s))
                 k += 1
-    jobs += [(int(rng.integers(2**31)), None, 0.0, "reference", "", {}, VARIANTS[i % len(VARIANTS)])
+    jobs += [(int(rng.integers(2**31)), None, 0.0, "reference", "", {}, VARIANTS[i % len(VARIANTS)], run_s)
              for i in range(n_free)]
     return jobs
 
 
-def forms_lines(rows) -> list[str]:
-    """Return the markdown section of the forms suite (issue 15, item 4)."""
+def forms_lines(rows, run_s: float = RUN_S) -> list[str]:
+    """Return the markdown section of the forms suite (issue 15, item 4) on runs of ``run_s``."""
     eff = [r for r in rows if r["family"] != "none"]
     free = [r for r in rows if r["family"] == "none"]
     named = [r for r in eff if r["verdict"] == r["family"]]
     alarms = [r for r in free if r["verdict"] != "none"]
     alarm_text = ", ".join(f"variant {r['variant']} -> {r['verdict']}" for r in alarms)
-    lines = ["## Mechanisms the families were not written from, on simulator variants (issue 15, item 4)", "",
-             "Command: `.venv/bin/python -m bench.bench_diagnose --jobs 2 --forms` (campaigns of 4 x 45 s train and "
-             "2 x 45 s test runs, 25 Hz states with noise, each on one of the simulator variants 1 to 10 (another "
+    longer = f" --run-s {run_s:g}" if run_s != RUN_S else ""
+    lines = ["## Mechanisms the families were not written from, on simulator variants (issue 15, item 4)"
+             + (f", runs of {run_s:g} s" if longer else ""), "",
+             f"Command: `.venv/bin/python -m bench.bench_diagnose --jobs 2 --forms{longer}` (campaigns of "
+             f"4 x {run_s:g} s train and 2 x {run_s:g} s test runs, 25 Hz states with noise, each on one of the "
+             "simulator variants 1 to 10 (another "
              "robot, lateral law, process noise, motor lag, driver and tracker noise, `simulation/variants.py`); "
              "the effect in a form other than the one its family was written from (`simulation/effects.py`), "
              "magnitude log-uniform in [0.5, 1.5] x the form's moderate value; diagnosed against the variant's "
@@ -153,11 +160,18 @@ def forms_lines(rows) -> list[str]:
     return lines + [""]
 
 
+def forms_stem(run_s: float) -> str:
+    """Return the file stem of the forms suite's results on runs of ``run_s``."""
+    return "diagnose_forms" if run_s == RUN_S else f"diagnose_forms_{run_s:g}s"
+
+
 def write_forms(out_dir: Path, forms: dict) -> str:
-    """Write ``diagnose_forms.md`` from the forms suite's raw ``{"minutes", "rows"}``; return its text."""
-    text = "\n".join(forms_lines(forms["rows"])).replace(
-        "--forms` (", f"--forms` ({forms['minutes']:.0f} min; ", 1) + "\n"
-    (out_dir / "diagnose_forms.md").write_text(text)
+    """Write ``diagnose_forms[_<run_s>s].md`` from the forms suite's raw ``{"minutes", "rows"[, "run_s"]}``;
+    return its text."""
+    run_s = float(forms.get("run_s", RUN_S))
+    text = re.sub(r"--forms[^`]*` \(", lambda m: f"{m.group(0)}{forms['minutes']:.0f} min; ",
+                  "\n".join(forms_lines(forms["rows"], run_s)), count=1) + "\n"
+    (out_dir / f"{forms_stem(run_s)}.md").write_text(text)
     return text
 
 
@@ -559,6 +573,9 @@ def main() -> int:
                          "models identified here), 24 short simulated ones and two per simulator variant 1 to 10")
     ap.add_argument("--forms", action="store_true",
                     help="the forms suite on simulator variants -> diagnose_forms.md (issue 15, item 4)")
+    ap.add_argument("--run-s", type=float, default=RUN_S, metavar="S",
+                    help=f"with --forms: runs of S seconds (default {RUN_S:g}; other lengths write "
+                         "diagnose_forms_<S>s.md beside the default)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--dask", default=None, metavar="SCHEDULER_ADDRESS", help="run the campaigns on this Dask cluster")
     ap.add_argument("--no-ladder", action="store_true")
@@ -570,8 +587,8 @@ def main() -> int:
     out_dir = HERE / "results"
     raw_path = out_dir / "diagnose_raw.json"
     raw = json.loads(raw_path.read_text()) if raw_path.exists() else {}
-    if args.summarise_only and (out_dir / "diagnose_forms.json").exists():
-        write_forms(out_dir, json.loads((out_dir / "diagnose_forms.json").read_text()))
+    if args.summarise_only and (out_dir / f"{forms_stem(args.run_s)}.json").exists():
+        write_forms(out_dir, json.loads((out_dir / f"{forms_stem(args.run_s)}.json").read_text()))
     if args.summarise_only:
         text = summarise(raw.get("suite", []), raw.get("ladder"), raw.get("timing"), raw.get("calibration"),
                          raw.get("cause_calibration"), raw.get("family_calibration"))
@@ -582,9 +599,9 @@ def main() -> int:
     model = fit_reference_with_lateral_law(n_runs=4, run_s=RUN_S, rate_hz=RATE_HZ)
     if args.forms:
         t0 = time.perf_counter()
-        rows = run_jobs(forms_jobs(), model, workers)
-        forms = {"minutes": (time.perf_counter() - t0) / 60, "rows": rows}
-        (out_dir / "diagnose_forms.json").write_text(json.dumps(forms, indent=1))
+        rows = run_jobs(forms_jobs(run_s=args.run_s), model, workers)
+        forms = {"minutes": (time.perf_counter() - t0) / 60, "run_s": args.run_s, "rows": rows}
+        (out_dir / f"{forms_stem(args.run_s)}.json").write_text(json.dumps(forms, indent=1))
         text = write_forms(out_dir, forms)
         print(text)
         return 0

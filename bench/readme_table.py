@@ -384,6 +384,8 @@ ROWS = (
     Row("diagnose", _diagnose_q, _diagnose, "outlook only"),
     Row("diagnose_forms", "diagnosis, mechanism forms the families were not written from, on simulator variants "
         "1 to 10", _diagnose_forms, "-"),
+    Row("diagnose_forms_120s", "the same on runs of 120 s instead of 45 s (a slow effect needs time to show)",
+        _diagnose_forms, "-"),
     Row("identify_variants", "identification on simulator variants 1 to 10 (12-min campaigns through bags; "
         "`identify` then `evaluate`): 5 s position error of the selected model on the test runs", _variants, "-"),
     Row("identify_variants_default_length", "the same at the default campaign length (45.4-min campaigns)",
