@@ -73,7 +73,20 @@ def own_coupling(campaign, model_path) -> float:
     ``model_path``, scored as the diagnosis scores it (the model with its input gains fitted on the train
     runs, the gain nuisance, the model kept fixed): what an injected coupling adds to."""
     model = load_model(model_path)
-    st, names, _ = states_of_runs(open_campaign(campaign).split("train"), float(model.hyperparameters.get("s") or 0.0))
+    return _coupling_of(model, open_campaign(campaign).split("train"))
+
+
+def own_coupling_per_run(campaign, model_path) -> list[tuple[str, str, float]]:
+    """Return ``(run, split, coupling)`` per run of a clean campaign: :func:`own_coupling` of each run
+    alone (its gains fitted on that run). How much a robot's own coupling varies from run to run is
+    what an injected coupling has to stand out of when it is scored on other runs than it was fitted on."""
+    model = load_model(model_path)
+    camp = open_campaign(campaign)
+    return [(r.name, split, _coupling_of(model, [r])) for split in ("train", "test") for r in camp.split(split)]
+
+
+def _coupling_of(model, runs) -> float:
+    st, names, _ = states_of_runs(runs, float(model.hyperparameters.get("s") or 0.0))
     tr = model_split(model, st, names, float(model.hyperparameters.get("tau") or 2.0))
     w = equation_weights(model, tr)
     null, _ = gain_recalibrated(model, tr, w)
