@@ -116,6 +116,20 @@ def forms_jobs(per_form: int = 3, n_free: int = 10, run_s: float = RUN_S):
     return jobs
 
 
+def loss_error(row) -> float | None:
+    """Return the relative error of a time_dependence row's gain lost over the runs (the profile's
+    ``loss_over_runs`` between ``loss_from_s`` and ``loss_to_s``) against the form's own gain curve, or
+    None where the row has no profile."""
+    from simulation.actuator import decay_gain
+
+    est = row["estimates"].get("time_dependence", {})
+    if row["family"] != "time_dependence" or est.get("loss_over_runs") is None:
+        return None
+    g = decay_gain(Effect("time_dependence", row["value"], form=row["form"]),
+                   [est["loss_from_s"], est["loss_to_s"]])
+    return float(est["loss_over_runs"] / (1.0 - g[1] / g[0]) - 1.0)
+
+
 def forms_lines(rows, run_s: float = RUN_S) -> list[str]:
     """Return the markdown section of the forms suite (issue 15, item 4) on runs of ``run_s``."""
     eff = [r for r in rows if r["family"] != "none"]
@@ -140,8 +154,9 @@ def forms_lines(rows, run_s: float = RUN_S) -> list[str]:
              + (": " + alarm_text if alarms else ""),
              f"- 5 s position error lowered by the extension in {sum(r['after'] < r['before'] for r in named)}/"
              f"{len(named)} correctly named campaigns", "",
-             "| family | form | named | estimate of the form's parameter: median relative error (n) |",
-             "|---|---|---|---|"]
+             "| family | form | named | estimate of the form's parameter: median relative error (n) "
+             "| gain lost over the runs (time_dependence's profile): median relative error (n) |",
+             "|---|---|---|---|---|"]
     for fam in EFFECTS:
         for form in dict.fromkeys(r["form"] for r in eff if r["family"] == fam):
             rs = [r for r in eff if r["family"] == fam and r["form"] == form]
@@ -154,9 +169,11 @@ def forms_lines(rows, run_s: float = RUN_S) -> list[str]:
                 if r["verdict"] == fam and value is not None:
                     errs.append(abs(value / r["value"] - 1))
             err = f"{100 * float(np.median(errs)):.0f} % ({len(errs)})" if errs else "-"
+            loss = [abs(e) for r in rs if r["verdict"] == fam for e in [loss_error(r)] if e is not None]
+            loss_err = f"{100 * float(np.median(loss)):.0f} % ({len(loss)})" if loss else "-"
             misses = [r["verdict"] for r in rs if r["verdict"] != fam]
             lines.append(f"| {fam} | {form} | {len(rs) - len(misses)}/{len(rs)}"
-                         + (f" (else: {', '.join(misses)})" if misses else "") + f" | {err} |")
+                         + (f" (else: {', '.join(misses)})" if misses else "") + f" | {err} | {loss_err} |")
     return lines + [""]
 
 

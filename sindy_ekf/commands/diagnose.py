@@ -31,11 +31,17 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
     lines = [f"diagnosis of {model.name} on {campaign}: most likely cause: {d.verdict}",
              f"{'family':20} {'test gain %':>11} {'threshold %':>11}  estimate"]
     for c in d.ranked:
-        est = ", ".join(f"{k}={format_sig(v, 4)}" for k, v in c.score.estimate.items())
+        est = ", ".join(f"{k}={format_sig(v, 4)}" for k, v in c.score.estimate.items()
+                        if not k.startswith("gain_profile"))
         flag = "*" if c.significant else " "
         lines.append(f"{c.name:20} {100 * c.gain:11.2f} {100 * c.threshold:11.2f} {flag} {est}")
         if c.note:
             lines.append(f"{'':20} note: {c.note}")
+        if "gain_profile_monotone" in c.score.estimate:  # a named decay's shape, relative to its first bin
+            e = c.score.estimate
+            lines.append(f"{'':20} gain over time since the run start (monotone fit): " + ", ".join(
+                f"{t:.0f} s {g / e['gain_profile_monotone'][0]:.3f}"
+                for t, g in zip(e["gain_profile_t_s"], e["gain_profile_monotone"])))
     b, a = d.before, d.after
     lines.append(f"5 s error on the test runs ({b.n_windows} windows): position {100 * b.pos_err_5s_m:.2f} -> "
                  f"{100 * a.pos_err_5s_m:.2f} cm, heading {b.yaw_err_5s_deg:.2f} -> {a.yaw_err_5s_deg:.2f} deg")

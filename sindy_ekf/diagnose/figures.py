@@ -1,4 +1,4 @@
-"""Figures of the diagnosis: residual structure, lag correlation, family profiles, residual map.
+"""Figures of the diagnosis: residual structure, lag correlation, family profiles, residual map, gain profile.
 
 Each ``plot_*`` takes numbers of :mod:`sindy_ekf.diagnose.residuals` or the family scores,
 returns a matplotlib Figure and saves it as PNG when given ``path``;
@@ -80,6 +80,28 @@ def plot_family_profiles(scores, path=None):
     return save_figure(fig, path)
 
 
+def plot_gain_profile(estimate: dict, path=None):
+    """Return the input gain over time since the run start of a named ``time_dependence``: the bins'
+    gains +- 2 jackknife standard deviations, their monotone fit and the linear form's decay, each
+    relative to the monotone fit's first bin (``estimate`` of :mod:`sindy_ekf.diagnose.gain_profile`)."""
+    t = np.asarray(estimate["gain_profile_t_s"], float)
+    mono = np.asarray(estimate["gain_profile_monotone"], float)
+    g = np.asarray(estimate["gain_profile"], float) / mono[0]
+    std = np.array([np.nan if v is None else v for v in estimate["gain_profile_std"]], float) / mono[0]
+    fig, ((ax,),) = new_figure(WIDTH_IN, 3.6)
+    ax.errorbar(t, g, yerr=2 * std, fmt="o", ms=4, capsize=3, label="bins: gain +- 2 std (jackknife over runs)")
+    ax.plot(t, mono / mono[0], "-", lw=1.5, label=f"monotone fit: {100 * estimate['loss_over_runs']:.1f} % lost")
+    if estimate.get("decay_per_10min") is not None:
+        tt = np.linspace(t[0], t[-1], 50)
+        r = float(estimate["decay_per_10min"])
+        ax.plot(tt, (1 - r * tt / 600) / (1 - r * t[0] / 600), "--", lw=1,
+                label=f"linear form: {r:.3g} per 10 min")
+    ax.set(xlabel="time since the run start [s]", ylabel="input gain / first bin",
+           title="input gain over time (time_dependence)")
+    ax.legend(fontsize=8)
+    return save_figure(fig, path)
+
+
 def plot_residual_map(rmap: dict[str, np.ndarray], path=None, patch: dict | None = None):
     """Return the vx and omega window residuals over the lab floor, a found patch circled.
 
@@ -102,8 +124,9 @@ def write_diagnosis_figures(d: Diagnosis, out_dir: str | Path) -> list[Path]:
     """Return the figure files of a diagnosis written to ``out_dir``.
 
     Window-residual and 5 s multi-step structure, lag profile (with the estimated delay),
-    family profiles, residual map (with the patch when position dependence is significant) and
-    the 5 s error curves before and after the extension.
+    family profiles, residual map (with the patch when position dependence is significant), the
+    5 s error curves before and after the extension, and the gain over time when time_dependence
+    is significant.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -119,6 +142,11 @@ def write_diagnosis_figures(d: Diagnosis, out_dir: str | Path) -> list[Path]:
     if d.extended is not None:
         ev.append(replace(d.evaluations["after"], name=f"extended ({d.verdict})"))
     plot_error_curves(ev, path=out / "before_after.png", stacked=False)
-    names = ("residual_structure", "multistep_structure", "lag_profile", "family_profiles", "residual_map",
-             "before_after")
+    names = ["residual_structure", "multistep_structure", "lag_profile", "family_profiles", "residual_map",
+             "before_after"]
+    decay = next((c.score.estimate for c in d.ranked if c.name == "time_dependence" and c.significant
+                  and "gain_profile" in c.score.estimate), None)
+    if decay is not None:  # a named gain decay: its shape over time
+        plot_gain_profile(decay, out / "gain_profile.png")
+        names.append("gain_profile")
     return [out / f"{n}.png" for n in names]

@@ -45,6 +45,7 @@ from sindy_ekf.diagnose.extend import (
 )
 from sindy_ekf.diagnose.design import with_input_gains
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
+from sindy_ekf.diagnose.gain_profile import with_gain_profile
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.per_input import with_per_input
 from sindy_ekf.diagnose.rank import (
@@ -325,7 +326,9 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         # a significant delay, lag or deadband gets its values per input (per_input.py), in its
         # extension when the inputs' values differ
         null_model = with_input_gains(model, gains)  # the input-side families' null, as scored
-        ranked = [dataclasses.replace(c, score=with_per_input(c.score, null_model, tr, weights)) if c.significant
+        # and a significant gain decay the profile of its gain over time, of any monotone shape (gain_profile.py)
+        ranked = [dataclasses.replace(c, score=with_gain_profile(with_per_input(c.score, null_model, tr, weights),
+                                                                 null_model, tr, weights)) if c.significant
                   else c for c in ranked]
         ranked, extended = confirm_on_train(model, ranked, tr, weights, train, train_names)
         name = verdict(ranked)

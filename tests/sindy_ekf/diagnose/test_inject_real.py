@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from identification.preprocessing.campaigns import open_campaign
@@ -70,7 +71,21 @@ def test_injected_gain_decay_named_with_its_rate(wheels, model_file, tmp_path):
     out = inject_campaign(wheels, tmp_path / "decay", "time_dependence", 0.3)
     d = diagnose_campaign(out, model_file, ekf=False)
     assert d.verdict == "time_dependence" and d.ranked[0].name == "time_dependence"
-    assert d.ranked[0].score.estimate["decay_per_10min"] == pytest.approx(0.3, rel=0.25)
+    est = d.ranked[0].score.estimate
+    assert est["decay_per_10min"] == pytest.approx(0.3, rel=0.25)
+    # the shape-free profile: the gain lost between its first and last bin, against the injected line
+    # (inject.py: 1 - 0.3 t / 600 s since the run's first pose)
+    g_from, g_to = (1.0 - 0.3 * est[k] / 600.0 for k in ("loss_from_s", "loss_to_s"))
+    assert est["loss_over_runs"] == pytest.approx(1.0 - g_to / g_from, rel=0.25)
+    assert np.all(np.diff(est["gain_profile_monotone"]) <= 0)  # falling
+    from sindy_ekf.diagnose.figures import write_diagnosis_figures
+
+    assert tmp_path / "plots" / "gain_profile.png" in write_diagnosis_figures(d, tmp_path / "plots")
+    assert (tmp_path / "plots" / "gain_profile.png").stat().st_size > 10_000
+    from sindy_ekf.commands.diagnose import format_diagnosis
+
+    text = format_diagnosis(d, Path(model_file), out)  # the profile on a line of its own, not in the estimate's
+    assert "gain over time since the run start (monotone fit)" in text and "gain_profile=" not in text
 
 
 def test_injected_delay_named_from_the_response_lag(wheels, model_file, tmp_path):
