@@ -39,7 +39,7 @@ from sindy_ekf.diagnose.grids import parabolic_argmin
 
 #: bins of time since the run start the train windows are sorted into
 N_BINS = 6
-#: fewest windows a bin is fitted on (a smaller bin is merged into the one before it)
+#: fewest windows a bin is fitted on (equal bins are pooled in order until each holds this many)
 MIN_WINDOWS = 12
 #: points of the ``log g`` grid over :data:`sindy_ekf.diagnose.design.INPUT_GAIN_BOUNDS`
 GRID_POINTS = 801
@@ -92,7 +92,7 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
     ``gain_profile_t_s`` (the bins' mean window start, s), ``gain_profile`` (the bins' gains),
     ``gain_profile_std``, ``gain_profile_monotone`` (the monotone fit), ``loss_over_runs`` (``1 -
     g_last / g_first`` of the fit), ``loss_over_runs_std``, and ``loss_from_s`` and ``loss_to_s``
-    (the first and last bin's time).
+    (the first and last bin's time). None as well for a model without input terms (no gain to fit).
     """
     bins = time_bins(split.t_run[split.start], n_bins)
     n_b = int(bins.max()) + 1
@@ -102,6 +102,8 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
     deg = input_degrees(act.library).sum(axis=1)  # (k,) degree of each feature in the inputs
     feats = split.integrate(act.library.transform(np.concatenate([split.v_body, split.u], axis=-1)))  # (p, k)
     degrees = np.unique(deg[np.any(act.coef != 0, axis=0)])
+    if not np.any(degrees > 0):
+        return None
     P = np.stack([feats @ (act.coef * (deg == d)).T for d in degrees])  # (D, p, 3)
     log_g = np.linspace(*np.log(INPUT_GAIN_BOUNDS), GRID_POINTS)
     scale = np.exp(np.outer(log_g, degrees))  # (G, D)
@@ -111,10 +113,10 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
     # residual sums per (grid point, bin, run): every bin, jackknife replicate and grid point at once
     sse = np.zeros((len(log_g), n_b, n_runs))
     dv = split.delta_v
+    flat = bins * n_runs + runs
     for chunk in np.array_split(np.arange(len(log_g)), max(1, len(log_g) * len(dv) // 2_000_000)):
         pred = np.einsum("gd,dpe->gpe", scale[chunk], P)
         r2 = ((dv[None] - pred) ** 2 * sw).sum(axis=-1)  # (g, p)
-        flat = bins * n_runs + runs
         for j, g in enumerate(chunk):
             sse[g] = np.bincount(flat, weights=r2[j], minlength=n_b * n_runs).reshape(n_b, n_runs)
     counts = np.bincount(bins, minlength=n_b).astype(float)

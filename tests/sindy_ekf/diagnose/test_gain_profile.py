@@ -122,3 +122,9 @@ def test_jackknife_is_the_profile_refitted_without_each_run(runs):
     n, losses = len(losses), np.array(losses)
     assert full["loss_over_runs_std"] == pytest.approx(np.sqrt((n - 1) / n * np.sum((losses - losses.mean()) ** 2)),
                                                        rel=1e-6)
+
+
+def test_a_model_without_input_terms_has_no_profile(runs):
+    model = lag_model((0.0, 0.0))  # the input coefficients zero: no gain to fit
+    tr, _ = splits(model, runs)
+    assert gain_profile(model, tr, equation_weights(model, tr)) is None
