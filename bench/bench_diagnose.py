@@ -501,6 +501,27 @@ def cause_lines(cause_calib, suite) -> list[str]:
     return lines
 
 
+def ladder_lines(ladder, families=None) -> list[str]:
+    """Return the table of the smallest magnitude found 9 times in 10 per family (of ``families``, default all)."""
+    extra = "; ".join(f"also {', '.join(f'{f:g}' for f in v)} x for {k}" for k, v in EXTRA_RUNGS.items())
+    lines = [f"Smallest magnitude found 9 times in 10 (10 seeds per rung, rungs 0.25, 0.5, 1 x moderate; {extra}):",
+             "",
+             "| family | unit | moderate | found at the rungs run (ascending) | smallest found 9/10 |",
+             "|---|---|---|---|---|"]
+    for fam, spec in EFFECTS.items():
+        if families and fam not in families:
+            continue
+        rows = [r for r in ladder if r["family"] == fam]
+        vals = sorted({r["value"] for r in rows})
+        hits = [f"{sum(r['verdict'] == fam for r in rows if r['value'] == v)}/"
+                f"{sum(r['value'] == v for r in rows)}" for v in vals]
+        ok = [v for v in vals if sum(r["verdict"] == fam for r in rows if r["value"] == v) >= 9]
+        lines.append(f"| {fam} | {spec.unit} | {spec.moderate:g} | {', '.join(map(str, hits))} | "
+                     f"{min(ok):.3g} |" if ok else f"| {fam} | {spec.unit} | {spec.moderate:g} | "
+                     f"{', '.join(map(str, hits))} | not reached |")
+    return lines + [""]
+
+
 def summarise(suite, ladder, timing, calib, cause_calib=None, family_calib=None) -> str:
     cmd = "`.venv/bin/python -m bench.bench_diagnose --jobs 2`"
     eff = [r for r in suite if r["family"] != "none"]
@@ -526,21 +547,7 @@ def summarise(suite, ladder, timing, calib, cause_calib=None, family_calib=None)
     if wrong:
         lines += [f"  - misnamed: {', '.join(wrong)}", ""]
     if ladder:
-        extra = "; ".join(f"also {', '.join(f'{f:g}' for f in v)} x for {k}" for k, v in EXTRA_RUNGS.items())
-        lines += [f"Smallest magnitude found 9 times in 10 (10 seeds per rung, rungs 0.25, 0.5, 1 x moderate; {extra}):",
-                  "",
-                  "| family | unit | moderate | found at the rungs run (ascending) | smallest found 9/10 |",
-                  "|---|---|---|---|---|"]
-        for fam, spec in EFFECTS.items():
-            rows = [r for r in ladder if r["family"] == fam]
-            vals = sorted({r["value"] for r in rows})
-            hits = [f"{sum(r['verdict'] == fam for r in rows if r['value'] == v)}/"
-                    f"{sum(r['value'] == v for r in rows)}" for v in vals]
-            ok = [v for v in vals if sum(r["verdict"] == fam for r in rows if r["value"] == v) >= 9]
-            lines.append(f"| {fam} | {spec.unit} | {spec.moderate:g} | {', '.join(map(str, hits))} | "
-                         f"{min(ok):.3g} |" if ok else f"| {fam} | {spec.unit} | {spec.moderate:g} | "
-                         f"{', '.join(map(str, hits))} | not reached |")
-        lines.append("")
+        lines += ladder_lines(ladder)
     if timing:
         o = timing.get("outage") or {}
         lines += [f"Default-size campaign ({timing['minutes']:.1f} min of 50 Hz states, table 6.4 runs and splits, "
@@ -593,6 +600,9 @@ def main() -> int:
     ap.add_argument("--run-s", type=float, default=RUN_S, metavar="S",
                     help=f"with --forms: runs of S seconds (default {RUN_S:g}; other lengths write "
                          "diagnose_forms_<S>s.md beside the default)")
+    ap.add_argument("--ladder-only", nargs="*", metavar="FAMILY", default=None,
+                    help="only the ladder (of these families; none given: all) on runs of --run-s -> "
+                         "diagnose_ladder_<S>s.md")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--dask", default=None, metavar="SCHEDULER_ADDRESS", help="run the campaigns on this Dask cluster")
     ap.add_argument("--no-ladder", action="store_true")
@@ -614,6 +624,23 @@ def main() -> int:
         return 0
     import sindy_ekf.diagnose  # noqa: F401  # imported before the workers fork: they run the sources as they were at the start
     model = fit_reference_with_lateral_law(n_runs=4, run_s=RUN_S, rate_hz=RATE_HZ)
+    if args.ladder_only is not None:
+        t0 = time.perf_counter()
+        fams = args.ladder_only or list(EFFECTS)
+        jobs = [j + ("reference", "", {}, None, args.run_s) for j in ladder_jobs() if j[1] in fams]
+        rows = run_jobs(jobs, model, workers)
+        stem = f"diagnose_ladder_{args.run_s:g}s"
+        (out_dir / f"{stem}.json").write_text(json.dumps({"run_s": args.run_s, "rows": rows}, indent=1))
+        text = "\n".join([
+            f"## Smallest magnitude found 9 times in 10 on runs of {args.run_s:g} s (issue 15, item 4)", "",
+            f"Command: `.venv/bin/python -m bench.bench_diagnose --jobs 2 --ladder-only {' '.join(args.ladder_only)} "
+            f"--run-s {args.run_s:g}` ({(time.perf_counter() - t0) / 60:.0f} min; the ladder of `diagnose.md` "
+            f"on campaigns of 4 x {args.run_s:g} s train and 2 x {args.run_s:g} s test runs of the default "
+            "simulator, the same seeds and rungs, against the same reference model, identified on 45 s runs).",
+            "", *ladder_lines(rows, fams)])
+        (out_dir / f"{stem}.md").write_text(text)
+        print(text)
+        return 0
     if args.forms:
         t0 = time.perf_counter()
         rows = run_jobs(forms_jobs(run_s=args.run_s), model, workers)

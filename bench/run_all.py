@@ -19,7 +19,7 @@ from bench import readme_table
 
 HERE = Path(__file__).resolve().parent
 ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "identification", "lodo_ceiling", "identify_speed", "scaleout", "estimation", "sensors", "monte_carlo", "monte_carlo_variant", "ekf_speed", "ekf_speed_data", "real", "real_cli",
-         "diagnose", "diagnose_forms", "diagnose_forms_120s", "inject_real", "diagnose_notes", "demo"]
+         "diagnose", "diagnose_forms", "diagnose_forms_120s", "diagnose_ladder_120s", "inject_real", "diagnose_notes", "demo"]
 
 
 def assemble() -> Path:
@@ -35,7 +35,8 @@ def assemble() -> Path:
 
 
 # modes of a script that write results files of their own (run after the script's default run)
-MODES = {"bench_diagnose": (["--forms"], ["--forms", "--run-s", "120"])}
+MODES = {"bench_diagnose": (["--forms"], ["--forms", "--run-s", "120"],
+                            ["--ladder-only", "time_dependence", "--run-s", "120"])}
 
 
 def main() -> int:
