@@ -94,8 +94,9 @@ def injected_value(estimate: dict, key: str) -> float | None:
     return float(np.mean(found)) if found else None
 
 
-def lines(rows, own, cmd, minutes) -> list[str]:
-    """Return the markdown of the result."""
+def lines(rows, own, cmd, minutes, own_loss=None) -> list[str]:
+    """Return the markdown of the result (``own_loss``: per campaign, the clean train runs' own
+    ``loss_over_runs``, what an injected decay multiplies)."""
     out = ["## Effects hidden in real measured data at three magnitudes (issue 15, items 3 and 4)", "",
            f"Command: `{cmd}` ({minutes:.0f} min on the shared 2 cores). Real Warthog motion, recorded inputs "
            "rewritten by `sindy-ekf inject` at 0.5, 1 and 2 x the moderate value (delay 0.15 s, deadband 0.1, "
@@ -130,6 +131,21 @@ def lines(rows, own, cmd, minutes) -> list[str]:
                        f"{r['injected_gain']:.4f} / {r['injected_threshold']:.4f} | "
                        f"{r['before_cm']:.2f} -> {r['after_cm']:.2f} | {gains} |")
         out.append("")
+        decays = [r for r in effect if r["family"] == "time_dependence" and r["verdict"] == "time_dependence"
+                  and (r["injected_estimate"] or {}).get("loss_over_runs") is not None]
+        mine = (own_loss or {}).get(name)
+        if decays and mine is not None:  # the named decay's shape-free profile against the injected line
+            # (inject.py: 1 - v t / 600 s), less the clean runs' own change of gain over the same bins
+            out += [f"Gain lost over the runs by the named decays' profile (`loss_over_runs`, between its first and "
+                    f"last bin), less the clean runs' own ({100 * mine:+.1f} %, the same bins), against the injected "
+                    "line between the same times: " + "; ".join(
+                        f"{r['value']:g} per 10 min: {100 * e['loss_over_runs']:.1f} %, less the own "
+                        f"{100 * less:.1f} %, against {100 * truth:.1f} % ({e['loss_from_s']:.0f} to "
+                        f"{e['loss_to_s']:.0f} s, {100 * (less / truth - 1):+.0f} %)"
+                        for r in decays for e in [r["injected_estimate"]]
+                        for less in [1 - (1 - e["loss_over_runs"]) / (1 - mine)]
+                        for truth in [1 - (1 - r["value"] * e["loss_to_s"] / 600) / (1 - r["value"] * e["loss_from_s"] / 600)]),
+                    ""]
     return out
 
 
@@ -147,9 +163,11 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="inject_real_") as work:
         models = {n: identify(n, Path(work)) for n in names}
-        from tests.support.diagnose_synth import own_coupling
+        from tests.support.diagnose_synth import own_coupling, own_gain_profile
 
         own = {n: own_coupling(SHARED / f"warthog-drive-{n}", models[n]) for n in names}
+        own_loss = {n: (own_gain_profile(SHARED / f"warthog-drive-{n}", models[n]) or {}).get("loss_over_runs")
+                    for n in names}
         tasks = [(n, models[n], None, None, work) for n in names]
         tasks += [(n, models[n], f, round(MODERATE[f] * k, 6), work) for n in names for f in MODERATE for k in FACTORS]
         rows = parallel_map(one, tasks, args.jobs, names=[f"{t[0]} {t[2]}={t[3]}" for t in tasks],
@@ -163,9 +181,10 @@ def main(argv=None) -> int:
         r["estimate"] = est
         r["ok"] = est is not None and abs(est / r["value"] - 1) <= 0.25
     cmd = f".venv/bin/python -m bench.bench_inject_real --jobs {args.jobs} --campaigns {args.campaigns}"
-    text = "\n".join(lines(rows, own, cmd, (time.perf_counter() - t0) / 60)) + "\n"
+    text = "\n".join(lines(rows, own, cmd, (time.perf_counter() - t0) / 60, own_loss)) + "\n"
     (HERE / "results" / "inject_real.md").write_text(text)
-    (HERE / "results" / "inject_real.json").write_text(json.dumps({"own_coupling": own, "rows": rows}, indent=1))
+    (HERE / "results" / "inject_real.json").write_text(json.dumps({"own_coupling": own, "own_loss_over_runs": own_loss,
+                                                                   "rows": rows}, indent=1))
     print(text)
     return 0
 

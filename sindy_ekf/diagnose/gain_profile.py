@@ -20,7 +20,9 @@ without assuming one:
   last bin's centre. It is the quantity the data measure whatever the shape. The linear mechanism's
   ``decay_per_10min`` extrapolates to 600 s, which only the linear shape supports;
 - the standard deviations come from leaving one train run out at a time (jackknife), the
-  bins' residual sums recomputed without the run and the monotone fit redone.
+  bins' residual sums recomputed without the run and the monotone fit redone. A run whose removal
+  empties a bin gives no replicate: where the late bins rest on the longest run alone
+  (``gain_profile_runs``), their spread between runs is not measured and the deviations understate it.
 
 The model's degree in the inputs makes the window prediction at a common gain a polynomial in ``g``:
 ``sum_d g^d P_d`` with ``P_d`` the window integrals of the active terms of input degree ``d``. Every
@@ -89,7 +91,8 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
 
     ``model`` is the null the family was scored against (input gains recalibrated); ``weights``
     ``(3,)`` the equation weights. Returns None without at least two bins. Otherwise the keys are
-    ``gain_profile_t_s`` (the bins' mean window start, s), ``gain_profile`` (the bins' gains),
+    ``gain_profile_t_s`` (the bins' mean window start, s), ``gain_profile_runs`` (how many runs reach
+    each bin), ``gain_profile`` (the bins' gains),
     ``gain_profile_std``, ``gain_profile_monotone`` (the monotone fit), ``loss_over_runs`` (``1 -
     g_last / g_first`` of the fit), ``loss_over_runs_std``, and ``loss_from_s`` and ``loss_to_s``
     (the first and last bin's time). None as well for a model without input terms (no gain to fit).
@@ -120,6 +123,8 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
         for j, g in enumerate(chunk):
             sse[g] = np.bincount(flat, weights=r2[j], minlength=n_b * n_runs).reshape(n_b, n_runs)
     counts = np.bincount(bins, minlength=n_b).astype(float)
+    per_run = np.bincount(bins * n_runs + runs, minlength=n_b * n_runs).reshape(n_b, n_runs)
+    n_runs_bin = (per_run > 0).sum(axis=1)  # how many runs reach each bin (a late bin may rest on the longest)
     t_bin = np.bincount(bins, weights=split.t_run[split.start], minlength=n_b) / counts
 
     def fit(total: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -141,7 +146,8 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
         std_g = np.sqrt((n - 1) / n * np.sum((g_reps - g_reps.mean(0)) ** 2, axis=0))
         l_reps = np.array([x[2] for x in reps])
         std_loss = float(np.sqrt((n - 1) / n * np.sum((l_reps - l_reps.mean()) ** 2)))
-    return {"gain_profile_t_s": t_bin.tolist(), "gain_profile": np.exp(lg).tolist(),
+    return {"gain_profile_t_s": t_bin.tolist(), "gain_profile_runs": n_runs_bin.tolist(),
+            "gain_profile": np.exp(lg).tolist(),
             "gain_profile_std": _finite(std_g), "gain_profile_monotone": np.exp(mono).tolist(),
             "loss_over_runs": loss, "loss_over_runs_std": _finite(std_loss),
             "loss_from_s": float(t_bin[0]), "loss_to_s": float(t_bin[-1])}

@@ -85,6 +85,20 @@ def own_coupling_per_run(campaign, model_path) -> list[tuple[str, str, float]]:
     return [(r.name, split, _coupling_of(model, [r])) for split in ("train", "test") for r in camp.split(split)]
 
 
+def own_gain_profile(campaign, model_path) -> dict | None:
+    """Return the gain profile (:func:`sindy_ekf.diagnose.gain_profile.gain_profile`) of a clean campaign's
+    train runs relative to the model in ``model_path``, as the diagnosis computes it for a named decay:
+    the robot's own gain over time since the run start, which an injected decay multiplies."""
+    from sindy_ekf.diagnose.gain_profile import gain_profile
+
+    model = load_model(model_path)
+    st, names, _ = states_of_runs(open_campaign(campaign).split("train"), float(model.hyperparameters.get("s") or 0.0))
+    tr = model_split(model, st, names, float(model.hyperparameters.get("tau") or 2.0))
+    w = equation_weights(model, tr)
+    null, _ = gain_recalibrated(model, tr, w)
+    return gain_profile(null, tr, w)
+
+
 def _coupling_of(model, runs) -> float:
     st, names, _ = states_of_runs(runs, float(model.hyperparameters.get("s") or 0.0))
     tr = model_split(model, st, names, float(model.hyperparameters.get("tau") or 2.0))

@@ -128,3 +128,18 @@ def test_a_model_without_input_terms_has_no_profile(runs):
     model = lag_model((0.0, 0.0))  # the input coefficients zero: no gain to fit
     tr, _ = splits(model, runs)
     assert gain_profile(model, tr, equation_weights(model, tr)) is None
+
+
+def test_the_steering_alone_carries_the_gain(runs):
+    # a model whose throttle term is zero: only the omega equation sees the inputs, and the profile
+    # must still follow the decay there (a gain read from one input's terms alone would find none)
+    logged = recorded_as(runs, lambda t, u: u / early(t)[:, None])
+    model = lag_model((0.0, 1.0))
+    tr, _ = splits(model, logged)
+    w = equation_weights(model, tr)
+    null, _ = gain_recalibrated(model, tr, w)
+    p = gain_profile(null, tr, w)
+    t = np.array(p["gain_profile_t_s"])
+    est = np.array(p["gain_profile_monotone"]) / p["gain_profile_monotone"][0]
+    np.testing.assert_allclose(est, early(t) / early(t[0]), atol=0.015)
+    assert p["gain_profile_runs"] == [4] * len(t)  # every bin reached by all four train runs
