@@ -10,6 +10,7 @@ from groundfloor.numbers import format_sig
 from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.diagnose import Diagnosis, diagnose_campaign
 from sindy_ekf.diagnose.figures import write_diagnosis_figures
+from sindy_ekf.diagnose.gain_profile import shown_estimate
 from sindy_ekf.diagnose.residuals import top_structure
 
 
@@ -31,8 +32,7 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
     lines = [f"diagnosis of {model.name} on {campaign}: most likely cause: {d.verdict}",
              f"{'family':20} {'test gain %':>11} {'threshold %':>11}  estimate"]
     for c in d.ranked:
-        est = ", ".join(f"{k}={format_sig(v, 4)}" for k, v in c.score.estimate.items()
-                        if not k.startswith("gain_profile"))
+        est = ", ".join(f"{k}={format_sig(v, 4)}" for k, v in shown_estimate(c.score.estimate).items())
         flag = "*" if c.significant else " "
         lines.append(f"{c.name:20} {100 * c.gain:11.2f} {100 * c.threshold:11.2f} {flag} {est}")
         if c.note:

@@ -160,6 +160,12 @@ def _finite(v):
     return float(v) if np.isfinite(v) else None
 
 
+def shown_estimate(estimate: dict) -> dict:
+    """Return ``estimate`` without the profile's per-bin lists (``gain_profile*``), for tables and the
+    terminal: the lists go to the JSON and the figure, ``loss_over_runs`` and its times stay."""
+    return {k: v for k, v in estimate.items() if not k.startswith("gain_profile")}
+
+
 def with_gain_profile(score, null_model, train: Split, weights: np.ndarray):
     """Return ``score`` with the gain profile in its estimate when its family is ``time_dependence``
     (unchanged otherwise, or when the train runs hold fewer than two bins)."""

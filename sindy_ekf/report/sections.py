@@ -41,7 +41,8 @@ from identification.sindy.figures import (
 )
 from simulation.gnss import PROFILES
 from sindy_ekf.benchmark.figures import plot_error_bands, plot_nees, plot_outage_errors, plot_trajectories
-from sindy_ekf.diagnose.figures import plot_lag_profile, plot_residual_structure
+from sindy_ekf.diagnose.figures import plot_gain_profile, plot_lag_profile, plot_residual_structure
+from sindy_ekf.diagnose.gain_profile import shown_estimate
 from sindy_ekf.report.bag_facts import bag_notes, bag_words
 from sindy_ekf.report.blocks import SECTIONS, Section, table_html
 from sindy_ekf.report.figures import (
@@ -335,7 +336,8 @@ def section_diagnosis(sec: Section, chain: ChainResult) -> None:
         sec.note(f"EKF error at the end of {d.outage['outage_s']:g} s GNSS outages (RMS over {d.outage['n']}): "
                  f"{d.outage['before_m']:.3f} m before, {d.outage['after_m']:.3f} m after.")
     rows = [[c.name, f"{100 * c.gain:.2f}", f"{100 * c.threshold:.2f}", "yes" if c.significant else "no",
-             ", ".join(f"{k} = {format_sig(v)}" for k, v in (c.score.estimate or {}).items())] for c in d.ranked]
+             ", ".join(f"{k} = {format_sig(v)}" for k, v in shown_estimate(c.score.estimate or {}).items())]
+            for c in d.ranked]
     sec.add(table_html(["family", "test gain %", "threshold %", "significant", "estimate"], rows))
     sec.add(terms_html([*(c.name for c in d.ranked), d.verdict, "test gain", "threshold", "eta2"]))
     for f in d.measurement:
@@ -347,6 +349,11 @@ def section_diagnosis(sec: Section, chain: ChainResult) -> None:
                          "residual structure: binned window residuals (eq. 5.56) against each regressor"))
     if d.lag:
         items.insert(1, (lambda: plot_lag_profile(d.lag), "residual-input lag correlation"))
+    decay = next((c.score.estimate for c in d.ranked if c.name == "time_dependence" and c.significant
+                  and "gain_profile" in c.score.estimate), None)
+    if decay is not None:
+        items.append((lambda: plot_gain_profile(decay), "input gain over time since the run start of the named "
+                       "gain decay: bins +- 2 jackknife standard deviations, their monotone fit and the linear form"))
     sec.figures(items)
 
 

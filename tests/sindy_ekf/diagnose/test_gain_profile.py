@@ -143,3 +143,28 @@ def test_the_steering_alone_carries_the_gain(runs):
     est = np.array(p["gain_profile_monotone"]) / p["gain_profile_monotone"][0]
     np.testing.assert_allclose(est, early(t) / early(t[0]), atol=0.015)
     assert p["gain_profile_runs"] == [4] * len(t)  # every bin reached by all four train runs
+
+
+def test_the_diagnosis_names_the_decay_and_shows_its_profile(runs):
+    # end to end on the independent lag system (one more run as a second test run): the pipeline names
+    # the decay, its profile's loss is the truth's between the same bins, and the report's diagnosis
+    # section draws the profile and keeps its per-bin lists out of the table
+    from types import SimpleNamespace
+
+    from identification.sindy.data import states_of_runs
+    from sindy_ekf.diagnose import diagnose_states
+    from sindy_ekf.report.blocks import Section
+    from sindy_ekf.report.sections import section_diagnosis
+
+    more = simulate_trajectory_runs(RUN_S, [16], f=lag_f(), pose_std_m=0.002, yaw_std_rad=0.002)
+    st, names, _ = states_of_runs(recorded_as(list(runs) + list(more), lambda t, u: u / early(t)[:, None]), 0.0)
+    d = diagnose_states(lag_model(), st[:4], st[4:], names[:4], names[4:], uncertainty=False)
+    assert d.verdict == "time_dependence"
+    est = d.ranked[0].score.estimate
+    truth = 1.0 - early(np.array([est["loss_to_s"]]))[0] / early(np.array([est["loss_from_s"]]))[0]
+    assert est["loss_over_runs"] == pytest.approx(truth, rel=0.05)
+    sec = Section("diagnosis", "Diagnosis")
+    section_diagnosis.__wrapped__(sec, SimpleNamespace(diagnosis=d))
+    text = sec.to_html()
+    assert "input gain over time since the run start" in text and "gain_profile_monotone" not in text
+    assert "loss_over_runs" in text
