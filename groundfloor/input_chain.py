@@ -66,14 +66,12 @@ def first_order_lags(u: np.ndarray, step_s: float, rows, lags_s, hold: str = "li
     rows = np.asarray(rows, dtype=np.intp)
     lags = np.asarray(lags_s, dtype=float)
     on = np.flatnonzero(lags > 0.0)
-    coef = np.empty((3, len(on)))
-    for j, T in enumerate(lags[on]):
-        a = float(np.exp(-step_s / T))
-        c = T * (1.0 - a) / step_s if hold == "linear" else 1.0
-        coef[:, j] = a, 1.0 - c, c - a
+    T = lags[on]
+    a = np.exp(-step_s / T)
+    c = T * (1.0 - a) / step_s if hold == "linear" else np.ones_like(T)
     out = u[rows].copy()  # the unlagged rows as they are
     if len(on):
-        out[on] = _lag_recursions(u, rows[on], coef[0], coef[1], coef[2])
+        out[on] = _lag_recursions(u, rows[on], a, 1.0 - c, c - a)
     return out
 
 

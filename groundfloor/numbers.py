@@ -35,6 +35,12 @@ def format_with_std(value: float, std: float, digits: int = 2, unit: str = "", s
     return f"{text} {unit}".rstrip()
 
 
+def finite_or_none(v) -> float | None:
+    """Return ``v`` as a float, or None when it is not finite (JSON has no inf or nan)."""
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
 def format_sig(value, digits: int = 3) -> str:
     """Return ``value`` with ``digits`` significant digits (``"inf"``, ``"nan"`` as such); lists and
     arrays element by element in brackets, dicts entry by entry in braces, other values as ``str``."""

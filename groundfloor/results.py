@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+
+from groundfloor.numbers import finite_or_none
 
 
 @dataclass(frozen=True)
@@ -20,12 +21,7 @@ class PredictionError:
 
     def to_json(self) -> dict:
         """Return ``{"pos_err_5s_m", "yaw_err_5s_deg", "n_windows"}`` (non-finite errors as None)."""
-        return {"pos_err_5s_m": _finite_or_none(self.pos_err_5s_m),
-                "yaw_err_5s_deg": _finite_or_none(self.yaw_err_5s_deg),
+        return {"pos_err_5s_m": finite_or_none(self.pos_err_5s_m),
+                "yaw_err_5s_deg": finite_or_none(self.yaw_err_5s_deg),
                 "n_windows": int(self.n_windows)}
 
-
-def _finite_or_none(v: float) -> float | None:
-    """Return ``v`` as a float, or None when it is not finite (JSON has no inf)."""
-    v = float(v)
-    return v if math.isfinite(v) else None

@@ -252,12 +252,12 @@ def _refit_on_all(label: str, hp: dict | None, result: SearchResult, cache: dict
 
 
 def _final(candidates, chosen: int, order, result: SearchResult, excluded, lag: LagModel, ref: Reference,
-           oe_windows: Windows, accel_max, ready: dict | None = None
+           all_oe: Windows, accel_max, ready: dict | None = None
            ) -> tuple[int, SindyModel, OutputErrorFit | None, dict]:
     """Return the index, model, output-error fit and checks of the first candidate (``chosen``,
     then the others that passed by CV error) that passes the checks refitted on all train runs
-    (``ready``: label -> :func:`_refit_on_all`'s result or its :class:`InputError`, computed already)."""
-    all_oe = thin_windows(oe_windows, OE_MAX_WINDOWS)
+    (``all_oe``: their output-error windows, thinned; ``ready``: label -> :func:`_refit_on_all`'s
+    result or its :class:`InputError`, computed already)."""
     cache: dict = {}
     ready = ready or {}
     for i in [chosen] + [j for j in order if j != chosen and candidates[j].passed]:
@@ -308,6 +308,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     slim = replace(result, top_models=[], model=result.model)  # what the folds need of the screening
 
     shared = (ref, folds.fold, slim, excluded, oe_windows, score_windows, accel_max)
+    all_oe = thin_windows(oe_windows, OE_MAX_WINDOWS)  # the refits on all train runs
     passes, _ = _fold_pass(specs, shared, n_f, n_jobs, "output-error candidates")
     per_fold = [scores for scores, _ in passes]
 
@@ -332,7 +333,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
         # and its search on all train runs, which the final model needs if the rule picks it, runs
         # beside them where a slot is free: with 5 folds on 2 workers the one the last fold leaves
         # idle (on simulator variants the stepwise candidate is picked in 7 of 10), instead of after
-        on_all = (step[0], step[1], slim, {}, excluded, lag, ref, thin_windows(oe_windows, OE_MAX_WINDOWS), accel_max)
+        on_all = (step[0], step[1], slim, {}, excluded, lag, ref, all_oe, accel_max)
         steps, got = _fold_pass([step], shared, n_f, n_jobs, "stepwise output error", started,
                                 on_all if _room_beside(n_f, n_jobs) else None)
         if got is not None:
@@ -344,7 +345,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     order = sorted(range(len(candidates)), key=lambda i: candidates[i].cv_pos_err_5s_m)
     chosen = select_candidate(candidates)
     with threadpool_limits(limits=1, user_api="blas"):  # as in _fold_job
-        chosen, model, fit, checks = _final(candidates, chosen, order, result, excluded, lag, ref, oe_windows,
+        chosen, model, fit, checks = _final(candidates, chosen, order, result, excluded, lag, ref, all_oe,
                                             accel_max, ready)
     c = candidates[chosen]
     training = {**model.training, "runs": list(ref.names), "reference_smoothing": ref.smoothing,

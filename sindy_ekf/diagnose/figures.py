@@ -16,6 +16,7 @@ from matplotlib.patches import Circle
 
 from groundfloor.figures import WIDE_IN, WIDTH_IN, new_figure, save_figure
 from identification.sindy.figures import plot_error_curves
+from sindy_ekf.diagnose.gain_profile import named_profile
 from sindy_ekf.diagnose.pipeline import Diagnosis
 from sindy_ekf.diagnose.residuals import BinnedEffect
 
@@ -144,8 +145,7 @@ def write_diagnosis_figures(d: Diagnosis, out_dir: str | Path) -> list[Path]:
     plot_error_curves(ev, path=out / "before_after.png", stacked=False)
     names = ["residual_structure", "multistep_structure", "lag_profile", "family_profiles", "residual_map",
              "before_after"]
-    decay = next((c.score.estimate for c in d.ranked if c.name == "time_dependence" and c.significant
-                  and "gain_profile" in c.score.estimate), None)
+    decay = named_profile(d.ranked)
     if decay is not None:  # a named gain decay: its shape over time
         plot_gain_profile(decay, out / "gain_profile.png")
         names.append("gain_profile")

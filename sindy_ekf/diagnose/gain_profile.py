@@ -35,6 +35,7 @@ import dataclasses
 
 import numpy as np
 
+from groundfloor.numbers import finite_or_none
 from sindy_ekf.diagnose.data import Split
 from sindy_ekf.diagnose.design import INPUT_GAIN_BOUNDS, ActiveTerms, input_degrees
 from sindy_ekf.diagnose.grids import parabolic_argmin
@@ -116,12 +117,12 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
     # residual sums per (grid point, bin, run): every bin, jackknife replicate and grid point at once
     sse = np.zeros((len(log_g), n_b, n_runs))
     dv = split.delta_v
-    flat = bins * n_runs + runs
+    member = np.zeros((len(dv), n_b * n_runs))  # window -> its (bin, run): the sums as one product
+    member[np.arange(len(dv)), bins * n_runs + runs] = 1.0
     for chunk in np.array_split(np.arange(len(log_g)), max(1, len(log_g) * len(dv) // 2_000_000)):
         pred = np.einsum("gd,dpe->gpe", scale[chunk], P)
         r2 = ((dv[None] - pred) ** 2 * sw).sum(axis=-1)  # (g, p)
-        for j, g in enumerate(chunk):
-            sse[g] = np.bincount(flat, weights=r2[j], minlength=n_b * n_runs).reshape(n_b, n_runs)
+        sse[chunk] = (r2 @ member).reshape(len(chunk), n_b, n_runs)
     counts = np.bincount(bins, minlength=n_b).astype(float)
     per_run = np.bincount(bins * n_runs + runs, minlength=n_b * n_runs).reshape(n_b, n_runs)
     n_runs_bin = (per_run > 0).sum(axis=1)  # how many runs reach each bin (a late bin may rest on the longest)
@@ -148,22 +149,22 @@ def gain_profile(model, split: Split, weights: np.ndarray, n_bins: int = N_BINS)
         std_loss = float(np.sqrt((n - 1) / n * np.sum((l_reps - l_reps.mean()) ** 2)))
     return {"gain_profile_t_s": t_bin.tolist(), "gain_profile_runs": n_runs_bin.tolist(),
             "gain_profile": np.exp(lg).tolist(),
-            "gain_profile_std": _finite(std_g), "gain_profile_monotone": np.exp(mono).tolist(),
-            "loss_over_runs": loss, "loss_over_runs_std": _finite(std_loss),
+            "gain_profile_std": [finite_or_none(x) for x in std_g], "gain_profile_monotone": np.exp(mono).tolist(),
+            "loss_over_runs": loss, "loss_over_runs_std": finite_or_none(std_loss),
             "loss_from_s": float(t_bin[0]), "loss_to_s": float(t_bin[-1])}
-
-
-def _finite(v):
-    """Return ``v`` (a float or an array) with None for what is not finite (one train run: no jackknife)."""
-    if np.ndim(v):
-        return [float(x) if np.isfinite(x) else None for x in np.ravel(v)]
-    return float(v) if np.isfinite(v) else None
 
 
 def shown_estimate(estimate: dict) -> dict:
     """Return ``estimate`` without the profile's per-bin lists (``gain_profile*``), for tables and the
     terminal: the lists go to the JSON and the figure, ``loss_over_runs`` and its times stay."""
     return {k: v for k, v in estimate.items() if not k.startswith("gain_profile")}
+
+
+def named_profile(ranked) -> dict | None:
+    """Return the estimate of a significant ``time_dependence`` holding a profile in ``ranked`` (the
+    diagnosis's causes), or None: what the figures draw."""
+    return next((c.score.estimate for c in ranked if c.name == "time_dependence" and c.significant
+                 and "gain_profile" in c.score.estimate), None)
 
 
 def with_gain_profile(score, null_model, train: Split, weights: np.ndarray):

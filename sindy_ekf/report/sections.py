@@ -42,7 +42,7 @@ from identification.sindy.figures import (
 from simulation.gnss import PROFILES
 from sindy_ekf.benchmark.figures import plot_error_bands, plot_nees, plot_outage_errors, plot_trajectories
 from sindy_ekf.diagnose.figures import plot_gain_profile, plot_lag_profile, plot_residual_structure
-from sindy_ekf.diagnose.gain_profile import shown_estimate
+from sindy_ekf.diagnose.gain_profile import named_profile, shown_estimate
 from sindy_ekf.report.bag_facts import bag_notes, bag_words
 from sindy_ekf.report.blocks import SECTIONS, Section, table_html
 from sindy_ekf.report.figures import (
@@ -349,8 +349,7 @@ def section_diagnosis(sec: Section, chain: ChainResult) -> None:
                          "residual structure: binned window residuals (eq. 5.56) against each regressor"))
     if d.lag:
         items.insert(1, (lambda: plot_lag_profile(d.lag), "residual-input lag correlation"))
-    decay = next((c.score.estimate for c in d.ranked if c.name == "time_dependence" and c.significant
-                  and "gain_profile" in c.score.estimate), None)
+    decay = named_profile(d.ranked)
     if decay is not None:
         items.append((lambda: plot_gain_profile(decay), "input gain over time since the run start of the named "
                        "gain decay: bins +- 2 jackknife standard deviations, their monotone fit and the linear form"))

@@ -91,18 +91,20 @@ def own_gain_profile(campaign, model_path) -> dict | None:
     the robot's own gain over time since the run start, which an injected decay multiplies."""
     from sindy_ekf.diagnose.gain_profile import gain_profile
 
-    model = load_model(model_path)
-    st, names, _ = states_of_runs(open_campaign(campaign).split("train"), float(model.hyperparameters.get("s") or 0.0))
-    tr = model_split(model, st, names, float(model.hyperparameters.get("tau") or 2.0))
-    w = equation_weights(model, tr)
-    null, _ = gain_recalibrated(model, tr, w)
+    null, tr, w = _null_split(load_model(model_path), open_campaign(campaign).split("train"))
     return gain_profile(null, tr, w)
 
 
-def _coupling_of(model, runs) -> float:
+def _null_split(model, runs):
+    """Return ``(null, split, weights)`` of ``runs`` as the diagnosis scores the input-side families:
+    the model with its input gains fitted on the runs, the runs' windows and the equation weights."""
     st, names, _ = states_of_runs(runs, float(model.hyperparameters.get("s") or 0.0))
     tr = model_split(model, st, names, float(model.hyperparameters.get("tau") or 2.0))
     w = equation_weights(model, tr)
-    null, _ = gain_recalibrated(model, tr, w)
+    return gain_recalibrated(model, tr, w)[0], tr, w
+
+
+def _coupling_of(model, runs) -> float:
+    null, tr, w = _null_split(model, runs)
     spec = mechanism_spec("asymmetry", "throttle_to_turn_coupling")
     return float(score_family(spec, null, tr, tr, w, uncertainty=False, refit=False).estimate["coupling"])
