@@ -80,7 +80,7 @@ def one(task) -> dict:
             "injected_gain": injected_gain, "injected_threshold": injected_threshold,
             "input_gains": d.evidence.get("input_gains"),
             "before_cm": 100 * d.before.pos_err_5s_m, "after_cm": 100 * d.after.pos_err_5s_m,
-            "seconds": time.perf_counter() - t0}
+            "extension_on_test": d.extension_on_test, "seconds": time.perf_counter() - t0}
 
 
 def injected_value(estimate: dict, key: str) -> float | None:
@@ -131,6 +131,14 @@ def lines(rows, own, cmd, minutes, own_loss=None) -> list[str]:
                        f"{r['injected_gain']:.4f} / {r['injected_threshold']:.4f} | "
                        f"{r['before_cm']:.2f} -> {r['after_cm']:.2f} | {gains} |")
         out.append("")
+        extended = [r for r in effect if r["verdict"] == r["family"] and r.get("extension_on_test")]
+        worse = [r for r in extended if not r["extension_on_test"]["lowers"]]
+        out += [f"5 s position error on the test run lowered by the extension in {len(extended) - len(worse)} of "
+                f"{len(extended)} correctly named" + (": raised where " + "; ".join(
+                    f"{r['family']} {r['value']:g} ({r['before_cm']:.2f} -> {r['after_cm']:.2f} cm, better in "
+                    f"{r['extension_on_test']['windows_better']} of {r['extension_on_test']['n_windows']} windows)"
+                    for r in worse) + ", each with `diagnose`'s warning that the test runs disagree with the "
+                    "train runs" if worse else ""), ""]
         decays = [r for r in effect if r["family"] == "time_dependence" and r["verdict"] == "time_dependence"
                   and (r["injected_estimate"] or {}).get("loss_over_runs") is not None]
         mine = (own_loss or {}).get(name)

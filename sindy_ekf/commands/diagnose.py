@@ -45,6 +45,8 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
     b, a = d.before, d.after
     lines.append(f"5 s error on the test runs ({b.n_windows} windows): position {100 * b.pos_err_5s_m:.2f} -> "
                  f"{100 * a.pos_err_5s_m:.2f} cm, heading {b.yaw_err_5s_deg:.2f} -> {a.yaw_err_5s_deg:.2f} deg")
+    if d.extension_warning():
+        lines.append(f"warning: {d.extension_warning()}")
     if d.outage.get("n"):
         lines.append(f"EKF after {d.outage['outage_s']:g} s GNSS outages (RMS of {d.outage['n']}): "
                      f"{d.outage['before_m']:.3f} -> {d.outage['after_m']:.3f} m")

@@ -98,6 +98,35 @@ class Diagnosis:
     n_diverged: dict[str, int] = field(default_factory=dict)  # "before"/"after" -> windows left out
     evidence: dict = field(default_factory=dict)  # the cause step's statistics (sindy_ekf.diagnose.cause)
 
+    @property
+    def extension_on_test(self) -> dict | None:
+        """Return how the extended model does on the test runs' 5 s windows against the given one,
+        or None without an extension: ``{"lowers": bool, "windows_better": k, "n_windows": n}``
+        (the RMS position error falls; in how many of the common windows the 5 s error is smaller).
+
+        The extension is fitted and confirmed on the train runs; the test runs can still disagree
+        (another day, another ground, a robot that answers its inputs faster there), and then the
+        user should hear it rather than read it off two numbers.
+        """
+        if self.extended is None or "after" not in self.evaluations:
+            return None
+        b, a = self.evaluations["before"], self.evaluations["after"]
+        ok = ~diverged(b.eps_p[:, -1]) & ~diverged(a.eps_p[:, -1])
+        return {"lowers": bool(self.after.pos_err_5s_m < self.before.pos_err_5s_m),
+                "windows_better": int(np.count_nonzero(a.eps_p[ok, -1] < b.eps_p[ok, -1])),
+                "n_windows": int(ok.sum())}
+
+    def extension_warning(self) -> str | None:
+        """Return one line saying that the extended model predicts the test runs worse, or None."""
+        e = self.extension_on_test
+        if e is None or e["lowers"]:
+            return None
+        return (f"the extended model predicts the test runs worse (5 s position error "
+                f"{100 * self.before.pos_err_5s_m:.2f} -> {100 * self.after.pos_err_5s_m:.2f} cm, better in "
+                f"{e['windows_better']} of {e['n_windows']} windows): the {self.verdict} the train runs show does "
+                f"not hold on the test runs as fitted; check that both were recorded under the same conditions "
+                f"(day, ground, robot) before using the extended model")
+
     def to_json(self) -> dict:
         """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
         causes = []
@@ -137,7 +166,8 @@ class Diagnosis:
                 "threshold_provenance": THRESHOLD_PROVENANCE,
                 "cause_evidence": self.evidence,
                 "measurement": [f.to_dict() for f in self.measurement],
-                "n_test_windows_5s": self.before.n_windows, "seconds": self.seconds}
+                "n_test_windows_5s": self.before.n_windows, "extension_on_test": self.extension_on_test,
+                "seconds": self.seconds}
 
 
 def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[PredictionError, PredictionError]:

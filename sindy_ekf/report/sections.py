@@ -332,6 +332,8 @@ def section_diagnosis(sec: Section, chain: ChainResult) -> None:
     d = chain.diagnosis
     sec.note(f"Most likely cause: {d.verdict}. 5 s position error on the test runs {100 * d.before.pos_err_5s_m:.2f} "
              f"cm before, {100 * d.after.pos_err_5s_m:.2f} cm with the extended model.")
+    if d.extension_warning():
+        sec.note(f"Warning: {d.extension_warning()}.")
     if d.outage:
         sec.note(f"EKF error at the end of {d.outage['outage_s']:g} s GNSS outages (RMS over {d.outage['n']}): "
                  f"{d.outage['before_m']:.3f} m before, {d.outage['after_m']:.3f} m after.")

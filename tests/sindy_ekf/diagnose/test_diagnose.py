@@ -94,6 +94,8 @@ def test_hidden_effect_is_found_estimated_and_fixed(reference_model, index, fami
         assert d.outage["n"] >= 2 and np.isfinite([d.outage["before_m"], d.outage["after_m"]]).all(), why
         std = d.ranked[0].score.estimate_std["delay_s"]
         assert 0 < std < 0.05, f"jackknife std of the delay {std} {why}"
+    # train and test runs of one robot: the extension helps the test runs and nothing is said against it
+    assert d.extension_on_test["lowers"] and d.extension_warning() is None, why
 
 
 def test_effect_free_campaign_says_none(reference_model):
@@ -313,6 +315,33 @@ def test_a_cause_whose_extension_predicts_5s_worse_is_not_named(reference_model)
     assert not ranked[-1].significant and "not confirmed" in ranked[-1].note, why  # the wrong delay, last
     assert ranked[0].significant and ranked[0].score is fitted, why
     assert extended is not None and extended.theta[0] == pytest.approx(fitted.theta[0]), why
+
+
+def test_an_extension_that_the_test_runs_contradict_is_said_to_predict_them_worse(reference_model):
+    """Train runs of a robot answering 0.2 s late, test runs of one that does not (another day, a
+    repaired motor controller): the delay is named from the train runs, and the extension, right
+    for them, is wrong for the test runs by the whole delay. The diagnosis says so in its JSON, on
+    the terminal and in the report, and counts the windows; on test runs with the same delay
+    (:func:`test_hidden_effect_is_found_estimated_and_fixed`) it says nothing."""
+    from pathlib import Path
+
+    from sindy_ekf.commands.diagnose import format_diagnosis
+
+    rng = np.random.default_rng([MASTER_SEED, 41])
+    seeds = [int(v) for v in rng.integers(2**31, size=2)]
+    train, _, a, _ = simulate_states_campaign(seeds[0], Effect("input_delay", 0.2), run_s=RUN_S, rate_hz=RATE_HZ)
+    _, test, _, b = simulate_states_campaign(seeds[1], None, run_s=RUN_S, rate_hz=RATE_HZ)
+    d = diagnose_states(reference_model, train, test, a, b)
+    why = f"(SINDY_EKF_TEST_SEED={MASTER_SEED}, seeds {seeds})"
+    assert d.verdict == "input_delay", why
+    assert d.after.pos_err_5s_m > d.before.pos_err_5s_m, why
+    e = d.to_json()["extension_on_test"]
+    before, after = d.evaluations["before"].eps_p[:, -1], d.evaluations["after"].eps_p[:, -1]
+    assert e == {"lowers": False, "windows_better": int(np.sum(after < before)), "n_windows": len(before)}, why
+    assert e["windows_better"] < e["n_windows"] / 2, why  # the delay is wrong in most windows, not in a few
+    line = d.extension_warning()
+    assert line and "predicts the test runs worse" in line and "input_delay" in line, why
+    assert f"warning: {line}" in format_diagnosis(d, Path("model.json"), Path("campaign")).splitlines()
 
 
 def test_test_runs_too_short_for_an_outage_give_no_outage_errors(reference_model):
