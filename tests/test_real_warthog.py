@@ -172,6 +172,22 @@ def test_identify_picks_the_low_rate_grid_for_lidar_poses(data, small_trajectory
         grid_for_runs([], kind="lidar")
 
 
+def test_the_report_chain_picks_the_grid_identify_picks(data, small_trajectory):
+    # the chain behind `sindy-ekf report` and the demo once searched the tracker grid on any poses:
+    # on the 10 Hz lidar poses of the shared campaigns no grid point gave a finite error and the
+    # report had no model, where `sindy-ekf identify` worked
+    from identification.sindy.search import (DEFAULT_GRID, LOW_RATE_GRID, QUICK_GRID, QUICK_LOW_RATE_GRID)
+    from sindy_ekf.stages.chain import QUICK, identification_plan, open_chain
+
+    real, sim = open_chain(data / "warthog-drive-wheels"), open_chain(small_trajectory)
+    assert identification_plan(real, None).grid == LOW_RATE_GRID
+    assert identification_plan(real, QUICK).grid == QUICK_LOW_RATE_GRID
+    assert "100 ms" in identification_plan(real, None).why
+    assert identification_plan(sim, None).grid == DEFAULT_GRID
+    assert identification_plan(sim, QUICK).grid == QUICK_GRID
+    assert identification_plan(real, DEFAULT_GRID).grid == DEFAULT_GRID  # a grid given is kept
+
+
 def test_diagnosis_on_real_data_names_only_what_5s_prediction_confirms(identified, data):
     """On these runs the window residuals favour mechanisms (a 0.56 s delay on wheels) whose
     re-identified models run away at rest or predict 5 s worse; such a cause must not be named."""

@@ -405,14 +405,20 @@ def model_from_terms(terms: dict[str, dict[str, float]], library: str | FeatureL
 
 
 def term_prevalence(models: list[SindyModel]) -> dict[str, dict[str, float]]:
-    """Return ``{equation: {term: fraction of models using it}}``, most common first (fig. 7.11)."""
-    lib = models[0].library
-    used = np.stack([m.coef != 0 for m in models])  # (n_models, 3, k)
-    frac = used.mean(axis=0)
+    """Return ``{equation: {term: fraction of models using it}}``, most common first (fig. 7.11).
+
+    Terms are matched by name, so models of different libraries count together (the low-rate
+    grid searches ``poly1``, ``poly3`` and ``poly3_absu``); ties keep the order of first appearance.
+    """
     out = {}
     for i, eq in enumerate(LIBRARY_STATE_NAMES):
-        order = np.argsort(-frac[i], kind="stable")
-        out[eq] = {lib.feature_names[j]: float(frac[i, j]) for j in order if frac[i, j] > 0}
+        counts: dict[str, int] = {}
+        for m in models:
+            for j in np.flatnonzero(m.coef[i]):
+                name = m.library.feature_names[j]
+                counts[name] = counts.get(name, 0) + 1
+        ranked = sorted(counts.items(), key=lambda kv: -kv[1])  # stable: first appearance breaks ties
+        out[eq] = {name: n / len(models) for name, n in ranked}
     return out
 
 

@@ -36,8 +36,11 @@ def format_headline(chain: ChainResult) -> str:
     if chain.model is not None:
         # numbers as %g; the library name, the lag structure's name and the dead times as they are
         hp = ", ".join(f"{k} {v:g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else f"{k} {v}"
-                       for k, v in chain.model.hyperparameters.items())
-        lines.append(f"model: {chain.model.complexity} active terms ({hp})")
+                       for k, v in chain.model.hyperparameters.items() if k not in ("dead_time_s", "input_lag_s"))
+        m = chain.model  # the input chain in milliseconds, as `identify` prints it (not 1e-12 s of round-off)
+        lines.append(f"model: {m.complexity} active terms ({hp}); dead time u1 {1000 * m.dead_time_s[0]:.0f} ms, "
+                     f"u2 {1000 * m.dead_time_s[1]:.0f} ms; input lag u1 {1000 * m.input_lag_s[0]:.0f} ms, "
+                     f"u2 {1000 * m.input_lag_s[1]:.0f} ms")
     errors = chain.prediction_errors()
     if errors:
         lines.append("5 s prediction error on the test runs (thesis model B, real data: 14.0 cm, 4.2 deg):")
@@ -46,9 +49,10 @@ def format_headline(chain: ChainResult) -> str:
         b = chain.benchmark
         lines.append(f"estimation on the test runs, GNSS profile {b.profile}: ATE position, heading; "
                      "error at the end of the outages")
+        width = max(18, *(len(n) for n in b.scores))
         for n, sc in b.scores.items():
             ends = ", ".join(f"{k} s {v:.2f} m" for k, v in sc.outage_pos_err_m.items())
-            lines.append(f"  {n:18} {sc.ate_pos_m:7.3f} m {sc.ate_yaw_deg:7.2f} deg   {ends}")
+            lines.append(f"  {n:{width}} {sc.ate_pos_m:7.3f} m {sc.ate_yaw_deg:7.2f} deg   {ends}")
     if chain.diagnosis is not None:
         d = chain.diagnosis
         lines.append(f"diagnosis: {d.verdict}; 5 s position error {100 * d.before.pos_err_5s_m:.2f} cm -> "

@@ -159,3 +159,14 @@ def test_term_prevalence_counts_models():
     prev = term_prevalence([a, b])
     assert prev["vx"] == {"vx": 1.0, "u1": 0.5}
     assert prev["vy"] == {}
+
+
+def test_term_prevalence_counts_models_of_different_libraries_by_term():
+    # the low-rate grid's best models mix poly1 (6 features) and poly3 (56): counted by hand
+    a = model_from_terms({"vx": {"vx": -1.0, "u1": 1.0}, "omega": {"omega": -1.0}}, "poly1")
+    b = model_from_terms({"vx": {"vx": -2.0, "vx omega^2": 0.1}, "omega": {"omega": -1.0, "u2": 2.0}}, "poly3")
+    c = model_from_terms({"vx": {"u1": 1.0, "vx omega^2": 0.2}}, "poly3")
+    prev = term_prevalence([a, b, c])
+    assert prev["vx"] == {"vx": 2 / 3, "u1": 2 / 3, "vx omega^2": 2 / 3}
+    assert list(prev["omega"].items()) == [("omega", 2 / 3), ("u2", 1 / 3)]
+    assert prev["vy"] == {}
