@@ -26,12 +26,12 @@ def format_errors(ev: Evaluation) -> str:
     sensitivity to the start-state smoothing."""
     lines = [f"{ev.n_test_runs} test runs of {ev.campaign}, {ev.model.n_windows} windows of 5 s (50 % overlap), "
              f"start states at the reference smoothing s = {ev.reference_smoothing:g}",
-             f"{'model':18} {'pos 5s cm':>9} {'yaw 5s deg':>10}   (thesis model B on real data: 14.0 cm, 4.2 deg)"]
+             f"{'model':20} {'pos 5s cm':>9} {'yaw 5s deg':>10}   (thesis model B on real data: 14.0 cm, 4.2 deg)"]
     for name, r in ev.results.items():
         for method, e in r.items():
             if method == "rk4" or name == MODEL:
                 label = name if method == "rk4" else f"{name} (Euler 2-step)"
-                lines.append(f"{label:18} {100 * e.pos_err_5s_m:9.2f} {e.yaw_err_5s_deg:10.2f}")
+                lines.append(f"{label:20} {100 * e.pos_err_5s_m:9.2f} {e.yaw_err_5s_deg:10.2f}")
     if ev.beats_lag is False:
         lines.append(f"the identified model does NOT beat the lag baseline ({100 * ev.model.pos_err_5s_m:.2f} cm "
                      f"against {100 * ev.results[LAG]['rk4'].pos_err_5s_m:.2f} cm): use the lag model")

@@ -62,7 +62,9 @@ class ResponseLag:
     """The lag of the measured response behind the model's, per input and combined.
 
     ``delay_s`` is the mean over the inputs of ``data_s - model_s``; ``per_run`` the same per run
-    (its spread over runs is ``delay_std_s``).
+    (its spread over runs is ``delay_std_s``); ``per_input`` is ``data_s - model_s`` of each input
+    (``u1``: its response in ``vx``, ``u2``: in ``omega``) and ``per_input_std`` the standard error
+    of each over the runs (NaN with fewer than two runs where it is defined).
     """
 
     delay_s: float
@@ -70,11 +72,14 @@ class ResponseLag:
     data_s: dict[str, float]  # equation -> lag of the measured response, s
     model_s: dict[str, float]  # equation -> lag of the model's response, s
     per_run: dict[str, float] = field(default_factory=dict)
+    per_input: dict[str, float] = field(default_factory=dict)  # input -> data_s - model_s of its equation
+    per_input_std: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """Return a JSON-ready dict."""
         return {"delay_s": self.delay_s, "delay_std_s": self.delay_std_s, "data_s": self.data_s,
-                "model_s": self.model_s, "per_run": self.per_run}
+                "model_s": self.model_s, "per_run": self.per_run, "per_input": self.per_input,
+                "per_input_std": self.per_input_std}
 
 
 def highpass(x: np.ndarray, t: np.ndarray, width_s: float = HIGHPASS_S) -> np.ndarray:
@@ -180,11 +185,20 @@ def response_lag(model, split: Split, lags_s: np.ndarray = LAGS_S) -> ResponseLa
         both = [data[eq] - mod[eq] for eq in data]
         return (float(np.mean(both)) if both else float("nan")), data, mod
 
+    def standard_error(values):
+        finite = [v for v in values if np.isfinite(v)]
+        return float(np.std(finite, ddof=1) / np.sqrt(len(finite))) if len(finite) > 1 else float("nan")
+
     delay, data, mod = delays(slice(None))
-    per_run = {name: delays([r])[0] for r, name in enumerate(split.names)}
-    finite = [v for v in per_run.values() if np.isfinite(v)]
-    std = float(np.std(finite, ddof=1) / np.sqrt(len(finite))) if len(finite) > 1 else float("nan")
-    return ResponseLag(delay, std, data, mod, per_run)
+    runs = [delays([r]) for r in range(len(split.names))]
+    per_run = {name: d for name, (d, _, _) in zip(split.names, runs)}
+    per_input, per_input_std = {}, {}
+    for eq, _, j in PAIRS:
+        if eq in data:
+            name = f"u{j + 1}"
+            per_input[name] = float(data[eq] - mod[eq])
+            per_input_std[name] = standard_error([d[eq] - m[eq] for _, d, m in runs if eq in d])
+    return ResponseLag(delay, standard_error(per_run.values()), data, mod, per_run, per_input, per_input_std)
 
 
 def beyond_own_terms(model, train: Split, test: Split) -> tuple[np.ndarray, np.ndarray]:

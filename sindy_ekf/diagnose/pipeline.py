@@ -47,7 +47,7 @@ from sindy_ekf.diagnose.design import with_input_gains
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.gain_profile import with_gain_profile
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
-from sindy_ekf.diagnose.per_input import with_per_input
+from sindy_ekf.diagnose.per_input import with_per_input, with_response_lag_per_input
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
     RankedCause,
@@ -357,7 +357,11 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         # extension when the inputs' values differ
         null_model = with_input_gains(model, gains)  # the input-side families' null, as scored
         # and a significant gain decay the profile of its gain over time, of any monotone shape (gain_profile.py)
-        ranked = [dataclasses.replace(c, score=with_gain_profile(with_per_input(c.score, null_model, tr, weights),
+        # (a delay named from the response lag gets them from the response lag of each input)
+        ranked = [dataclasses.replace(c, score=with_response_lag_per_input(c.score, lags["train"], null_model, tr,
+                                                                           weights))
+                  if c.significant and c.score.estimate.get("evidence") == "response_lag" else
+                  dataclasses.replace(c, score=with_gain_profile(with_per_input(c.score, null_model, tr, weights),
                                                                  null_model, tr, weights)) if c.significant
                   else c for c in ranked]
         ranked, extended = confirm_on_train(model, ranked, tr, weights, train, train_names)

@@ -56,8 +56,8 @@ def plant_runs(mechanism: str, value: float, n_runs: int = 3, run_s: float = 60.
         u = smooth_inputs(rng, t)
 
         def motor(s, m):
-            if mechanism == "transport_delay":
-                return np.array([np.interp(s - value, t, u[:, j]) for j in range(2)])
+            if mechanism == "transport_delay":  # one delay, or one per input
+                return np.array([np.interp(s - np.broadcast_to(value, 2)[j], t, u[:, j]) for j in range(2)])
             return m  # first-order actuator lag: the motor state itself
 
         def rhs(s, y):
@@ -81,6 +81,18 @@ def test_response_lag_reads_a_transport_delay(delay_s):
     assert lag.delay_s == pytest.approx(delay_s, abs=0.02)
     assert set(lag.per_run) == {"run0", "run1", "run2"}
     assert all(v == pytest.approx(delay_s, abs=0.04) for v in lag.per_run.values())
+
+
+def test_response_lag_per_input_reads_each_inputs_own_transport_delay():
+    # the throttle's motor sees its input 0.05 s late, the steering's 0.3 s: each input's response
+    # lag is its own delay, their mean the pooled one; one delay for both reads it on both
+    lag = response_lag(PlantModel(), plant_runs("transport_delay", (0.05, 0.3), n_runs=4))
+    assert lag.per_input["u1"] == pytest.approx(0.05, abs=0.02)
+    assert lag.per_input["u2"] == pytest.approx(0.3, abs=0.02)
+    assert lag.delay_s == pytest.approx(0.5 * (lag.per_input["u1"] + lag.per_input["u2"]), abs=1e-12)
+    assert all(0 < lag.per_input_std[k] < 0.02 for k in ("u1", "u2"))
+    same = response_lag(PlantModel(), plant_runs("transport_delay", 0.2, n_runs=4))
+    assert same.per_input == pytest.approx({"u1": 0.2, "u2": 0.2}, abs=0.02)
 
 
 def test_response_lag_sees_a_lag_of_another_form():

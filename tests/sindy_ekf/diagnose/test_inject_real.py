@@ -103,6 +103,15 @@ def test_injected_delay_named_from_the_response_lag(wheels, model_file, tmp_path
     assert d.ranked[0].score.estimate["delay_s"] == pytest.approx(0.15, rel=0.25)
     assert d.ranked[0].score.estimate["evidence"] == "response_lag"
     assert d.after.pos_err_5s_m < d.before.pos_err_5s_m
+    # per input: the re-identified models' profile, which bends around the delay, read 0 s on both
+    # inputs (jackknife standard deviation 0); the values come from each input's response lag, and
+    # less the clean runs' own response lag of that input they are the injected delay
+    est = d.ranked[0].score.estimate
+    clean = diagnose_campaign(wheels, model_file, ekf=False).evidence["response_lag"]["train"]["per_input"]
+    assert est["per_input_from"] == "response_lag"
+    for u in ("u1", "u2"):
+        assert est["per_input"][u] - clean[u] == pytest.approx(0.15, rel=0.25), (u, est["per_input"], clean)
+    assert est["mechanism"] == "" and d.extended.theta[0] == pytest.approx(est["delay_s"])  # the pooled delay
 
 
 def test_a_refit_at_its_own_null_does_not_displace_the_fixed_scoring(shared_dir, tmp_path, monkeypatch):
