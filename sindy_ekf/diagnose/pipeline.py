@@ -353,17 +353,21 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     res_before, windows = multistep_errors_by_window(model, test, test_names)  # end states kept for the structure
     extended, res_after = None, res_before
     if name != "none":
-        # a significant delay, lag or deadband gets its values per input (per_input.py), in its
-        # extension when the inputs' values differ
         null_model = with_input_gains(model, gains)  # the input-side families' null, as scored
-        # and a significant gain decay the profile of its gain over time, of any monotone shape (gain_profile.py)
-        # (a delay named from the response lag gets them from the response lag of each input)
-        ranked = [dataclasses.replace(c, score=with_response_lag_per_input(c.score, lags["train"], null_model, tr,
-                                                                           weights))
-                  if c.significant and c.score.estimate.get("evidence") == "response_lag" else
-                  dataclasses.replace(c, score=with_gain_profile(with_per_input(c.score, null_model, tr, weights),
-                                                                 null_model, tr, weights)) if c.significant
-                  else c for c in ranked]
+
+        def refined(c):
+            """A significant delay, lag or deadband with its values per input (per_input.py), in its
+            extension when the inputs' values differ, and a significant gain decay with the profile of
+            its gain over time, of any monotone shape (gain_profile.py)."""
+            if not c.significant:
+                return c
+            if c.score.estimate.get("evidence") == "response_lag":  # a delay named from the response lag
+                return dataclasses.replace(c, score=with_response_lag_per_input(c.score, lags["train"], null_model,
+                                                                                tr, weights))
+            return dataclasses.replace(c, score=with_gain_profile(with_per_input(c.score, null_model, tr, weights),
+                                                                  null_model, tr, weights))
+
+        ranked = [refined(c) for c in ranked]
         ranked, extended = confirm_on_train(model, ranked, tr, weights, train, train_names)
         name = verdict(ranked)
         if extended is not None:
