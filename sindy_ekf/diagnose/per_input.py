@@ -134,8 +134,9 @@ def with_response_lag_per_input(score: FamilyScore, lag, null_model, train, weig
     with their standard errors over the runs, 0.27 and 0.18 s, and the pooled delay stays in the
     extension: each input's peak also carries how the model's own response differs from the data's
     on that input (on the clean wheels runs +0.11 s for ``u1`` and -0.07 s for ``u2``, whose mean is
-    the pooled 0.02 s), and an extension with them in place of the pooled delay measured worse
-    (named and confirmed on 1 of the 2 real delays of 0.15 and 0.3 s it was tried on, against 2 of 2).
+    the pooled 0.02 s), and an extension with them in place of the pooled delay measured worse:
+    the real wheels delay of 0.15 s and the real cmd delay of 0.3 s, named and confirmed with the
+    pooled delay, were no longer confirmed (verdict none).
     On the simulator, where the model does not bend around the delay (a steering delay of 0.2 s
     alone), the refined values agree (0 and 0.2 s, mean 0.1 s, the pooled delay) and stand.
     """
