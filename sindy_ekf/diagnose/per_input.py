@@ -144,7 +144,7 @@ def with_response_lag_per_input(score: FamilyScore, lag, null_model, train, weig
     pooled = mechanism_spec(score.family, score.estimate.get("mechanism"))
     spec = per_input_form(pooled)
     per = refined.estimate.get("per_input")
-    if spec is None or per is None:
+    if per is None:  # no per-input form (with_per_input left the score as it was)
         return refined
     d = float(np.asarray(score.theta, float).reshape(-1)[0])
     allowed = max(DIFFER_SIGMAS * float(np.nan_to_num(lag.delay_std_s)), pooled.extra["step"])

@@ -111,7 +111,7 @@ class Diagnosis:
         if self.extended is None or "after" not in self.evaluations:
             return None
         b, a = self.evaluations["before"], self.evaluations["after"]
-        ok = ~diverged(b.eps_p[:, -1]) & ~diverged(a.eps_p[:, -1])
+        ok = common_windows(b, a)
         return {"lowers": bool(self.after.pos_err_5s_m < self.before.pos_err_5s_m),
                 "windows_better": int(np.count_nonzero(a.eps_p[ok, -1] < b.eps_p[ok, -1])),
                 "n_windows": int(ok.sum())}
@@ -176,11 +176,16 @@ def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[Predic
     A model that leaves its envelope may blow up in a few windows (``inf``); comparing on the
     common finite windows keeps the numbers meaningful (:func:`n_diverged` says how many each left out).
     """
-    ok = ~diverged(before.eps_p[:, -1]) & ~diverged(after.eps_p[:, -1])
+    ok = common_windows(before, after)
     return tuple(PredictionError(
         pos_err_5s_m=float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else float("nan"),
         yaw_err_5s_deg=float(np.degrees(np.sqrt(np.mean(r.eps_h[ok, -1] ** 2)))) if ok.any() else float("nan"),
         n_windows=int(ok.sum())) for r in (before, after))
+
+
+def common_windows(before: EvaluationResult, after: EvaluationResult) -> np.ndarray:
+    """Return the mask of the windows in which neither prediction diverged (what both are compared on)."""
+    return ~diverged(before.eps_p[:, -1]) & ~diverged(after.eps_p[:, -1])
 
 
 def n_diverged(evaluation: EvaluationResult) -> int:
