@@ -33,7 +33,7 @@ from groundfloor.files import atomic_output_dir, check_output_dir
 from groundfloor.progress import progress
 from simulation import bags
 from simulation import truth as truth_io
-from simulation.clocks import NS, simulate_tracker_clock
+from simulation.clocks import NS, TRIGGER_PERIOD_S, simulate_tracker_clock
 from simulation.effects import Effect, parse_effect
 from simulation.gnss_topic import check_gnss_spec, gnss_truth, record_fixes, write_gnss_bag, write_gnss_truth
 from simulation.hubs import baseline_geometry
@@ -80,6 +80,9 @@ CALIBRATION_YAML = Path(__file__).resolve().parent / "data" / "calibration.yaml"
 # independently generated campaigns: every message its own receive latency (issue 14)
 DEFAULT_RECEIVE_JITTER_S = (2e-3, 12e-3)
 MAX_RECEIVE_LATENCY_S = 1.0
+# A wider spread of latencies stores a topic's messages a trigger period or more out of stamp
+# order, which the data contract reads as a clock reset, not a reordering.
+MAX_RECEIVE_SPREAD_S = 0.5 * TRIGGER_PERIOD_S
 RESET_TRACKERS = ("at960", "ltd800")
 
 
@@ -155,6 +158,11 @@ def check_receive_jitter(value) -> tuple[float, float] | None:
     if not (np.isfinite(lo) and np.isfinite(hi) and 0.0 <= lo <= hi <= MAX_RECEIVE_LATENCY_S):
         raise InputError(f"receive jitter ({lo * 1e3:g}, {hi * 1e3:g}) ms: need 0 <= lo <= hi <= "
                          f"{MAX_RECEIVE_LATENCY_S * 1e3:g} ms")
+    if hi - lo > MAX_RECEIVE_SPREAD_S + 1e-12:
+        raise InputError(f"receive jitter ({lo * 1e3:g}, {hi * 1e3:g}) ms: a spread of {(hi - lo) * 1e3:g} ms "
+                         f"stores messages more than half a trigger period out of stamp order, which the "
+                         f"data contract reads as a clock reset; the spread may be at most "
+                         f"{MAX_RECEIVE_SPREAD_S * 1e3:g} ms")
     return (lo, hi)
 
 
@@ -295,7 +303,10 @@ def simulate_campaign(
         ``(lo, hi)`` seconds, ``True`` for :data:`DEFAULT_RECEIVE_JITTER_S`, or ``"LO,HI"`` in
         ms: every message gets its own receive latency, uniform in it, and the bags store each
         topic in receive order, so messages closer than the spread (a spurious AT960 pulse
-        next to a real one) are stored out of stamp order. ``None``: each topic in order.
+        next to a real one) are stored out of stamp order. The spread ``hi - lo`` is at most
+        half a trigger period (:data:`MAX_RECEIVE_SPREAD_S`): a wider one stores messages a
+        period apart swapped, which the data contract reads as a clock reset. ``None``: each
+        topic in order.
         Everything else about the campaign is the same as without it.
     clock_resets
         ``{run: (tracker, fraction)}`` or texts ``RUN[:TRACKER[:FRACTION]]``: that tracker's

@@ -49,6 +49,7 @@ from identification.preprocessing.stamp_order import (
     find_clock_resets,
     half_trigger_period_s,
     in_stamp_order,
+    stamps_recover,
 )
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,8 @@ log = logging.getLogger(__name__)
 REQUIRED_TOPICS = (TOPIC_TRIGGER, TOPIC_AT960, TOPIC_LTD800, TOPIC_JOY)
 OPTIONAL_TOPICS = (TOPIC_HUB,)  # without it the hub model (eq. 5.25) is skipped, poses are not
 SPLITS = ("train", "test")
+RECOVERS_HINT = (" (the stamps pass the jump's start again within 1 s: a message received more than half a "
+                 "trigger period late rather than a restarted clock?)")
 
 
 @dataclass(frozen=True)
@@ -203,12 +206,18 @@ def read_tracker_parts(run_dir: str | Path, name: str | None = None,
     half_period = half_trigger_period_s(topics[TOPIC_TRIGGER].stamp)
     resets = sorted((r for t, c in topics.items() for r in find_clock_resets(t, c, half_period)),
                     key=lambda r: r.t_receive_utc)
-    for r in resets:
-        log.warning("run %s: %s: a clock reset; the run is cut there", name, r.describe())
+    late = [stamps_recover(topics[r.topic], r) for r in resets]
+    for r, is_late in zip(resets, late):
+        log.warning("run %s: %s: a clock reset; the run is cut there%s", name, r.describe(),
+                    RECOVERS_HINT if is_late else "")
     parts, dropped = cut_at_resets(name, topics, resets, TOPIC_TRIGGER)
     if not parts:
+        n_late = sum(late)
+        hint = (f"; {n_late} of its {len(resets)} clock resets are passed again by the stamps within 1 s: messages "
+                "received more than half a trigger period late, which the data contract reads as "
+                "clock resets" if n_late else "")
         raise InputError(f"run {name}: no part between its clock resets lasts {MIN_PART_S:g} s "
-                         f"(first: {resets[0].describe()})")
+                         f"(first: {resets[0].describe()}){hint}")
     runs = []
     for k, part in enumerate(parts, 1):
         part_name = name if len(parts) == 1 else f"{name}.{k}"

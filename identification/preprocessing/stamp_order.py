@@ -101,6 +101,21 @@ def find_clock_resets(topic: str, cols: TopicColumns, half_period_s: float) -> l
             for i in np.flatnonzero(step < -half_period_s) + 1]
 
 
+def stamps_recover(cols: TopicColumns, reset: ClockReset, within_s: float = 1.0) -> bool:
+    """Return whether a message received within ``within_s`` after a reset carries a stamp later
+    than the one before the jump.
+
+    A restarted clock needs as long as it jumped back to pass its old reading again (hours in a
+    controller reboot); a message received late by more than half a trigger period is passed by
+    the next one. The data contract calls both a clock reset; this only names the second kind in
+    messages, so that a user with a recorder's latencies wider than the contract's knows why
+    every run was cut.
+    """
+    i = reset.message
+    later = (cols.t_receive[i:] < reset.t_receive_utc + within_s)
+    return bool(np.any(cols.stamp[i:][later] > reset.stamp_before))
+
+
 def in_stamp_order(cols: TopicColumns) -> tuple[TopicColumns, int]:
     """Return the topic sorted by stamp (stable) and the number of reorderings: messages stored
     right after one with a later stamp."""

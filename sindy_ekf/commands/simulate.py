@@ -38,8 +38,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="give every message its own receive latency, uniform in [MS_LO, MS_HI] ms "
                         "(2,12 without a value), and store each topic in receive order, as "
                         "independently generated campaigns do: a spurious AT960 pulse a few ms from "
-                        "a real one is then stored out of stamp order (default: every topic "
-                        "received in stamp order)")
+                        "a real one is then stored out of stamp order; the spread MS_HI - MS_LO "
+                        "is at most 10 ms, half a trigger period, beyond which the data contract "
+                        "reads a reordering as a clock reset (default: every topic received in "
+                        "stamp order)")
     p.add_argument("--clock-reset", action="append", default=[], metavar="RUN[:TRACKER[:FRACTION]]",
                    help="restart a tracker's clock in that run (a backward jump of hours in its "
                         "stamps), e.g. run_05 or run_05:ltd800:0.3 (default tracker at960, at 0.5 of "

@@ -74,14 +74,18 @@ def test_a_clock_reset_is_one_backward_jump_where_truth_says(field_campaign, sto
 
 
 @pytest.mark.parametrize("value, expected", [
-    (True, (2e-3, 12e-3)), ("3,8", (3e-3, 8e-3)), ((0.0, 0.005), (0.0, 0.005)), (None, None)])
+    (True, (2e-3, 12e-3)), ("3,8", (3e-3, 8e-3)), ((0.0, 0.005), (0.0, 0.005)), (None, None),
+    ("500,510", (0.5, 0.51))])
 def test_receive_jitter_values(value, expected):
     got = check_receive_jitter(value)
     assert got is None if expected is None else got == pytest.approx(expected)
 
 
 @pytest.mark.parametrize("value, culprit", [
-    ("12,2", r"receive jitter \(12, 2\) ms"), ("2;12", r"receive jitter '2;12'"), ("-1,3", r"\(-1, 3\) ms")])
+    ("12,2", r"receive jitter \(12, 2\) ms"), ("2;12", r"receive jitter '2;12'"), ("-1,3", r"\(-1, 3\) ms"),
+    # a spread of more than half a trigger period stores messages a period apart swapped: by the
+    # data contract a clock reset, which preprocessing would cut every run at
+    ("2,40", r"receive jitter \(2, 40\) ms: a spread of 38 ms .* at most 10 ms"), ("0,10.5", r"spread of 10\.5 ms")])
 def test_bad_receive_jitter_is_named(value, culprit):
     with pytest.raises(InputError, match=culprit):
         check_receive_jitter(value)

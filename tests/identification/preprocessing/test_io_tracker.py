@@ -85,6 +85,34 @@ def test_a_backward_jump_of_a_period_is_a_clock_reset_and_a_short_part_is_droppe
     assert back.name == "run_01" and back.t_trigger_utc[0] > raw.t_trigger_utc[0] + 0.9
     assert back.facts.parts_dropped and "message 51" in back.facts.parts_dropped[0]
     assert np.all(np.diff(back.at960.t_tracker) > 0)
+    # the next stamp passes the jump's start again: the warning says it may be a late message
+    assert "a message received more than half a trigger period late rather than a restarted clock?" in caplog.text
+
+
+def test_messages_a_period_late_throughout_are_named_as_such_when_no_part_is_left(tmp_path, raw, caplog):
+    # a recorder whose latencies spread beyond half a trigger period: every 25th AT960 message
+    # stored after its successor. Each swap is a clock reset by the data contract, no part between
+    # them lasts 12 s, and the error says that the stamps come back: late messages, not clocks
+    t = raw.at960.t_tracker.copy()
+    swapped = np.arange(20, t.size - 1, 25)
+    t[swapped], t[swapped + 1] = t[swapped + 1], t[swapped].copy()
+    write_run_bags(tmp_path / "run_01", replace(raw, at960=PointSeries(t, raw.at960.xyz)))
+    n = swapped.size
+    with pytest.raises(InputError, match=rf"^run run_01: no part between its clock resets lasts 12 s \(first: "
+                                         rf"topic /at960/measurement: clock jumps back .* at message 21 .*\); "
+                                         rf"{n} of its {n} clock resets are passed again by the stamps within 1 s: "
+                                         "messages received more than half a trigger period late"):
+        read_tracker_run(tmp_path / "run_01")
+
+
+def test_a_restarted_clock_is_not_called_a_late_message(tmp_path, raw, caplog):
+    t = raw.ltd800.t_tracker.copy()
+    t[t.size // 2:] -= 3600.0  # the LTD800 controller rebooted: its clock stays an hour back
+    write_run_bags(tmp_path / "run_01", replace(raw, ltd800=PointSeries(t, raw.ltd800.xyz)))
+    with caplog.at_level(logging.WARNING), pytest.raises(InputError, match=r"no part .*lasts 12 s") as err:
+        read_tracker_run(tmp_path / "run_01")  # 7.5 s either side of the reset: both parts too short
+    assert "clock jumps back 3599.97" in caplog.text and "late" not in caplog.text
+    assert "passed again" not in str(err.value)
 
 
 def test_a_repeated_stamp_is_dropped_and_said(tmp_path, raw, caplog):
