@@ -130,6 +130,17 @@ def read_campaign_yaml(path: Path) -> tuple[str, list[tuple[str, str]]]:
     return str(doc.get("name", Path(path).name)), runs
 
 
+def read_run_groups(path: Path) -> dict[str, str]:
+    """Return the ``group`` (day or session) given per run in ``campaign.yaml``, where given.
+
+    Part 1 of the data contract names runs and splits only; a raw campaign that also gives a
+    run's group (as part 2 allows) keeps it through preprocessing. Call after
+    :func:`read_campaign_yaml` has validated the file.
+    """
+    doc = yaml.safe_load((Path(path) / "campaign.yaml").read_text())
+    return {e["name"]: str(e["group"]) for e in doc["runs"] if e.get("group") not in (None, "")}
+
+
 def _without_repeats(run: str, topic: str, cols: TopicColumns) -> tuple[TopicColumns, int]:
     """Return the sorted topic without messages repeating the previous stamp, and how many.
 

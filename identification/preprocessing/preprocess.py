@@ -61,6 +61,7 @@ from identification.preprocessing.io_tracker import (
     BagRun,
     ReadFacts,
     read_campaign_yaml,
+    read_run_groups,
     read_tracker_parts,
 )
 from identification.preprocessing.poses import fit_poses_full
@@ -301,6 +302,13 @@ def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | Non
     return done
 
 
+def _run_group(name: str, r: RunResult, given: dict[str, str]) -> str:
+    """Return a preprocessed run's group: as given in campaign.yaml for the run (or the run a part
+    was cut from), else that run's name for a part, else "" (the run alone)."""
+    whole = r.facts.part_of if r.facts is not None and r.facts.part_of else None
+    return given.get(whole or name, whole or "")
+
+
 def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
                         smoothing: float = DEFAULT_SMOOTHING, force: bool = False,
                         plots_dir: str | Path | None = None, jobs: Workers | int = 1,
@@ -366,7 +374,11 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
         seconds[stage] = sum(r.seconds.get(stage, 0.0) for r in runs.values())
 
     tic = time.perf_counter()
-    traj = [(TrajectoryRun(name=n, split=r.synced.split, poses=r.poses, inputs=r.inputs), r.states)
+    # a part of a run cut at a clock reset is of that run's group: cross-validation by group
+    # never trains on one part and scores the other (campaign.yaml `group`)
+    given = read_run_groups(root)
+    traj = [(TrajectoryRun(name=n, split=r.synced.split, poses=r.poses, inputs=r.inputs,
+                           group=_run_group(n, r, given)), r.states)
             for n, r in runs.items()]
     write_trajectory_campaign(out_dir, name, traj, force=force,
                               source=f"sindy-ekf preprocess {root.resolve()}",

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from groundfloor.errors import InputError
 from groundfloor.types import PointSeries
@@ -118,6 +119,36 @@ def test_a_clock_reset_splits_the_run_into_two_parts(field):
         assert (t[-1] < t_reset) if k == 0 else (t[0] > t_reset)
         assert t[-1] - t[0] > 15.0
     assert "run_06" not in report["runs"]
+
+
+def test_the_parts_of_a_run_are_one_cross_validation_group(field):
+    # leave-one-group-out must not train on one part of a run and score the other
+    from identification.preprocessing.trajectory import read_trajectory_campaign
+    from identification.sindy.reference import run_group
+
+    report, _, out = field
+    groups = {r.name: run_group(r) for r in read_trajectory_campaign(out).runs}
+    assert groups["run_06.1"] == groups["run_06.2"] == "run_06"
+    whole = [n for n in report["runs"] if not report["runs"][n]["part_of"]]
+    assert whole and all(groups[n] == n for n in whole)
+    assert len(set(groups.values())) == len(whole) + 1
+
+
+def test_a_group_given_in_a_raw_campaign_is_kept_by_preprocessing(tmp_path):
+    from identification.preprocessing.preprocess import preprocess_campaign
+    from identification.preprocessing.trajectory import read_trajectory_campaign
+
+    from simulation.campaign import simulate_campaign
+
+    root = tmp_path / "c"
+    simulate_campaign(root, seed=3, minutes=2.25)
+    meta = yaml.safe_load((root / "campaign.yaml").read_text())
+    meta["runs"][0]["group"], meta["runs"][1]["group"] = "day-1", "day-2"
+    (root / "campaign.yaml").write_text(yaml.safe_dump(meta))
+    preprocess_campaign(root, tmp_path / "out", jobs=1)
+    back = {r.name: r.group for r in read_trajectory_campaign(tmp_path / "out").runs}
+    first, second, *rest = (r["name"] for r in meta["runs"])
+    assert back == {first: "day-1", second: "day-2", **{n: "" for n in rest}}
 
 
 def test_a_part_is_read_by_its_name_and_the_whole_run_names_its_parts(field_campaign):
