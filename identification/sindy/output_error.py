@@ -61,6 +61,9 @@ OE_MAX_WINDOWS = 200
 MIN_CHOLESKY_PIVOT = 1e-5
 #: residual of a window whose prediction left the finite numbers (a diverging candidate), m
 DIVERGED_RESIDUAL_M = 100.0
+#: a window whose residuals or sensitivities pass this has run away as surely as a non-finite one:
+#: its squares would overflow the Gram matrix of the fit (float64 ends at 1.8e308)
+RUNAWAY_MAGNITUDE = 1e100
 
 
 class ParametricModel(ABC):
@@ -370,7 +373,10 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
             r = pose_residuals(pred, windows)
             J = sens[:, 1:, :3, :].copy()
             J[..., 2, :] *= HEADING_WEIGHT_M
-            bad = ~np.isfinite(r).all(axis=(1, 2)) | ~np.isfinite(J).all(axis=(1, 2, 3))
+            with np.errstate(invalid="ignore"):  # nan compares False: counted by isfinite
+                bad = (~np.isfinite(r).all(axis=(1, 2)) | ~np.isfinite(J).all(axis=(1, 2, 3))
+                       | (np.abs(r) > RUNAWAY_MAGNITUDE).any(axis=(1, 2))
+                       | (np.abs(J) > RUNAWAY_MAGNITUDE).any(axis=(1, 2, 3)))
             r[bad] = DIVERGED_RESIDUAL_M
             J[bad] = 0.0
             r, J = r.reshape(-1), J.reshape(-1, J.shape[-1])

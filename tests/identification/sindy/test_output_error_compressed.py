@@ -91,3 +91,35 @@ def test_a_fit_on_the_compressed_problem_ends_where_least_squares_on_all_residua
     # and both found the data's own model
     np.testing.assert_allclose(fit.theta, SindyStructure(model).theta0, rtol=0.02)
     np.testing.assert_allclose(fit.dead_time_s, (0.0, 0.0), rtol=0, atol=5e-3)
+
+
+def test_a_window_that_runs_away_to_huge_finite_numbers_counts_as_diverged(problem, monkeypatch):
+    """A candidate whose prediction in one window reaches 1e200 (finite, but its square overflows
+    the Gram matrix) is fitted exactly as if that window had left the finite numbers: the window
+    costs DIVERGED_RESIDUAL_M with no slope, no overflow warning, the same parameters."""
+    import warnings
+
+    from identification.sindy import output_error
+
+    windows, model = problem
+    spec = SindyStructure(model.with_coefficients(model.coef * 1.1))
+    real = output_error.rollout_with_sensitivities
+    fits = {}
+    for runaway in (np.nan, 1e200):
+        def spoilt(*args, _v=runaway, **kwargs):
+            pred, sens = real(*args, **kwargs)
+            pred, sens = pred.copy(), sens.copy()
+            pred[3, -5:, :3] = _v  # window 3 runs away at its end, states and sensitivities
+            sens[3, -5:] = _v
+            return pred, sens
+
+        monkeypatch.setattr(output_error, "rollout_with_sensitivities", spoilt)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # an overflow in the fit would raise here
+            fits[runaway] = fit_output_error(spec, spec.theta0, windows, (0.0, 0.0), False, max_nfev=8)
+    nan_fit, huge_fit = fits[np.nan], fits[1e200]
+    np.testing.assert_array_equal(huge_fit.theta, nan_fit.theta)
+    assert huge_fit.rms_pos_m == nan_fit.rms_pos_m
+    # and the fit moved toward the data's own model from 10 % off despite the runaway window
+    err0 = np.abs(spec.theta0 - SindyStructure(model).theta0).max()
+    assert np.abs(huge_fit.theta - SindyStructure(model).theta0).max() < 0.5 * err0
