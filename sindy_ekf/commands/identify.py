@@ -6,7 +6,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from groundfloor.files import atomic_write_json, check_output_file, check_outputs
+from identification.sindy.selection import Candidate
 from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.stages.figures import write_identification_figures
 from sindy_ekf.stages.identification import (
@@ -46,6 +49,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write figs. 7.4-7.7, 7.10, 7.11, 7.12 as PNG into DIR")
 
 
+def candidate_row(c: Candidate, width: int, note: str, label: str | None = None) -> str:
+    """Return a candidate's line of the ranking: terms, CV position error and its standard error
+    in cm, heading error in degrees, the note; a candidate whose prediction diverged in some
+    held-out folds (an infinite error there) says so in words instead of ``inf nan``."""
+    bad = int(np.sum(~np.isfinite(c.fold_rms_m)))
+    if bad:
+        cells = f"{'diverged':>9} {'-':>5} {'-':>10}"
+        note = f"diverged in {bad} of {len(c.fold_rms_m)} folds" + (f"; {note}" if note else "")
+    else:
+        cells = f"{100 * c.cv_pos_err_5s_m:9.2f} {100 * c.cv_se_m:5.2f} {c.cv_yaw_err_5s_deg:10.2f}"
+    return f"{label or c.label:{width}} {c.complexity:5.1f} {cells}  {note}"
+
+
 def format_ranking(ident: Identification) -> str:
     """Return the selected model's equations, the ten best grid points of the screening (and the
     selected one), the output-error candidates beside the lag baseline, and whether the model
@@ -82,11 +98,9 @@ def format_ranking(ident: Identification) -> str:
         if c.failed:
             note += ("; " if note else "") + ("fails " if not c.passed else "fails in a minority of folds: ") \
                 + ", ".join(c.failed)
-        lines.append(f"{c.label:{w}} {c.complexity:5.1f} {100 * c.cv_pos_err_5s_m:9.2f} {100 * c.cv_se_m:5.2f} "
-                     f"{c.cv_yaw_err_5s_deg:10.2f}  {note}")
+        lines.append(candidate_row(c, w, note))
+    lines.append(candidate_row(pipe.lag_cv, w, "the hand-written model to beat", "lag baseline"))
     lag = pipe.lag_cv
-    lines.append(f"{'lag baseline':{w}} {lag.complexity:5.1f} {100 * lag.cv_pos_err_5s_m:9.2f} {100 * lag.cv_se_m:5.2f} "
-                 f"{lag.cv_yaw_err_5s_deg:10.2f}  the hand-written model to beat")
     chosen = pipe.candidates[pipe.selected]
     if pipe.beats_lag:
         lines.append(f"\nselected: {chosen.label}, the {model.training['selection']}; CV "
