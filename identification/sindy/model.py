@@ -39,6 +39,8 @@ from identification.sindy.library import (
 log = logging.getLogger(__name__)
 
 FORMAT = "sindy-ekf-model"
+#: the format of the extended models diagnose writes (sindy_ekf.diagnose.extend.FORMAT), named in errors
+EXTENDED_FORMAT = "sindy-ekf-extended-model"
 FORMAT_VERSION = 3  # 2: dead_time_s, extrapolation, checks; 3: input_lag_s (formats 1 and 2 still load)
 
 
@@ -319,6 +321,11 @@ class SindyModel(Dynamics):
         """Return the model described by ``d``; raise InputError naming what does not fit."""
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             got = d.get("format") if isinstance(d, dict) else type(d).__name__
+            if got == EXTENDED_FORMAT:
+                raise InputError(f"{source}: an extended model of `sindy-ekf diagnose --extended-model` (family "
+                                 f"{d.get('family')!r}), not a model file of identify: diagnose scores it itself "
+                                 "(its 5 s error after the extension, its EKF through GNSS outages); Python reads it "
+                                 "with sindy_ekf.diagnose.extend.ExtendedModel.load")
             raise InputError(f"{source}: not a sindy-ekf model file (format {got!r}, expected {FORMAT!r})")
         version = d.get("format_version")
         if version not in (1, 2, FORMAT_VERSION):

@@ -23,7 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write residual structure, lag, family profiles and error curves into DIR")
     p.add_argument("--no-ekf", action="store_true", help="skip the EKF dead-reckoning through 10 s GNSS outages")
     p.add_argument("--extended-model", type=Path, default=None, metavar="PATH",
-                   help="write the extended model (JSON) when a cause is found")
+                   help="write the extended model (JSON) when a cause is found; diagnose scores it "
+                        "itself, evaluate and benchmark take the model files of identify")
     add_worker_arguments(p, 1, "families")
 
 

@@ -33,7 +33,7 @@ from groundfloor.errors import InputError
 from groundfloor.files import atomic_write_json
 from groundfloor.types import BodyStates
 from identification.sindy.evaluate import evaluate_model
-from identification.sindy.model import SindyModel
+from identification.sindy.model import EXTENDED_FORMAT, SindyModel
 from sindy_ekf.benchmark.run import outage_ekf_run
 from sindy_ekf.diagnose.data import Split
 from sindy_ekf.diagnose.families import (
@@ -53,7 +53,7 @@ from sindy_ekf.estimation.process_models import (
 
 log = logging.getLogger(__name__)
 
-FORMAT = "sindy-ekf-extended-model"
+FORMAT = EXTENDED_FORMAT  # "sindy-ekf-extended-model"
 
 
 @dataclass

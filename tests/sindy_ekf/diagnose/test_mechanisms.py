@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from groundfloor.errors import InputError
 from identification.sindy.library import make_library
 from identification.sindy.model import SindyModel
 from sindy_ekf.diagnose.extend import ExtendedModel
@@ -64,6 +65,10 @@ def test_extended_model_round_trips_its_mechanism(tmp_path):
     back = ExtendedModel.load(ext.to_json(tmp_path / "ext.json"))
     assert back.spec.mechanism == "throttle_to_turn_coupling"
     np.testing.assert_allclose(back.motor_inputs(np.zeros(2), u), ext.motor_inputs(np.zeros(2), u))
+    # handed to a command that takes identify's model files, it is named for what it is
+    with pytest.raises(InputError, match=r"ext\.json: an extended model of `sindy-ekf diagnose --extended-model` "
+                                         r"\(family 'asymmetry'\), not a model file of identify"):
+        SindyModel.load(tmp_path / "ext.json")
 
 
 def test_parabolic_min_by_hand():
