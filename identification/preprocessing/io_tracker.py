@@ -96,9 +96,11 @@ class BagRun(RawRun):
 
 
 def find_bags(run_dir: Path) -> list[Path]:
-    """Return the bags of a run folder: ``*.bag`` files and ROS2 bag folders (with metadata.yaml)."""
+    """Return the bags of a run folder: ``*.bag`` files and ROS2 bag folders (with metadata.yaml),
+    the run folder itself when it is one (``ros2 bag record -o runs/<run>`` writes that)."""
     run_dir = Path(run_dir)
     bags = sorted(p for p in run_dir.glob("*.bag") if p.is_file())
+    bags += [run_dir] if (run_dir / "metadata.yaml").is_file() else []
     bags += sorted(p for p in run_dir.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file())
     return bags
 

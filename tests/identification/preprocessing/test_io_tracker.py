@@ -57,6 +57,15 @@ def test_topics_are_found_across_ros1_and_ros2_bags_of_one_run(tmp_path, raw):
     _assert_same(raw, read_tracker_run(run))
 
 
+def test_a_run_folder_that_is_itself_a_ros2_bag_is_read(tmp_path, raw):
+    # `ros2 bag record -o runs/run_01` makes the run folder the bag folder
+    write_run_bags(tmp_path / "w", raw, ros2=True)
+    run = tmp_path / "run_01"
+    shutil.move(tmp_path / "w" / "bag_ros2", run)
+    assert (run / "metadata.yaml").is_file()
+    _assert_same(raw, read_tracker_run(run))
+
+
 def test_missing_topic_names_run_and_topic(tmp_path, raw):
     write_run_bags(tmp_path / "run_01", raw, drop_topics=("/ltd800/measurement",))
     with pytest.raises(InputError, match=r"^run run_01: topic /ltd800/measurement missing or empty$"):
