@@ -112,7 +112,11 @@ def select_candidate(candidates: Sequence[Candidate]) -> int:
     standard error of the best such candidate's CV error (the one-standard-error rule over folds)."""
     ok = [i for i, c in enumerate(candidates) if c.passed and np.isfinite(c.cv_pos_err_5s_m)]
     if not ok:
-        raise InputError("identification: no candidate passed the well-posedness checks in most folds")
+        why = "; ".join(f"{c.label}: " + (f"fails {', '.join(c.failed)}" if not c.passed else
+                                          f"diverged in {int(np.sum(~np.isfinite(c.fold_rms_m)))} of "
+                                          f"{len(c.fold_rms_m)} folds")
+                        for c in candidates)
+        raise InputError(f"identification: no candidate passed the well-posedness checks in most folds ({why})")
     best = min(ok, key=lambda i: candidates[i].cv_pos_err_5s_m)
     se = candidates[best].cv_se_m
     limit = candidates[best].cv_pos_err_5s_m + (se if np.isfinite(se) else 0.0)
