@@ -94,8 +94,15 @@ class Identification:
 
 
 def _candidates(result: SearchResult, n: int) -> list[tuple[str, dict]]:
-    """Return ``(label, hyperparameters)`` of the best ``n`` admissible rows with distinct structures."""
+    """Return ``(label, hyperparameters)`` of the best ``n`` admissible rows with distinct structures.
+
+    When no row is admissible (every regression model ran away on some held-out window), the
+    best rows stable at rest, else the best rows, in the screening's order (fewest diverged
+    windows first): pruning, output error, cross-validation and the checks decide on them."""
     ok = admissible(result.table)
+    if not ok.any():
+        ok = np.asarray(result.table["stable_at_rest"], bool)
+        ok = ok if ok.any() else np.ones(len(ok), bool)
     seen, out = set(), []
     for i, m in enumerate(result.top_models):
         key = (m.library.name, (m.coef != 0).tobytes())
