@@ -11,6 +11,7 @@ import numpy as np
 from groundfloor.files import atomic_write_json, check_output_file, check_outputs
 from identification.sindy.selection import Candidate
 from sindy_ekf.cli_workers import add_worker_arguments, workers_of
+from sindy_ekf.diagnose.extend import DIVERGED_5S_M
 from sindy_ekf.stages.figures import write_identification_figures
 from sindy_ekf.stages.identification import (
     Identification,
@@ -52,8 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def candidate_row(c: Candidate, width: int, note: str, label: str | None = None) -> str:
     """Return a candidate's line of the ranking: terms, CV position error and its standard error
     in cm, heading error in degrees, the note; a candidate whose prediction diverged in some
-    held-out folds (an infinite error there) says so in words instead of ``inf nan``."""
-    bad = int(np.sum(~np.isfinite(c.fold_rms_m)))
+    held-out folds (an infinite error there, or one beyond :data:`DIVERGED_5S_M`) says so in words
+    instead of ``inf nan`` or a number of 80 digits."""
+    with np.errstate(invalid="ignore"):
+        bad = int(np.sum(~(np.abs(c.fold_rms_m) < DIVERGED_5S_M)))
     if bad:
         cells = f"{'diverged':>9} {'-':>5} {'-':>10}"
         note = f"diverged in {bad} of {len(c.fold_rms_m)} folds" + (f"; {note}" if note else "")

@@ -22,6 +22,12 @@ def test_a_candidate_diverged_in_two_folds_says_so_instead_of_inf_and_nan():
     assert row.endswith("diverged in 2 of 5 folds; fails in a minority of folds: dissipative")
 
 
+def test_a_candidate_whose_fold_error_is_astronomical_counts_as_diverged():
+    # seen on the real cmd campaign: a stepwise candidate's CV error printed as an 85-digit number
+    row = candidate_row(_candidate([0.7, 6e81, 0.8, 0.7]), 24, "")
+    assert row[24:].split()[:2] == ["10.6", "diverged"] and row.endswith("diverged in 1 of 4 folds")
+
+
 def test_a_finite_candidate_prints_its_cv_error_in_cm_with_its_standard_error():
     c = _candidate([0.05, 0.07, 0.06, 0.06])
     row = candidate_row(c, 24, "selected")
