@@ -155,6 +155,10 @@ def parallel_iter(fn: Callable[[T], R], tasks: Sequence[T], workers: Workers | i
         # stopping at a failure cancels the tasks not yet collected; joblib warns that results
         # went unused, which says nothing the raised error does not
         warnings.filterwarnings("ignore", message=r".*executed\s+but not used", category=UserWarning)
+        # loky's reused executor retires workers idle longer than its timeout between two maps
+        # (identify's serial stretches) and starts new ones, warning of a "memory leak" it did not see
+        warnings.filterwarnings("ignore", message=r"A worker stopped while some jobs were given to the executor",
+                                category=UserWarning)
         n_jobs = -1 if workers.dask is not None else min(workers.jobs, len(tasks))
         # generator: results arrive in order as they finish, and the first failure stops the rest
         run = Parallel(n_jobs=n_jobs, return_as="generator")(delayed(call)(n, t) for n, t in zip(names, tasks))
