@@ -48,6 +48,8 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
                  f"{100 * a.pos_err_5s_m:.2f} cm, heading {b.yaw_err_5s_deg:.2f} -> {a.yaw_err_5s_deg:.2f} deg")
     if d.extension_warning():
         lines.append(f"warning: {d.extension_warning()}")
+    if d.missing_law_warning():
+        lines.append(f"warning: {d.missing_law_warning()}")
     if d.outage.get("n"):
         lines.append(f"EKF after {d.outage['outage_s']:g} s GNSS outages (RMS of {d.outage['n']}): "
                      f"{d.outage['before_m']:.3f} -> {d.outage['after_m']:.3f} m")

@@ -116,6 +116,22 @@ class Diagnosis:
                 "windows_better": int(np.count_nonzero(a.eps_p[ok, -1] < b.eps_p[ok, -1])),
                 "n_windows": int(ok.sum())}
 
+    def missing_law_warning(self) -> str | None:
+        """Return one line when the model has no lateral law and adding one clears its threshold,
+        or None.
+
+        The lateral_slip family is never named for such a model (more slip cannot be told from
+        ordinary slip), so the verdict can be ``none`` while a model change is worth its gain; the
+        lag, which ``identify`` selects when every richer candidate fails its checks, has none.
+        """
+        for c in self.ranked:
+            if (c.name == "lateral_slip" and c.score.estimate.get("model_has_lateral_law") is False
+                    and c.gain > c.threshold):
+                return (f"the model has no lateral law (no vx omega term in its vy equation); adding one gains "
+                        f"{100 * c.gain:.1f} % on the test runs, above its {100 * c.threshold:.1f} % threshold: "
+                        f"the other families are judged against a model that misses it")
+        return None
+
     def extension_warning(self) -> str | None:
         """Return one line saying that the extended model predicts the test runs worse, or None."""
         e = self.extension_on_test
@@ -167,6 +183,7 @@ class Diagnosis:
                 "cause_evidence": self.evidence,
                 "measurement": [f.to_dict() for f in self.measurement],
                 "n_test_windows_5s": self.before.n_windows, "extension_on_test": self.extension_on_test,
+                "warnings": [w for w in (self.extension_warning(), self.missing_law_warning()) if w],
                 "seconds": self.seconds}
 
 

@@ -334,6 +334,8 @@ def section_diagnosis(sec: Section, chain: ChainResult) -> None:
              f"cm before, {100 * d.after.pos_err_5s_m:.2f} cm with the extended model.")
     if d.extension_warning():
         sec.note(f"Warning: {d.extension_warning()}.")
+    if d.missing_law_warning():
+        sec.note(f"Warning: {d.missing_law_warning()}.")
     if d.outage:
         sec.note(f"EKF error at the end of {d.outage['outage_s']:g} s GNSS outages (RMS over {d.outage['n']}): "
                  f"{d.outage['before_m']:.3f} m before, {d.outage['after_m']:.3f} m after.")

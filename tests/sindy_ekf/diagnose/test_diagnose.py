@@ -371,3 +371,34 @@ def test_normal_equations_are_the_weighted_sums_over_each_runs_windows():
             np.testing.assert_allclose(d.yy[c, r], yy, rtol=1e-12)
     empty = normal_equations(y, X[..., :0], w, run, R)  # a family without columns: yy only
     assert empty.G.shape == (C, R, 0, 0) and np.allclose(empty.yy, d.yy)
+
+
+def test_a_model_without_a_lateral_law_is_said_to_miss_one_when_adding_it_clears_its_threshold(reference_model):
+    """The lab model with its lateral law taken out (no ``vx omega`` in the vy equation, as the lag
+    that identify falls back to), on runs of a robot that drifts sideways in turns: lateral_slip is
+    never named for such a model, but the diagnosis says, on the terminal and in its JSON, that
+    adding the law clears its threshold. With the law kept it says nothing of the kind."""
+    from pathlib import Path
+
+    from sindy_ekf.commands.diagnose import format_diagnosis
+    from sindy_ekf.diagnose.families import term_column
+
+    coef = reference_model.coef.copy()
+    coef[1, term_column(reference_model.library, "vx omega")] = 0.0
+    no_law = reference_model.with_coefficients(coef)
+    rng = np.random.default_rng([MASTER_SEED, 43])
+    seed = int(rng.integers(2**31))
+    # a robot that slips more than the lab's (the family's moderate value): the law is clearly missed
+    slipping = Effect("lateral_slip", EFFECTS["lateral_slip"].moderate)
+    train, test, a, b = simulate_states_campaign(seed, slipping, run_s=RUN_S, rate_hz=RATE_HZ)
+    why = f"(SINDY_EKF_TEST_SEED={MASTER_SEED}, seed {seed})"
+    d = diagnose_states(no_law, train, test, a, b, ekf=False)
+    slip = next(c for c in d.ranked if c.name == "lateral_slip")
+    assert slip.score.estimate["model_has_lateral_law"] is False and not slip.significant, why
+    assert slip.gain > slip.threshold, f"adding the law gains {slip.gain:.3f} <= {slip.threshold:.3f} {why}"
+    line = d.missing_law_warning()
+    assert line and f"gains {100 * slip.gain:.1f} %" in line, why
+    assert f"warning: {line}" in format_diagnosis(d, Path("m.json"), Path("c")).splitlines()
+    assert d.to_json()["warnings"] == [w for w in (d.extension_warning(), line) if w]
+    with_law = diagnose_states(reference_model, train, test, a, b, ekf=False)
+    assert with_law.missing_law_warning() is None, why
