@@ -348,6 +348,9 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     name, run_list = read_campaign_yaml(root)
     sensors_config = read_sensors_config(root)  # an unknown sensor type fails before the work
     if not (root / "calibration.yaml").is_file():
+        if any((root / "runs").glob("*/poses.csv")):
+            raise InputError(f"{root}: a trajectory campaign (runs/*/poses.csv): preprocessed already; identify, "
+                             "evaluate, benchmark and diagnose take it as it is")
         raise InputError(f"{root}: calibration.yaml missing")
     calibration = calibrate(read_survey(root / "calibration.yaml"))
     seconds["calibrate"] = time.perf_counter() - tic

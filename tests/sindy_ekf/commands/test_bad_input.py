@@ -106,6 +106,13 @@ def test_preprocess_outputs_are_checked_before_reading_a_bag(small, tmp_path, ca
     assert not (tmp_path / "traj").exists()
 
 
+def test_preprocess_of_a_trajectory_campaign_says_it_is_preprocessed_already(small, tmp_path, capsys):
+    root, _ = small  # poses and inputs per run, no bags, no calibration.yaml
+    code = main(["preprocess", str(root), "--out", str(tmp_path / "traj"), "--quiet"])
+    _one_line_error(capsys, code, str(root), "a trajectory campaign", "preprocessed already")
+    assert not (tmp_path / "traj").exists()
+
+
 def test_identify_plots_naming_a_file_is_an_error_before_the_search(small, tmp_path, capsys):
     root, _ = small
     plots = tmp_path / "plots"
