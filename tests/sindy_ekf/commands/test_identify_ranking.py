@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from identification.sindy.selection import Candidate
-from sindy_ekf.commands.identify import candidate_row
+from sindy_ekf.commands.identify import candidate_row, refused_better_note
 
 
-def _candidate(fold_rms_m, label="grid rank 13, stepwise"):
+def _candidate(fold_rms_m, label="grid rank 13, stepwise", passed=True, failed=("dissipative",)):
     n = len(fold_rms_m)
     return Candidate(label=label, hyperparameters=None, fold_rms_m=np.asarray(fold_rms_m, float),
-                     fold_n=np.full(n, 10), fold_yaw_deg=np.full(n, 3.0), complexity=10.6, passed=True,
-                     failed=("dissipative",))
+                     fold_n=np.full(n, 10), fold_yaw_deg=np.full(n, 3.0), complexity=10.6, passed=passed,
+                     failed=failed)
 
 
 def test_a_candidate_diverged_in_two_folds_says_so_instead_of_inf_and_nan():
@@ -36,3 +36,19 @@ def test_a_finite_candidate_prints_its_cv_error_in_cm_with_its_standard_error():
     assert cells[0] == "10.6" and float(cells[1]) == round(np.sqrt((25 + 49 + 36 + 36) / 4), 2)
     assert float(cells[2]) == round(100 * c.cv_se_m, 2) and cells[3] == "3.00" and cells[4] == "selected"
     assert candidate_row(c, 24, "", "lag baseline").startswith("lag baseline ")
+
+
+def test_refused_candidates_that_predict_clearly_better_are_noted():
+    # the tilted-floor demo's shape: the lag (23 cm) selected, every richer candidate refused
+    lag = _candidate([0.20, 0.26, 0.23], "lag", True, ())
+    rich = [_candidate([0.07, 0.08, 0.075], "grid rank 2", False, ("stable_at_rest", "held_input")),
+            _candidate([0.10, 0.12, 0.11], "grid rank 1", False, ("dissipative",)),
+            _candidate([0.21, 0.235, 0.225], "grid rank 4", False, ("held_input",))]  # better, within the lag's SE
+    note = refused_better_note([lag, *rich], 0)
+    assert note.startswith("note: 2 candidate(s) predict clearly better in cross-validation (best grid rank 2, "
+                           f"{100 * rich[0].cv_pos_err_5s_m:.2f} cm against {100 * lag.cv_pos_err_5s_m:.2f} cm)")
+    assert "(dissipative, held_input, stable_at_rest)" in note
+    # a refused candidate only as good as the selected one within its standard error: no note
+    assert refused_better_note([lag, rich[2]], 0) is None
+    # nor when the better candidates passed (they would have been selected)
+    assert refused_better_note([lag, _candidate([0.07, 0.08, 0.075], "grid rank 2", True, ())], 0) is None
