@@ -12,7 +12,6 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -25,8 +24,14 @@ from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.checks import stable_at_rest
 from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import EvaluationResult
-from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
-from identification.sindy.model import SindyModel, read_model_json
+from identification.sindy.library import LIBRARY_INPUT_NAMES
+from identification.sindy.model import SindyModel
+from sindy_ekf.diagnose.accepts import (  # noqa: F401  (load_model: callers import it from here too)
+    WINDOW_S,
+    check_model_inputs,
+    check_scorable,
+    load_model,
+)
 from sindy_ekf.diagnose.cause import (
     NULL_PROVENANCE,
     named_by_response_lag,
@@ -67,8 +72,6 @@ from sindy_ekf.diagnose.scoring import score_families
 
 log = logging.getLogger(__name__)
 
-WINDOW_S = 5.0
-MIN_TEST_WINDOWS = 4  # fewer 5 s windows on the test runs cannot support an out-of-sample verdict
 CONFIRM_TOLERANCE = 0.10  # a named cause may not make the median 5 s error on the train runs worse by more
 
 
@@ -208,42 +211,6 @@ def common_windows(before: EvaluationResult, after: EvaluationResult) -> np.ndar
 def n_diverged(evaluation: EvaluationResult) -> int:
     """Return the number of windows in which a prediction diverged (non-finite or beyond 1 km after 5 s)."""
     return int(np.count_nonzero(diverged(evaluation.eps_p[:, -1])))
-
-
-def check_model_inputs(model, source: str = "model") -> None:
-    """Raise InputError unless ``model`` works on ``[vx, vy, omega]`` and inputs ``[u1, u2]``."""
-    variables = tuple(getattr(getattr(model, "library", None), "variables", ()))
-    if variables != LIBRARY_STATE_NAMES + LIBRARY_INPUT_NAMES:
-        raise InputError(f"{source}: trained on variables {list(variables)}, but a campaign provides "
-                         f"states {list(LIBRARY_STATE_NAMES)} and inputs {list(LIBRARY_INPUT_NAMES)}")
-
-
-def load_model(path) -> SindyModel:
-    """Return the SINDy model in ``path``, checking first that it was trained on inputs ``u1, u2``."""
-    path = Path(path)
-    d = read_model_json(path)
-    if isinstance(d, dict):
-        ins, sts = d.get("input_names"), d.get("state_names")
-        if ins is not None and list(ins) != list(LIBRARY_INPUT_NAMES):
-            raise InputError(f"{path}: model trained on inputs {list(ins)}, but a campaign provides "
-                             f"{list(LIBRARY_INPUT_NAMES)}")
-        if sts is not None and list(sts) != list(LIBRARY_STATE_NAMES):
-            raise InputError(f"{path}: model trained on states {list(sts)}, expected {list(LIBRARY_STATE_NAMES)}")
-    model = SindyModel.from_dict(d, source=str(path))
-    check_model_inputs(model, str(path))
-    return model
-
-
-def check_scorable(test: Sequence[BodyStates], names: Sequence[str], window_s: float = WINDOW_S) -> None:
-    """Raise InputError when the test runs cannot score a model out of sample (too few 5 s windows)."""
-    if not len(test):
-        raise InputError("campaign: no runs marked test, nothing to score out of sample on")
-    lengths = {n: float(st.t[-1] - st.t[0]) if len(st.t) else 0.0 for st, n in zip(test, names)}
-    n_win = sum(max(int((d - window_s) // (window_s / 2)) + 1, 0) for d in lengths.values() if d >= window_s)
-    if n_win < MIN_TEST_WINDOWS:
-        desc = ", ".join(f"{n} {d:.1f} s" for n, d in lengths.items())
-        raise InputError(f"test runs too short to score out of sample: {desc} give {n_win} windows of "
-                         f"{window_s:g} s (need {MIN_TEST_WINDOWS})")
 
 
 def median_5s(res) -> float:
