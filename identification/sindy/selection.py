@@ -96,7 +96,8 @@ class Candidate:
         scored = self.fold_n > 0
         if scored.sum() < 2:
             return float("nan")
-        return float(np.std(self.fold_rms_m[scored], ddof=1) / np.sqrt(scored.sum()))
+        with np.errstate(invalid="ignore"):  # a diverged fold (inf) makes it nan, which it is
+            return float(np.std(self.fold_rms_m[scored], ddof=1) / np.sqrt(scored.sum()))
 
     def summary(self) -> dict:
         """Return the JSON-ready description."""

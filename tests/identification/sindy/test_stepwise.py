@@ -165,3 +165,36 @@ def test_the_backward_elimination_without_refits_equals_least_squares_refitted_w
     # nothing below the bound: nothing dropped, the estimate as it was
     same, none = wald_drop(fit, droppable, min_t=0.0)
     assert not none.any() and np.array_equal(same, theta)
+
+
+def test_a_window_that_runs_away_to_huge_finite_numbers_does_not_score_terms(runs, monkeypatch):
+    """A window whose prediction reaches 1e200 (finite; its squares overflow) counts as one that
+    left the finite numbers: the scores equal those with that window spoilt to nan, no overflow
+    warning, and the missing terms still score highest (an overflowed score was inf, taken first)."""
+    import warnings
+
+    from identification.sindy import stepwise
+
+    truth, start, ref = _wrong_start(runs)
+    windows = ref.windows(3.0, 0.0, 0.05)
+    fitted, _ = refine(start, windows)
+    allowed = np.ones(fitted.coef.shape, bool)
+    real = stepwise.rollout_with_sensitivities
+    scores = {}
+    for runaway in (np.nan, 1e200):
+        def spoilt(*args, _v=runaway, **kwargs):
+            pred, sens = real(*args, **kwargs)
+            pred, sens = pred.copy(), sens.copy()
+            pred[2, -5:, :3] = _v
+            sens[2, -5:] = _v
+            return pred, sens
+
+        monkeypatch.setattr(stepwise, "rollout_with_sensitivities", spoilt)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            scores[runaway] = term_scores(fitted, windows, np.zeros_like(allowed), allowed)
+    np.testing.assert_array_equal(scores[1e200], scores[np.nan])
+    assert np.all(np.isfinite(scores[1e200]))
+    for e, f in MISSING.items():
+        i, j = _mask(fitted, e, f)
+        assert np.argmax(scores[1e200][i]) == j
