@@ -289,6 +289,15 @@ def pose_residuals(pred: np.ndarray, windows: Windows) -> np.ndarray:
     return d
 
 
+def ran_away(r: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Return which windows of residuals ``r (W, n, 3)`` and sensitivities ``J (W, n, 3, P)`` ran
+    away: a value non-finite or beyond :data:`RUNAWAY_MAGNITUDE` (the fit and the stepwise score
+    test leave them out alike)."""
+    with np.errstate(invalid="ignore"):  # nan compares False: not within the bound
+        return ~((np.abs(r) <= RUNAWAY_MAGNITUDE).all(axis=(1, 2))
+                 & (np.abs(J) <= RUNAWAY_MAGNITUDE).all(axis=(1, 2, 3)))
+
+
 def compressed(r: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return the residuals ``(n + 1,)`` and Jacobian ``(n + 1, n)`` of a least-squares problem
     equivalent to ``r (m,)``, ``J (m, n)`` at this point: ``[Q^T r, |r_perp|]`` and ``[R; 0]``
@@ -373,10 +382,7 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
             r = pose_residuals(pred, windows)
             J = sens[:, 1:, :3, :].copy()
             J[..., 2, :] *= HEADING_WEIGHT_M
-            with np.errstate(invalid="ignore"):  # nan compares False: counted by isfinite
-                bad = (~np.isfinite(r).all(axis=(1, 2)) | ~np.isfinite(J).all(axis=(1, 2, 3))
-                       | (np.abs(r) > RUNAWAY_MAGNITUDE).any(axis=(1, 2))
-                       | (np.abs(J) > RUNAWAY_MAGNITUDE).any(axis=(1, 2, 3)))
+            bad = ran_away(r, J)
             r[bad] = DIVERGED_RESIDUAL_M
             J[bad] = 0.0
             r, J = r.reshape(-1), J.reshape(-1, J.shape[-1])

@@ -53,11 +53,11 @@ from identification.sindy.evaluate import Windows
 from identification.sindy.model import SindyModel
 from identification.sindy.output_error import (
     HEADING_WEIGHT_M,
-    RUNAWAY_MAGNITUDE,
     OutputErrorFit,
     SindyStructure,
     fit_output_error,
     pose_residuals,
+    ran_away,
     rollout_with_sensitivities,
 )
 
@@ -122,12 +122,9 @@ def term_scores(model: SindyModel, windows: Windows, fixed: np.ndarray, allowed:
     r = pose_residuals(pred, windows)
     J = sens[:, 1:, :3, :].copy()
     J[..., 2, :] *= HEADING_WEIGHT_M
-    # a window whose prediction ran away (non-finite, or finite beyond RUNAWAY_MAGNITUDE, whose
-    # squares overflow) says nothing of a term's first-order gain: an overflowed score (inf) would be
-    # taken first, a nan one take a slot of the best two and be refused (argsort puts nan last)
-    with np.errstate(invalid="ignore"):
-        ok = ((np.abs(r) <= RUNAWAY_MAGNITUDE).all(axis=(1, 2))
-              & (np.abs(J) <= RUNAWAY_MAGNITUDE).all(axis=(1, 2, 3)))
+    # a window whose prediction ran away (its squares overflow) says nothing of a term's first-order
+    # gain: an overflowed score (inf) would be taken first, a nan one take a slot of the best two
+    ok = ~ran_away(r, J)
     r, J = r[ok].reshape(-1), J[ok].reshape(-1, J.shape[-1])
     new = candidates[spec.eq, spec.col]
     if (~new).any():

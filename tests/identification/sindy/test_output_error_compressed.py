@@ -19,6 +19,7 @@ from identification.sindy.output_error import (
     rollout_with_sensitivities,
 )
 from identification.sindy.reference import reference
+from tests.support.runaway import spoilt_rollout
 from tests.support.sindy_synth import SPARSE_TERMS, simulate_trajectory_runs, sparse_f
 
 
@@ -106,14 +107,8 @@ def test_a_window_that_runs_away_to_huge_finite_numbers_counts_as_diverged(probl
     real = output_error.rollout_with_sensitivities
     fits = {}
     for runaway in (np.nan, 1e200):
-        def spoilt(*args, _v=runaway, **kwargs):
-            pred, sens = real(*args, **kwargs)
-            pred, sens = pred.copy(), sens.copy()
-            pred[3, -5:, :3] = _v  # window 3 runs away at its end, states and sensitivities
-            sens[3, -5:] = _v
-            return pred, sens
 
-        monkeypatch.setattr(output_error, "rollout_with_sensitivities", spoilt)
+        monkeypatch.setattr(output_error, "rollout_with_sensitivities", spoilt_rollout(real, 3, runaway))
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # an overflow in the fit would raise here
             fits[runaway] = fit_output_error(spec, spec.theta0, windows, (0.0, 0.0), False, max_nfev=8)

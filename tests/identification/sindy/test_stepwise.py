@@ -15,6 +15,7 @@ from identification.sindy.reference import reference
 from identification.sindy.selection import Candidate
 from identification.sindy.output_error import OutputErrorFit
 from identification.sindy.stepwise import MAX_ROUNDS, STEPWISE, stepwise_output_error, term_scores, wald_drop
+from tests.support.runaway import spoilt_rollout
 from tests.support.sindy_synth import SPARSE_TERMS, simulate_trajectory_runs, sparse_f
 
 MISSING = {"vx": "vx omega^2", "omega": "omega^3"}
@@ -182,14 +183,8 @@ def test_a_window_that_runs_away_to_huge_finite_numbers_does_not_score_terms(run
     real = stepwise.rollout_with_sensitivities
     scores = {}
     for runaway in (np.nan, 1e200):
-        def spoilt(*args, _v=runaway, **kwargs):
-            pred, sens = real(*args, **kwargs)
-            pred, sens = pred.copy(), sens.copy()
-            pred[2, -5:, :3] = _v
-            sens[2, -5:] = _v
-            return pred, sens
 
-        monkeypatch.setattr(stepwise, "rollout_with_sensitivities", spoilt)
+        monkeypatch.setattr(stepwise, "rollout_with_sensitivities", spoilt_rollout(real, 2, runaway))
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             scores[runaway] = term_scores(fitted, windows, np.zeros_like(allowed), allowed)
