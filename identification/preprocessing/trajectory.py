@@ -23,6 +23,9 @@ others as warnings):
 - stamps going backwards are an :class:`InputError` naming file and row: the contract says rows
   are in time order, and a backward step means concatenated or re-stamped recordings, which
   sorting would silently interleave;
+- poses beyond the inputs' time span (by more than :func:`gap_threshold_s` of the input
+  stamps: a recording that ends with only some topics present) are left out and counted
+  (``poses_outside_inputs``): the inputs there were never recorded;
 - holes in the poses are not an error but are counted (``gaps``: intervals longer than
   :func:`gap_threshold_s`); :func:`gap_segments` gives the stretches between them, which
   splines and windows must not bridge;
@@ -188,6 +191,32 @@ def unwrap_yaw(yaw: np.ndarray) -> np.ndarray:
     return yaw
 
 
+def _within_inputs(pc: dict[str, np.ndarray], t_i: np.ndarray, name: str, poses_path: Path
+                   ) -> tuple[dict[str, np.ndarray], int]:
+    """Return the pose columns ``pc`` within the inputs' time span, and the pose rows left out.
+
+    Before its first and after its last sample an input track holds its end values; beyond
+    :func:`gap_threshold_s` of the inputs' own stamps that hold is a guess (a recording that
+    stopped, a logger started late), and a run whose inputs end half-way would otherwise be
+    fitted and scored on motion under inputs it never recorded. Those poses are left out,
+    counted and named with their duration.
+    """
+    t_p = pc["t"]
+    hold_s = gap_threshold_s(t_i)
+    inside = (t_p >= t_i[0] - hold_s) & (t_p <= t_i[-1] + hold_s)
+    n_out = int(np.count_nonzero(~inside))
+    if n_out == 0:
+        return pc, 0
+    if np.count_nonzero(inside) < 2:
+        raise InputError(f"run {name}: fewer than 2 poses ({poses_path}) within the inputs' time span "
+                         f"({t_i[0]:.3f} to {t_i[-1]:.3f} s)")
+    kept = t_p[inside]
+    log.warning("run %s: %d poses (%.1f s before the first input, %.1f s after the last) left out: "
+                "the inputs there were not recorded", name, n_out, max(kept[0] - t_p[0], 0.0),
+                max(t_p[-1] - kept[-1], 0.0))
+    return {c: v[inside] for c, v in pc.items()}, n_out
+
+
 def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> TrajectoryRun:
     """Return one validated run of a trajectory campaign (see the module docstring)."""
     repairs: dict[str, int] = {}
@@ -210,20 +239,21 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
         raise InputError(f"{inputs_path}: no valid input rows")
     for column in ("u1", "u2"):
         check_input_range(ic[column], str(inputs_path), column, ic["t"])
-    check_poses_move(pc["x"], pc["y"], pc["yaw"], f"run {name} ({poses_path})")
 
     t_p, t_i = pc["t"], ic["t"]
     overlap_s = min(t_p[-1], t_i[-1]) - max(t_p[0], t_i[0])
     if overlap_s <= 0:
         raise InputError(f"run {name}: poses ({t_p[0]:.3f} to {t_p[-1]:.3f} s) and inputs "
                          f"({t_i[0]:.3f} to {t_i[-1]:.3f} s) do not overlap in time")
-    repairs["gaps"] = int(gap_segments(t_p).shape[0] - 1)
+    pc, repairs["poses_outside_inputs"] = _within_inputs(pc, t_i, name, poses_path)
+    check_poses_move(pc["x"], pc["y"], pc["yaw"], f"run {name} ({poses_path})")
+    repairs["gaps"] = int(gap_segments(pc["t"]).shape[0] - 1)
 
     repairs = {k: int(v) for k, v in repairs.items() if v}
     # a hole in the poses is a prism lost for a moment, part of normal tracker data: counted and
     # summarised once per command; the other repairs mean the files hold something wrong
     expected_repairs.note(GAPS_NOTE, name, repairs.get("gaps", 0))
-    problems = {k: v for k, v in repairs.items() if k != "gaps"}
+    problems = {k: v for k, v in repairs.items() if k not in ("gaps", "poses_outside_inputs")}  # named above
     if problems:
         log.warning("run %s: %s", name, ", ".join(f"{k}={v}" for k, v in problems.items()))
     poses = PoseTrack(**{c: np.ascontiguousarray(pc[c]) for c in POSE_COLUMNS})

@@ -166,6 +166,23 @@ def test_poses_and_inputs_without_overlap_name_the_run(tmp_path):
         read_trajectory_campaign(root)
 
 
+def test_poses_beyond_the_inputs_span_are_left_out_and_counted(tmp_path, caplog):
+    # a logger that started 3 s late and stopped 12 s early: 20 Hz inputs from 3.0 to 7.95 s
+    # under 10 Hz poses from 0 to 19.9 s. The inputs' ends hold for the gap threshold of their
+    # stamps, max(0.5 s, 10 x 0.05 s) = 0.5 s, so by hand the poses 2.5 s to 8.4 s remain.
+    t = np.arange(200) * 0.1
+    t_in = 3.0 + np.arange(100) * 0.05
+    root = _campaign(tmp_path / "c", t, t_input=t_in)
+    with caplog.at_level(logging.WARNING):
+        run = read_trajectory_campaign(root).runs[0]
+    np.testing.assert_allclose(run.poses.t, np.arange(25, 85) * 0.1, atol=1e-12)
+    assert run.repairs == {"poses_outside_inputs": 140}
+    assert "run a: 140 poses (2.5 s before the first input, 11.5 s after the last) left out" in caplog.text
+    # inputs that end with the poses, within the hold, leave every pose
+    root = _campaign(tmp_path / "d", t, t_input=np.arange(0.4, 19.5, 0.05))
+    assert read_trajectory_campaign(root).runs[0].poses.t.size == 200
+
+
 def test_ten_second_hole_is_counted_and_splits_segments(tmp_path, caplog):
     t = np.concatenate([np.arange(100) * 0.1, 19.9 + np.arange(100) * 0.1])  # 10 s hole
     root = _campaign(tmp_path / "c", t)
