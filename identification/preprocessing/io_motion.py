@@ -6,7 +6,9 @@ a ``sensor_msgs/Imu`` topic gives ``imu.csv`` (``t,wz,ax,ay``: UTC s, the yaw ra
 ``angular_velocity_covariance[8]``), a ``nav_msgs/Odometry`` topic gives ``odometry.csv``
 (``t,v,omega``: ``twist.twist.linear.x`` m/s and ``angular.z`` rad/s, then ``v_std,omega_std`` from
 ``twist.covariance[0]`` and ``[35]``). A trajectory campaign may carry these files directly; only
-``t,wz`` resp. ``t,v,omega`` are required (std columns missing: the filter's defaults). Rows with
+``t,wz`` resp. ``t,v,omega`` are required (std columns missing: the filter's defaults); an
+``odometry.csv`` may give ``t,w_left,w_right`` (wheel speeds, rad/s) instead, with
+``wheel_radius_m`` and ``track_m`` in ``campaign.yaml`` (data contract part 2). Rows with
 a non-finite time or value are dropped and counted; samples outside the run's pose span are cut;
 none inside it is an :class:`InputError` naming the file. ``sensor_msgs/JointState`` wheel speeds
 are declared by the data contract but not read by this version (logged).
@@ -20,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from groundfloor.errors import InputError
 from identification.preprocessing.io_sensors import read_csv_columns, read_sensors_config, topic_messages
@@ -35,6 +38,10 @@ KINDS = {
     ODOMETRY: (ODOMETRY_CSV, "nav_msgs/msg/Odometry", ("v", "omega"), ("v_std", "omega_std")),
 }
 DEFAULT_TOPICS = {IMU: "/imu/data", ODOMETRY: "/wheel_odom"}
+#: an odometry.csv may give the wheel speeds of each side instead of v, omega (rad/s) ...
+WHEEL_COLUMNS = ("w_left", "w_right")
+#: ... with these keys of campaign.yaml (metres)
+WHEEL_KEYS = ("wheel_radius_m", "track_m")
 
 
 @dataclass(frozen=True)
@@ -126,10 +133,60 @@ def read_motion_csv(path: str | Path, kind: str) -> MotionSamples:
         Naming the file: unreadable, a required column missing.
     """
     path = Path(path)
+    if kind == ODOMETRY and _gives_wheel_speeds(path):
+        return _wheel_odometry(path)
     data = read_csv_columns(path, ("t",) + KINDS[kind][2])
     names = data.dtype.names
     known = KINDS[kind][2] + KINDS[kind][3]
     return MotionSamples(kind, np.array(data["t"], float), {n: np.array(data[n], float) for n in known if n in names})
+
+
+def _gives_wheel_speeds(path: Path) -> bool:
+    """Return whether an ``odometry.csv`` gives wheel speeds ``w_left,w_right`` instead of ``v,omega``."""
+    try:
+        with open(path) as fh:
+            header = [c.strip() for c in fh.readline().split(",")]
+    except OSError:
+        return False  # read_csv_columns names the file
+    return "v" not in header and all(c in header for c in WHEEL_COLUMNS)
+
+
+def wheel_geometry(campaign_yaml: Path, source: str) -> tuple[float, float]:
+    """Return ``wheel_radius_m`` and ``track_m`` of ``campaign.yaml`` (data contract part 2).
+
+    Raises
+    ------
+    InputError
+        Naming the file and key: missing, not a positive number, or the file unreadable;
+        ``source`` (what needs them) in the message.
+    """
+    try:
+        meta = yaml.safe_load(Path(campaign_yaml).read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        raise InputError(f"{campaign_yaml}: unreadable; {source} gives wheel speeds, which need "
+                         f"{' and '.join(WHEEL_KEYS)}") from None
+    out = []
+    for key in WHEEL_KEYS:
+        value = meta.get(key) if isinstance(meta, dict) else None
+        if value is None:
+            raise InputError(f"{campaign_yaml}: key '{key}' missing; {source} gives wheel speeds "
+                             f"({','.join(WHEEL_COLUMNS)}), which need {' and '.join(WHEEL_KEYS)}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
+            raise InputError(f"{campaign_yaml}: key '{key}' is {value!r}, expected a positive number of metres")
+        out.append(float(value))
+    return out[0], out[1]
+
+
+def _wheel_odometry(path: Path) -> MotionSamples:
+    """Return the odometry of an ``odometry.csv`` with wheel speeds ``w_left,w_right`` (rad/s, each
+    side's wheels): ``v = r (w_l + w_r) / 2`` and ``omega = r (w_r - w_l) / b`` with the wheel radius
+    ``r`` and track ``b`` of the campaign's ``campaign.yaml`` (data contract part 2). The track is the
+    geometric one: a skid-steered robot turns slower than it says (the filters' ``scale_std``)."""
+    data = read_csv_columns(path, ("t",) + WHEEL_COLUMNS)
+    radius, track = wheel_geometry(path.parent.parent.parent / "campaign.yaml", str(path))
+    w_l, w_r = np.array(data["w_left"], float), np.array(data["w_right"], float)
+    return MotionSamples(ODOMETRY, np.array(data["t"], float),
+                         {"v": radius * (w_l + w_r) / 2.0, "omega": radius * (w_r - w_l) / track})
 
 
 def load_run_motion(run_dir: str | Path, kind: str, t_pose: np.ndarray) -> tuple[MotionSamples, dict] | None:

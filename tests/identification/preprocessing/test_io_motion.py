@@ -98,3 +98,25 @@ def test_unknown_readers_ignored_and_a_wrong_message_type_named(camp, tmp_path):
                 write_run_motion(root, out, {"run_01": t_pose})
         else:
             assert write_run_motion(root, out, {"run_01": t_pose}) == expect
+
+
+def test_wheel_speeds_in_odometry_csv_become_v_and_omega_by_hand(tmp_path):
+    # data contract part 2: odometry.csv may give t,w_left,w_right with wheel_radius_m and track_m
+    # in campaign.yaml. By hand, r = 0.3 m, b = 1.2 m: both sides at 2 rad/s -> 0.6 m/s straight;
+    # left -1, right +1 rad/s -> turning left in place at 0.3 * 2 / 1.2 = 0.5 rad/s.
+    root = tmp_path / "c"
+    run = root / "runs" / "a"
+    run.mkdir(parents=True)
+    (root / "campaign.yaml").write_text("kind: trajectory\nwheel_radius_m: 0.3\ntrack_m: 1.2\n"
+                                        "runs: [{name: a, split: test}]\n")
+    (run / ODOMETRY_CSV).write_text("t,w_left,w_right\n0.0,2.0,2.0\n1.0,-1.0,1.0\n2.0,1.0,3.0\n")
+    s, _ = load_run_motion(run, ODOMETRY, np.array([0.0, 2.0]))
+    np.testing.assert_allclose(s.columns["v"], [0.6, 0.0, 0.6], atol=1e-12)
+    np.testing.assert_allclose(s.columns["omega"], [0.0, 0.5, 0.5], atol=1e-12)
+    (root / "campaign.yaml").write_text("kind: trajectory\nwheel_radius_m: 0.3\nruns: [{name: a, split: test}]\n")
+    with pytest.raises(InputError, match=r"campaign.yaml: key 'track_m' missing; .*odometry.csv gives wheel speeds"):
+        load_run_motion(run, ODOMETRY, np.array([0.0, 2.0]))
+    (root / "campaign.yaml").write_text("kind: trajectory\nwheel_radius_m: -0.3\ntrack_m: 1.2\n"
+                                        "runs: [{name: a, split: test}]\n")
+    with pytest.raises(InputError, match=r"campaign.yaml: key 'wheel_radius_m' is -0.3, expected a positive"):
+        load_run_motion(run, ODOMETRY, np.array([0.0, 2.0]))
