@@ -25,7 +25,13 @@ import numpy as np
 import yaml
 
 from groundfloor.errors import InputError
-from identification.preprocessing.io_sensors import read_csv_columns, read_sensors_config, topic_messages
+from identification.preprocessing.io_sensors import (
+    CONTRACT_TOPICS,
+    read_csv_columns,
+    read_sensors_config,
+    topic_messages,
+    undeclared_guard,
+)
 from identification.preprocessing.io_tracker import find_bags
 
 log = logging.getLogger(__name__)
@@ -37,7 +43,7 @@ KINDS = {
     IMU: (IMU_CSV, "sensor_msgs/msg/Imu", ("wz",), ("ax", "ay", "wz_std")),
     ODOMETRY: (ODOMETRY_CSV, "nav_msgs/msg/Odometry", ("v", "omega"), ("v_std", "omega_std")),
 }
-DEFAULT_TOPICS = {IMU: "/imu/data", ODOMETRY: "/wheel_odom"}
+DEFAULT_TOPICS = {IMU: CONTRACT_TOPICS["imu"], ODOMETRY: CONTRACT_TOPICS["odometry"]}  # data contract part 1
 #: an odometry.csv may give the wheel speeds of each side instead of v, omega (rad/s) ...
 WHEEL_COLUMNS = ("w_left", "w_right")
 #: ... with these keys of campaign.yaml (metres)
@@ -202,7 +208,7 @@ def write_run_motion(campaign_dir: Path, out_dir: Path, runs: dict[str, np.ndarr
     """Write ``imu.csv`` / ``odometry.csv`` of each preprocessed run from the bags; return counts per kind and run.
 
     ``runs`` maps each written run (a part ``<run>.k`` of a cut run included) to its pose times.
-    Nothing happens for a kind without a declared sensor.
+    A kind without a declared sensor is read from the data contract's default topic where a run has it.
     """
     config = read_sensors_config(campaign_dir)
     if config.first("wheels") is not None:
@@ -210,15 +216,15 @@ def write_run_motion(campaign_dir: Path, out_dir: Path, runs: dict[str, np.ndarr
                  "(give nav_msgs/Odometry or odometry.csv)", campaign_dir)
     out: dict = {}
     for kind in (IMU, ODOMETRY):
-        spec = config.first(kind)
-        if spec is None:
-            continue
+        spec, declared = config.sensor(kind)
         topic = spec.topic or DEFAULT_TOPICS[kind]
         for name, t_pose in runs.items():
             folder = name if (campaign_dir / "runs" / name).is_dir() else name.rsplit(".", 1)[0]
-            s = read_motion_topic(find_bags(campaign_dir / "runs" / folder), topic, kind, name)
+            s = undeclared_guard(lambda: read_motion_topic(find_bags(campaign_dir / "runs" / folder), topic, kind, name),
+                                 declared, name, topic)
             if s is None:
-                log.warning("run %s: no %s topic %s", name, kind, topic)
+                if declared:
+                    log.warning("run %s: no %s topic %s", name, kind, topic)
                 continue
             s, counts = clean_samples(s, f"run {name}: topic {topic}")
             s = overlapping_samples(s, t_pose, f"run {name}: topic {topic}")

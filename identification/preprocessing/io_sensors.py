@@ -25,7 +25,9 @@ from typing import Sequence
 
 import numpy as np
 import yaml
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag1 import ReaderError as ReaderError1
+from rosbags.rosbag2 import ReaderError as ReaderError2
 from rosbags.typesys import Stores, get_typestore
 
 from groundfloor.errors import InputError
@@ -40,6 +42,9 @@ SENSOR_TYPES = {"sensor_msgs/NavSatFix": GNSS, "sensor_msgs/Imu": "imu",
                 "sensor_msgs/JointState": "wheels", "nav_msgs/Odometry": "odometry"}
 DEFAULT_TYPES = {"gnss": "sensor_msgs/NavSatFix", "imu": "sensor_msgs/Imu",
                  "wheels": "sensor_msgs/JointState", "odometry": "nav_msgs/Odometry"}
+#: the optional topics' default names (data contract part 1), read without a declaration
+CONTRACT_TOPICS = {"gnss": "/gnss/fix", "imu": "/imu/data", "wheels": "/wheels/joint_states",
+                   "odometry": "/odometry"}
 GNSS_CSV = "gnss.csv"
 COV_COLUMNS = ("cov_ee", "cov_en", "cov_eu", "cov_nn", "cov_nu", "cov_uu")
 STD_COLUMNS = ("std_e", "std_n", "std_u")
@@ -73,6 +78,15 @@ class SensorsConfig:
     def first(self, kind: str) -> SensorSpec | None:
         """Return the first declared sensor of ``kind``, or None."""
         return next((s for s in self.sensors if s.kind == kind), None)
+
+    def sensor(self, kind: str) -> tuple[SensorSpec, bool]:
+        """Return the first declared sensor of ``kind`` and True; without one, the data contract's
+        default (part 1: its default topic name and type) and False. A run may carry an optional
+        topic under its default name without any ``sensors:`` key, and a reader uses what is there."""
+        spec = self.first(kind)
+        if spec is not None:
+            return spec, True
+        return SensorSpec(kind, CONTRACT_TOPICS[kind], DEFAULT_TYPES[kind]), False
 
     def to_yaml(self) -> dict:
         """Return the keys as ``campaign.yaml`` carries them (for the trajectory campaign)."""
@@ -198,6 +212,10 @@ def topic_messages(bags: list[Path], topic: str, msgtype: str, run: str):
     """Yield ``(t_bag_ns, message)`` of ``topic`` across a run's bags (ROS1 bags read together,
     each ROS2 bag alone), in each reader's order; nothing when the topic is absent.
 
+    Bags that rosbags cannot read (a truncated recording, whose tracker topics
+    :mod:`identification.preprocessing.io_bags` salvages) give what was read before the damage, with
+    a warning naming run, bags and topic: a sensor beside the ground truth is optional data.
+
     Raises
     ------
     InputError
@@ -207,13 +225,17 @@ def topic_messages(bags: list[Path], topic: str, msgtype: str, run: str):
     for group in [ros1] + [[b] for b in bags if b.suffix != ".bag"]:
         if not group:
             continue
-        with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
-            conns = [c for c in reader.connections if c.topic == topic]
-            for c in conns:
-                if c.msgtype != msgtype:
-                    raise InputError(f"run {run}: topic {topic} is {c.msgtype}, expected {msgtype}")
-            for conn, t_bag, raw in reader.messages(connections=conns) if conns else ():  # none: all
-                yield t_bag, reader.deserialize(raw, conn.msgtype)
+        try:
+            with AnyReader(group, default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
+                conns = [c for c in reader.connections if c.topic == topic]
+                for c in conns:
+                    if c.msgtype != msgtype:
+                        raise InputError(f"run {run}: topic {topic} is {c.msgtype}, expected {msgtype}")
+                for conn, t_bag, raw in reader.messages(connections=conns) if conns else ():  # none: all
+                    yield t_bag, reader.deserialize(raw, conn.msgtype)
+        except (AnyReaderError, ReaderError1, ReaderError2) as exc:
+            log.warning("run %s: %s unreadable (%s); topic %s not read from it", run,
+                        ", ".join(b.name for b in group), str(exc).splitlines()[0], topic)
 
 
 def read_navsat(bags: list[Path], topic: str, run: str) -> GnssFixes | None:
@@ -289,25 +311,42 @@ def write_run_gnss(campaign_dir: Path, out_dir: Path, runs: dict[str, np.ndarray
     """Write ``gnss.csv`` of each preprocessed run from the tracker campaign's bags; return counts per run.
 
     ``runs`` maps each written run (a part ``<run>.k`` of a cut run included) to its pose times.
-    Nothing happens without a declared GNSS.
+    Without a declared GNSS, the data contract's default topic is read where a run has it.
     """
     config = read_sensors_config(campaign_dir)
-    spec = config.first(GNSS)
-    if spec is None:
-        return {}
+    spec, declared = config.sensor(GNSS)
+    topic = spec.topic or CONTRACT_TOPICS[GNSS]
     out = {}
     for name, t_pose in runs.items():
         folder = name if (campaign_dir / "runs" / name).is_dir() else name.rsplit(".", 1)[0]
-        fixes = read_navsat(find_bags(campaign_dir / "runs" / folder), spec.topic or "/gnss/fix", name)
+        fixes = undeclared_guard(lambda: read_navsat(find_bags(campaign_dir / "runs" / folder), topic, name),
+                                 declared, name, topic)
         if fixes is None:
-            log.warning("run %s: no GNSS topic %s", name, spec.topic)
+            if declared:
+                log.warning("run %s: no GNSS topic %s", name, topic)
             continue
-        fixes, counts = clean_fixes(fixes, f"run {name}: topic {spec.topic}")
-        fixes = overlapping(fixes, t_pose, f"run {name}: topic {spec.topic}")
+        fixes, counts = clean_fixes(fixes, f"run {name}: topic {topic}")
+        fixes = overlapping(fixes, t_pose, f"run {name}: topic {topic}")
         counts["written"] = int(len(fixes.t))
         write_gnss_csv(out_dir / "runs" / name / GNSS_CSV, fixes)
         out[name] = counts
     return out
+
+
+def undeclared_guard(read, declared: bool, run: str, topic: str):
+    """Return ``read()``; for a topic read under its default name without a declaration, None
+    (logged) where it holds another message type than the contract's (a declared one's
+    :class:`InputError` passes), and an INFO line where it is found."""
+    if declared:
+        return read()
+    try:
+        got = read()
+    except InputError as exc:
+        log.warning("run %s: %s; not read (declare the sensor under sensors: in campaign.yaml)", run, exc)
+        return None
+    if got is not None:
+        log.info("run %s: %s read under the data contract's default name (no sensors: declaration)", run, topic)
+    return got
 
 
 def with_cov_enu(fixes: GnssFixes, cov_enu: np.ndarray) -> GnssFixes:

@@ -86,7 +86,9 @@ def test_unknown_readers_ignored_and_a_wrong_message_type_named(camp, tmp_path):
     (out / "runs" / "run_01").mkdir(parents=True)
     doc = yaml.safe_load((tracker / "campaign.yaml").read_text())
     t_pose = np.array([0.0, 2e9])
-    cases = (([{"name": "wheels", "topic": "/joint_states", "type": "sensor_msgs/JointState"}], {}),
+    # the wheels declared are not read; the IMU the bags hold under its default name /imu/data is,
+    # the odometry under /wheel_odom (not the contract's /odometry) is not
+    cases = (([{"name": "wheels", "topic": "/joint_states", "type": "sensor_msgs/JointState"}], {"imu"}),
              ([{"name": "imu", "topic": "/wheel_odom", "type": "sensor_msgs/Imu"}], None))
     for i, (sensors, expect) in enumerate(cases):
         root = tmp_path / f"c{i}"
@@ -97,7 +99,7 @@ def test_unknown_readers_ignored_and_a_wrong_message_type_named(camp, tmp_path):
             with pytest.raises(InputError, match="/wheel_odom is nav_msgs/msg/Odometry, expected sensor_msgs/msg/Imu"):
                 write_run_motion(root, out, {"run_01": t_pose})
         else:
-            assert write_run_motion(root, out, {"run_01": t_pose}) == expect
+            assert set(write_run_motion(root, out, {"run_01": t_pose})) == expect
 
 
 def test_wheel_speeds_in_odometry_csv_become_v_and_omega_by_hand(tmp_path):
@@ -120,3 +122,42 @@ def test_wheel_speeds_in_odometry_csv_become_v_and_omega_by_hand(tmp_path):
                                         "runs: [{name: a, split: test}]\n")
     with pytest.raises(InputError, match=r"campaign.yaml: key 'wheel_radius_m' is -0.3, expected a positive"):
         load_run_motion(run, ODOMETRY, np.array([0.0, 2.0]))
+
+
+def test_sensors_under_the_contracts_default_names_are_read_without_a_declaration(camp, tmp_path, caplog):
+    # data contract part 1: a run may carry the optional topics under their default names and a
+    # reader uses what is there; campaign.yaml names them only when the names differ. The same
+    # bags without the sensors: key give the same imu.csv (/imu/data), and no odometry.csv: the
+    # simulator records it on /wheel_odom, not the contract's /odometry.
+    tracker, traj, _ = camp
+    root = tmp_path / "c"
+    root.mkdir()
+    (root / "runs").symlink_to(tracker / "runs")
+    doc = yaml.safe_load((tracker / "campaign.yaml").read_text())
+    assert doc.pop("sensors")
+    (root / "campaign.yaml").write_text(yaml.safe_dump(doc))
+    t_pose = np.loadtxt(traj / "runs" / "run_01" / "poses.csv", delimiter=",", skiprows=1, usecols=0)
+    out = tmp_path / "out"
+    (out / "runs" / "run_01").mkdir(parents=True)
+    with caplog.at_level("INFO"):
+        counts = write_run_motion(root, out, {"run_01": t_pose})
+    assert set(counts) == {IMU}
+    assert (out / "runs" / "run_01" / IMU_CSV).read_text() == (traj / "runs" / "run_01" / IMU_CSV).read_text()
+    assert not (out / "runs" / "run_01" / ODOMETRY_CSV).exists()
+    assert "run run_01: /imu/data read under the data contract's default name" in caplog.text
+    assert not [r for r in caplog.records if r.levelno >= 30]  # an undeclared topic absent is no warning
+
+
+def test_an_undeclared_topic_of_another_type_is_skipped_with_a_warning(caplog):
+    # probed under its default name, a topic of another message type is not the contract's sensor:
+    # skipped and said; declared, the same fault stays an error
+    from identification.preprocessing.io_sensors import undeclared_guard
+
+    def wrong():
+        raise InputError("run r: topic /imu/data is nav_msgs/msg/Odometry, expected sensor_msgs/msg/Imu")
+
+    with caplog.at_level("WARNING"):
+        assert undeclared_guard(wrong, False, "r", "/imu/data") is None
+    assert "expected sensor_msgs/msg/Imu; not read (declare the sensor" in caplog.text
+    with pytest.raises(InputError):
+        undeclared_guard(wrong, True, "r", "/imu/data")

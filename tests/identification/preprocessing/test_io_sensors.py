@@ -126,3 +126,22 @@ def test_no_overlap_with_the_poses_names_the_file():
     assert len(overlapping(f, np.array([1.5, 3.0]), "x/gnss.csv").t) == 1
     with pytest.raises(InputError, match=r"runs/r/gnss.csv: no GNSS fix inside the poses' time span"):
         overlapping(f, np.array([5.0, 9.0]), "runs/r/gnss.csv")
+
+
+def test_gnss_under_its_default_name_is_read_without_a_declaration(camp, tmp_path):
+    # data contract part 1: /gnss/fix is the optional topic's default name, to be used where a run
+    # has it; the same bags without the sensors: key give the same gnss.csv as with it
+    from identification.preprocessing.io_sensors import write_run_gnss
+    root = tmp_path / "c"
+    root.mkdir()
+    (root / "runs").symlink_to(camp.tracker / "runs")
+    doc = yaml.safe_load((camp.tracker / "campaign.yaml").read_text())
+    assert doc.pop("sensors")[0]["topic"] == "/gnss/fix"
+    (root / "campaign.yaml").write_text(yaml.safe_dump(doc))
+    run = sorted(p.name for p in (camp.trajectory / "runs").iterdir())[0]
+    t_pose = np.loadtxt(camp.trajectory / "runs" / run / "poses.csv", delimiter=",", skiprows=1, usecols=0)
+    out = tmp_path / "out"
+    (out / "runs" / run).mkdir(parents=True)
+    counts = write_run_gnss(root, out, {run: t_pose})
+    assert counts[run] == camp.preprocessed.to_json_dict()["sensors"]["gnss"][run]
+    assert (out / "runs" / run / GNSS_CSV).read_text() == (camp.trajectory / "runs" / run / GNSS_CSV).read_text()
