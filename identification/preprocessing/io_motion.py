@@ -11,7 +11,9 @@ a ``sensor_msgs/Imu`` topic gives ``imu.csv`` (``t,wz,ax,ay``: UTC s, the yaw ra
 ``wheel_radius_m`` and ``track_m`` in ``campaign.yaml`` (data contract part 2). Rows with
 a non-finite time or value are dropped and counted; samples outside the run's pose span are cut;
 none inside it is an :class:`InputError` naming the file. ``sensor_msgs/JointState`` wheel speeds
-are declared by the data contract but not read by this version (logged).
+(the joints named ``left`` and ``right`` averaged per side, rad/s) give ``odometry.csv`` as
+``t,w_left,w_right`` where a run has no ``nav_msgs/Odometry``; the trajectory campaign carries the
+tracker campaign's ``wheel_radius_m`` and ``track_m``, which turn them into ``v, omega`` when read.
 """
 
 from __future__ import annotations
@@ -36,14 +38,17 @@ from identification.preprocessing.io_tracker import find_bags
 
 log = logging.getLogger(__name__)
 
-IMU, ODOMETRY = "imu", "odometry"
+IMU, ODOMETRY, WHEELS = "imu", "odometry", "wheels"
 IMU_CSV, ODOMETRY_CSV = "imu.csv", "odometry.csv"
 # per kind: CSV file, ROS message type, required value columns, optional columns
 KINDS = {
     IMU: (IMU_CSV, "sensor_msgs/msg/Imu", ("wz",), ("ax", "ay", "wz_std")),
     ODOMETRY: (ODOMETRY_CSV, "nav_msgs/msg/Odometry", ("v", "omega"), ("v_std", "omega_std")),
+    # wheel speeds (sensor_msgs/JointState): written as odometry.csv's w_left,w_right
+    WHEELS: (ODOMETRY_CSV, "sensor_msgs/msg/JointState", ("w_left", "w_right"), ()),
 }
-DEFAULT_TOPICS = {IMU: CONTRACT_TOPICS["imu"], ODOMETRY: CONTRACT_TOPICS["odometry"]}  # data contract part 1
+DEFAULT_TOPICS = {IMU: CONTRACT_TOPICS["imu"], ODOMETRY: CONTRACT_TOPICS["odometry"],
+                  WHEELS: CONTRACT_TOPICS["wheels"]}  # data contract part 1
 #: an odometry.csv may give the wheel speeds of each side instead of v, omega (rad/s) ...
 WHEEL_COLUMNS = ("w_left", "w_right")
 #: ... with these keys of campaign.yaml (metres)
@@ -93,7 +98,21 @@ def overlapping_samples(s: MotionSamples, t_pose: np.ndarray, source: str) -> Mo
     return s.select(keep)
 
 
+def _side_speeds(m) -> tuple[float, float]:
+    """Return the mean ``velocity`` (rad/s) of the joints of a ``sensor_msgs/JointState`` whose
+    name says ``left``, and of those that say ``right`` (NaN for a side without one, or without velocities)."""
+    names = [str(n).lower() for n in m.name]
+    vel = np.asarray(m.velocity, float)
+    if vel.size != len(names):
+        return np.nan, np.nan
+    left = [v for n, v in zip(names, vel) if "left" in n]
+    right = [v for n, v in zip(names, vel) if "right" in n]
+    return (float(np.mean(left)) if left else np.nan), (float(np.mean(right)) if right else np.nan)
+
+
 def _row(kind: str, m) -> tuple:
+    if kind == WHEELS:
+        return _side_speeds(m)
     if kind == IMU:
         cov = np.asarray(m.angular_velocity_covariance, float)
         return (m.angular_velocity.z, m.linear_acceleration.x, m.linear_acceleration.y,
@@ -117,6 +136,9 @@ def read_motion_topic(bags: list[Path], topic: str, kind: str, run: str) -> Moti
     if not rows:
         return None
     a = np.array(rows, float)
+    if kind == WHEELS and not np.isfinite(a[:, 1:]).all(axis=1).any():
+        raise InputError(f"run {run}: topic {topic}: no message with a velocity of a joint named left and "
+                         "of one named right (sensor_msgs/JointState wheel speeds)")
     return MotionSamples(kind, a[:, 0], {n: a[:, 1 + i] for i, n in enumerate(names)})
 
 
@@ -211,14 +233,13 @@ def write_run_motion(campaign_dir: Path, out_dir: Path, runs: dict[str, np.ndarr
     A kind without a declared sensor is read from the data contract's default topic where a run has it.
     """
     config = read_sensors_config(campaign_dir)
-    if config.first("wheels") is not None:
-        log.info("%s: sensor_msgs/JointState wheel speeds declared; not read by this version "
-                 "(give nav_msgs/Odometry or odometry.csv)", campaign_dir)
     out: dict = {}
-    for kind in (IMU, ODOMETRY):
+    for kind in (IMU, ODOMETRY, WHEELS):
         spec, declared = config.sensor(kind)
         topic = spec.topic or DEFAULT_TOPICS[kind]
         for name, t_pose in runs.items():
+            if kind == WHEELS and name in out.get(ODOMETRY, {}):
+                continue  # nav_msgs/Odometry gives v and omega already
             folder = name if (campaign_dir / "runs" / name).is_dir() else name.rsplit(".", 1)[0]
             s = undeclared_guard(lambda: read_motion_topic(find_bags(campaign_dir / "runs" / folder), topic, kind, name),
                                  declared, name, topic)
@@ -231,4 +252,8 @@ def write_run_motion(campaign_dir: Path, out_dir: Path, runs: dict[str, np.ndarr
             counts["written"] = int(s.t.size)
             write_motion_csv(out_dir / "runs" / name / KINDS[kind][0], s)
             out.setdefault(kind, {})[name] = counts
+    if out.get(WHEELS) and (config.wheel_radius_m is None or config.track_m is None):
+        log.warning("%s: wheel speeds written to odometry.csv (runs %s), but campaign.yaml has no %s: a filter "
+                    "fusing odometry needs them", campaign_dir / "campaign.yaml", ", ".join(out[WHEELS]),
+                    " and ".join(WHEEL_KEYS))
     return out

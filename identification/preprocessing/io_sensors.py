@@ -3,8 +3,7 @@
 ``campaign.yaml`` names the sensors under ``sensors:``, either as a list of
 ``{name, topic, type[, lever_arm_body_m]}`` or as a mapping ``{name: topic}`` (the type then
 follows from the name, data contract part 1). A type outside :data:`SENSOR_TYPES` is a one-line
-:class:`InputError` naming it; a known type this version does not read yet (IMU, wheels) is
-ignored with a log line, as are keys and topics readers do not know. IMU and wheel odometry
+:class:`InputError` naming it; keys and topics readers do not know are ignored. IMU and wheel odometry
 (``nav_msgs/Odometry``) are read by :mod:`identification.preprocessing.io_motion`.
 
 GNSS (``sensor_msgs/NavSatFix``) is read from the run's bags (ROS1 and ROS2, rosbags' AnyReader)
@@ -37,7 +36,7 @@ from identification.preprocessing.io_tracker import find_bags
 log = logging.getLogger(__name__)
 
 GNSS = "gnss"
-# sensor type -> kind; gnss read here, imu and odometry by io_motion, wheels (JointState) not read yet
+# sensor type -> kind; gnss read here, imu, odometry and wheels (JointState) by io_motion
 SENSOR_TYPES = {"sensor_msgs/NavSatFix": GNSS, "sensor_msgs/Imu": "imu",
                 "sensor_msgs/JointState": "wheels", "nav_msgs/Odometry": "odometry"}
 DEFAULT_TYPES = {"gnss": "sensor_msgs/NavSatFix", "imu": "sensor_msgs/Imu",
@@ -74,6 +73,8 @@ class SensorsConfig:
     origin: GeodeticOrigin | None = None
     enu_to_local_yaw_deg: float | None = None
     enu_to_local_t_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    wheel_radius_m: float | None = None  # the wheel geometry that turns wheel speeds into v, omega
+    track_m: float | None = None
 
     def first(self, kind: str) -> SensorSpec | None:
         """Return the first declared sensor of ``kind``, or None."""
@@ -99,6 +100,9 @@ class SensorsConfig:
         if self.enu_to_local_yaw_deg is not None:
             out["enu_to_local_yaw_deg"] = float(self.enu_to_local_yaw_deg)
             out["enu_to_local_t_m"] = [float(v) for v in self.enu_to_local_t_m]
+        for key in ("wheel_radius_m", "track_m"):
+            if getattr(self, key) is not None:
+                out[key] = float(getattr(self, key))
         return out
 
 
@@ -145,9 +149,6 @@ def read_sensors_config(root: str | Path) -> SensorsConfig:
     if not isinstance(raw, list):
         raise InputError(f"{file}: key 'sensors' must be a list or a mapping")
     sensors = tuple(_spec(e, i, str(file)) for i, e in enumerate(raw))
-    for s in sensors:
-        if s.kind == "wheels":  # GNSS here, IMU and odometry in io_motion
-            log.info("%s: sensor %s (%s) declared; not read by this version", file, s.name, s.type)
     origin = None if doc.get("geodetic_origin") is None else GeodeticOrigin.from_yaml(doc["geodetic_origin"], str(file))
     yaw = doc.get("enu_to_local_yaw_deg")
     if yaw is not None:
@@ -155,7 +156,14 @@ def read_sensors_config(root: str | Path) -> SensorsConfig:
         if origin is None:
             raise InputError(f"{file}: enu_to_local_yaw_deg given without geodetic_origin")
     t = _numbers(doc.get("enu_to_local_t_m", (0.0, 0.0, 0.0)), 3, "enu_to_local_t_m", str(file))
-    return SensorsConfig(sensors, origin, yaw, t)
+    wheels = {}
+    for key in ("wheel_radius_m", "track_m"):
+        if doc.get(key) is not None:
+            value = _numbers([doc[key]], 1, key, str(file))[0]
+            if value <= 0:
+                raise InputError(f"{file}: key '{key}' is {doc[key]!r}, expected a positive number of metres")
+            wheels[key] = value
+    return SensorsConfig(sensors, origin, yaw, t, **wheels)
 
 
 @dataclass(frozen=True)

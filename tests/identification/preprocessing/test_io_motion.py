@@ -21,6 +21,7 @@ from identification.preprocessing.io_motion import (
     read_motion_csv,
     write_run_motion,
 )
+from identification.preprocessing.io_sensors import read_sensors_config
 from identification.preprocessing.preprocess import preprocess_campaign
 from simulation.campaign import simulate_campaign
 from simulation.motion_sensors import ImuSpec, OdometrySpec, true_bias
@@ -161,3 +162,52 @@ def test_an_undeclared_topic_of_another_type_is_skipped_with_a_warning(caplog):
     assert "expected sensor_msgs/msg/Imu; not read (declare the sensor" in caplog.text
     with pytest.raises(InputError):
         undeclared_guard(wrong, True, "r", "/imu/data")
+
+
+def _joint_state_bag(path, t_utc: np.ndarray, names: list[str], velocity: np.ndarray, topic="/wheels/joint_states"):
+    """Write a ROS1 bag of sensor_msgs/JointState wheel speeds with rosbags directly (not the simulator's writer)."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    JS, H, T = (ts.types[k] for k in ("sensor_msgs/msg/JointState", "std_msgs/msg/Header", "builtin_interfaces/msg/Time"))
+    with Writer(path) as w:
+        c = w.add_connection(topic, JS.__msgtype__, typestore=ts)
+        for i, t in enumerate(t_utc):
+            ns = int(round(t * 1e9))
+            msg = JS(header=H(seq=i, stamp=T(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=""), name=list(names),
+                     position=np.zeros(len(names)), velocity=np.asarray(velocity[i], float), effort=np.zeros(0))
+            w.write(c, ns, ts.serialize_ros1(msg, JS.__msgtype__))
+
+
+def test_joint_state_wheel_speeds_become_odometry_by_hand(camp, tmp_path):
+    # data contract part 1: /wheels/joint_states (sensor_msgs/JointState, velocity in rad/s, the name
+    # saying which wheel). By hand: left wheels at 2.1 and 1.9 rad/s (mean 2), right at 3 -> with
+    # r = 0.3 m and B = 1.2 m, v = 0.3 (2 + 3) / 2 = 0.75 m/s and omega = 0.3 (3 - 2) / 1.2 = 0.25 rad/s
+    tracker, traj, _ = camp
+    t_pose = np.loadtxt(traj / "runs" / "run_01" / "poses.csv", delimiter=",", skiprows=1, usecols=0)
+    root = tmp_path / "c"
+    run = root / "runs" / "run_01"
+    run.mkdir(parents=True)
+    for bag in (tracker / "runs" / "run_01").iterdir():  # the tracker's topics, and its odometry on /wheel_odom
+        (run / bag.name).symlink_to(bag)
+    t = np.arange(t_pose[0], t_pose[-1], 0.02)
+    names = ["front_left_wheel", "rear_left_wheel", "front_right_wheel", "rear_right_wheel"]
+    _joint_state_bag(run / "wheels.bag", t, names, np.tile([2.1, 1.9, 3.0, 3.0], (t.size, 1)))
+    doc = yaml.safe_load((tracker / "campaign.yaml").read_text())
+    doc.pop("sensors")
+    (root / "campaign.yaml").write_text(yaml.safe_dump({**doc, "wheel_radius_m": 0.3, "track_m": 1.2}))
+    out = tmp_path / "out"
+    (out / "runs" / "run_01").mkdir(parents=True)
+    counts = write_run_motion(root, out, {"run_01": t_pose})
+    assert counts["wheels"]["run_01"]["written"] == t.size and ODOMETRY not in counts
+    (out / "campaign.yaml").write_text(yaml.safe_dump(read_sensors_config(root).to_yaml()))  # as preprocess writes it
+    s, _ = load_run_motion(out / "runs" / "run_01", ODOMETRY, t_pose)
+    np.testing.assert_allclose(s.t, t, atol=1e-6)
+    np.testing.assert_allclose(s.columns["v"], 0.75, atol=1e-9)
+    np.testing.assert_allclose(s.columns["omega"], 0.25, atol=1e-9)
+    # joints that name no side: a one-line error when declared
+    (run / "wheels.bag").unlink()
+    _joint_state_bag(run / "wheels.bag", t, ["a", "b"], np.ones((t.size, 2)))
+    (root / "campaign.yaml").write_text(yaml.safe_dump({**doc, "sensors": {"wheels": "/wheels/joint_states"}}))
+    with pytest.raises(InputError, match=r"run run_01: topic /wheels/joint_states: no message with a velocity of a joint named left"):
+        write_run_motion(root, out, {"run_01": t_pose})
