@@ -297,18 +297,41 @@ def section_evaluation(sec: Section, chain: ChainResult) -> None:
                  (lambda: plot_error_curves(list(ev.values()), stacked=False), "all models: s_p(t), s_h(t)")])
 
 
+def gnss_note(b) -> str:
+    """Return what the estimators of the benchmark ``b`` fused: the GNSS (a profile simulated from the
+    truth, or the campaign's own recorded fixes with their ENU -> local transform) and the other
+    sensors, with the estimators that fused them."""
+    if b.recorded_gnss:
+        tr = b.recorded_gnss["enu_to_local"]
+        how = (f"estimated from the fixes against the truth: {tr['enu_to_local_yaw_deg']:.3f} +- "
+               f"{tr['yaw_std_deg']:.3f} deg" if tr.get("estimated") else f"given: {tr['enu_to_local_yaw_deg']:.3f} deg")
+        text = (f"GNSS: the campaign's own recorded fixes, mapped into the local frame by the ENU -> local rotation "
+                f"{how}; the ground-truth poses of the {len(b.truth)} test runs are the truth")
+    else:
+        prof = PROFILES.get(b.profile)
+        what = (f" ({prof.std_m:g} m per axis at {prof.rate_hz:g} Hz, {100 * prof.outlier_prob:g} % of the fixes "
+                "multipath outliers)") if prof is not None else ""
+        text = (f"GNSS profile {b.profile}{what}, simulated from the laser-tracker poses of the {len(b.truth)} test "
+                "runs, which are also the truth")
+    settings = (b.config or {}).get("estimators", {})
+    fused: dict[str, list[str]] = {}
+    for name in b.scores:
+        for sensor in (settings.get(name) or {}).get("sensors") or ():
+            if sensor != "gnss":
+                fused.setdefault(sensor, []).append(name)
+    for sensor, names in fused.items():
+        text += f"; {'the gyro (imu.csv)' if sensor == 'imu' else 'the wheel odometry (odometry.csv)'} fused by {', '.join(names)}"
+    return text
+
+
 @_builds("estimation", needs=("identification", "estimation"))
 def section_estimation(sec: Section, chain: ChainResult) -> None:
     """Write the estimator benchmark: trajectories with GNSS, errors with 3-sigma bands, outages, NEES."""
     b = chain.benchmark
     lo, hi = b.nees_bounds_95
-    prof = PROFILES.get(b.profile)
-    what = (f" ({prof.std_m:g} m per axis at {prof.rate_hz:g} Hz, {100 * prof.outlier_prob:g} % of the fixes "
-            "multipath outliers)") if prof is not None else ""
     counts = _counts(b.outages)
     held = ", ".join(f"{k} of {d:g} s" for d, k in counts.items()) or "none (the test runs are too short)"
-    sec.note(f"GNSS profile {b.profile}{what}, simulated from the laser-tracker poses of the {len(b.truth)} test "
-             f"runs, which are also the truth (alignment: {b.alignment}). Scheduled GNSS outages: {held}. A consistent "
+    sec.note(f"{gnss_note(b)} (alignment: {b.alignment}). Scheduled GNSS outages: {held}. A consistent "
              f"estimator has a mean NEES of 3 with 95 % of the samples inside [{lo:.2f}, {hi:.2f}].")
     durations = sorted({k for sc in b.scores.values() for k in sc.outage_pos_err_m}, key=float)
     rows = [[n, f"{sc.ate_pos_m:.3f}", f"{sc.ate_yaw_deg:.2f}",

@@ -238,3 +238,21 @@ def test_a_broken_figure_is_named_and_the_rest_kept():
     assert 'figure "broken plot" could not be drawn: ZeroDivisionError' in text
     assert sec.n_figures == 1 and text.count("data:image/svg+xml;base64,") == 1
     assert 'data-figures="1"' in text
+
+
+def test_estimation_note_says_which_gnss_and_sensors_were_fused():
+    # a benchmark on recorded fixes is not GNSS simulated from the truth; the gyro and odometry an
+    # estimator fused are named with it (before, every report said "simulated" and named neither)
+    from types import SimpleNamespace
+    from sindy_ekf.report.sections import gnss_note
+    rec = {"enu_to_local": {"enu_to_local_yaw_deg": -29.9976, "yaw_std_deg": 0.0045, "estimated": True}}
+    config = {"estimators": {"sindy_ekf": {"sensors": ["gnss", "imu", "odometry"]}, "cv_ekf": {"sensors": ["gnss"]},
+                             "lag_ekf": {"sensors": ["gnss", "imu"]}}}
+    b = SimpleNamespace(recorded_gnss=rec, truth={"r": None}, profile="recorded", config=config,
+                        scores={"cv_ekf": 0, "sindy_ekf": 0})  # lag_ekf not run
+    note = gnss_note(b)
+    assert "own recorded fixes" in note and "rotation estimated from the fixes against the truth: -29.998 +- 0.004 deg" in note
+    assert "simulated" not in note
+    assert note.endswith("; the gyro (imu.csv) fused by sindy_ekf; the wheel odometry (odometry.csv) fused by sindy_ekf")
+    b = SimpleNamespace(recorded_gnss=None, truth={"r": None, "s": None}, profile="dgnss", config=None, scores={"cv_ekf": 0})
+    assert gnss_note(b).startswith("GNSS profile dgnss (") and "simulated from the laser-tracker poses of the 2 test" in gnss_note(b)
