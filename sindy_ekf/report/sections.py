@@ -311,7 +311,7 @@ def gnss_note(b) -> str:
         prof = PROFILES.get(b.profile)
         what = (f" ({prof.std_m:g} m per axis at {prof.rate_hz:g} Hz, {100 * prof.outlier_prob:g} % of the fixes "
                 "multipath outliers)") if prof is not None else ""
-        text = (f"GNSS profile {b.profile}{what}, simulated from the laser-tracker poses of the {len(b.truth)} test "
+        text = (f"GNSS profile {b.profile}{what}, simulated from the ground-truth poses of the {len(b.truth)} test "
                 "runs, which are also the truth")
     settings = (b.config or {}).get("estimators", {})
     fused: dict[str, list[str]] = {}

@@ -255,4 +255,4 @@ def test_estimation_note_says_which_gnss_and_sensors_were_fused():
     assert "simulated" not in note
     assert note.endswith("; the gyro (imu.csv) fused by sindy_ekf; the wheel odometry (odometry.csv) fused by sindy_ekf")
     b = SimpleNamespace(recorded_gnss=None, truth={"r": None, "s": None}, profile="dgnss", config=None, scores={"cv_ekf": 0})
-    assert gnss_note(b).startswith("GNSS profile dgnss (") and "simulated from the laser-tracker poses of the 2 test" in gnss_note(b)
+    assert gnss_note(b).startswith("GNSS profile dgnss (") and "simulated from the ground-truth poses of the 2 test" in gnss_note(b)
