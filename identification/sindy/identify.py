@@ -60,7 +60,15 @@ from identification.sindy.evaluate import Windows
 from identification.sindy.library import LIBRARY_VARIABLE_NAMES
 from identification.sindy.model import SindyModel
 from identification.sindy.output_error import OE_DT, OE_MAX_WINDOWS, OE_WINDOW_S, OutputErrorFit
-from identification.sindy.reference import Folds, Reference, cv_folds, reference, select_windows, thin_windows
+from identification.sindy.reference import (
+    Folds,
+    Reference,
+    blocks_of_single_run,
+    cv_folds,
+    reference,
+    select_windows,
+    thin_windows,
+)
 from identification.sindy.search import DEFAULT_GRID, SearchGrid, SearchResult, admissible, search
 from identification.sindy.selection import Candidate, select_candidate
 from identification.sindy.stepwise import STEPWISE
@@ -292,8 +300,12 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     ``n_jobs`` (a number of local processes or :class:`groundfloor.parallel.Workers`) share the
     screening's grid and the folds of the output-error stage.
     """
+    runs, blocked = blocks_of_single_run(runs, grid.n_folds)
     ref = reference(runs)
     folds = cv_folds(ref.groups, ref.run_index, grid.n_folds)
+    if blocked:  # each block its own group: leave-one-block-out
+        log.warning("cross-validation: %s", blocked)
+        folds = replace(folds, kind="leave-one-block-out", note=blocked)
     stds = excitation(ref.states)
     quiet = not_excited(ref.states, [pose_noise_std(ref.runs[i]) for i in ref.run_index])
     notes = [f"cross-validation: {folds.note}"]

@@ -17,7 +17,8 @@ scored on the same 5 s windows from the same start states:
   history before the window's start for a model's input dead time.
 - **Groups** for cross-validation: the ``group`` of a run in campaign.yaml, else a date in the
   run's name (``2024_7_29``, ``2024-07-29``, ``20240729``), else the run itself.
-  :func:`cv_folds` leaves one group out; with a single group it falls back to runs and says so.
+  :func:`cv_folds` leaves one group out; with a single group it falls back to runs and says so,
+  and a single run is cut into contiguous blocks (:func:`blocks_of_single_run`).
 
 A candidate is trained on states at its own smoothing ``s`` (a hyperparameter of the
 regression), but scored here.
@@ -27,14 +28,14 @@ from __future__ import annotations
 
 import logging
 import re
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import Sequence
 
 import numpy as np
 
 from groundfloor.errors import InputError
 from groundfloor.input_chain import chain_inputs
-from groundfloor.types import BodyStates, TrajectoryRun
+from groundfloor.types import BodyStates, PoseTrack, TrajectoryRun
 from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import Windows, make_windows
 
@@ -44,6 +45,8 @@ log = logging.getLogger(__name__)
 REFERENCE_SMOOTHING = 1.0
 #: at most this many folds; more groups are dealt round-robin into this many
 MAX_FOLDS = 10
+#: a single train run is cut into blocks of at least this long for cross-validation (:func:`blocks_of_single_run`)
+MIN_BLOCK_S = 60.0
 
 _DATE = (re.compile(r"(?<!\d)(20\d\d)[_-](\d{1,2})[_-](\d{1,2})(?!\d)"),
          re.compile(r"(?<!\d)(20\d\d)(\d\d)(\d\d)(?!\d)"))
@@ -163,6 +166,40 @@ def cv_folds(groups: Sequence[str], runs: Sequence, max_folds: int = MAX_FOLDS) 
     n = int(fold.max()) + 1
     held = tuple(tuple(str(uniq[j]) for j in range(len(uniq)) if j % n == f) for f in range(n))
     return Folds(fold=fold, kind=kind, note=note, held_out=held)
+
+
+def blocks_of_single_run(runs: Sequence[TrajectoryRun], n_blocks: int) -> tuple[tuple[TrajectoryRun, ...], str]:
+    """Return ``runs`` as they are and "" when there are two or more; one run cut into contiguous
+    time blocks (of at least :data:`MIN_BLOCK_S`, at most ``n_blocks``) and a note saying so.
+
+    Cross-validation needs something to hold out. A user with one long recording gets blocked
+    cross-validation (the standard for a time series: each block held out whole, its neighbours
+    trained on), each block a group of its own so that :func:`cv_folds` leaves one block out. The
+    blocks keep the run's whole input track (a model's dead time reaches back before a block).
+
+    Raises
+    ------
+    InputError
+        One run shorter than two blocks.
+    """
+    if len(runs) != 1:
+        return tuple(runs), ""
+    run = runs[0]
+    t = np.asarray(run.poses.t, float)
+    duration = float(t[-1] - t[0])
+    k = min(int(n_blocks), int(duration // MIN_BLOCK_S))
+    if k < 2:
+        raise InputError(f"cross-validation: one train run ({run.name}, {duration:.0f} s); holding something out "
+                         f"needs 2 runs or one of at least {2 * MIN_BLOCK_S:.0f} s")
+    block = np.minimum(((t - t[0]) / duration * k).astype(int), k - 1)
+    out = []
+    for i in range(k):
+        keep = block == i
+        poses = PoseTrack(**{f.name: np.asarray(getattr(run.poses, f.name))[keep] for f in fields(PoseTrack)})
+        out.append(replace(run, name=f"{run.name}:{i + 1}", poses=poses, group=f"{run.name}:{i + 1}"))
+    note = (f"one train run ({run.name}, {duration:.0f} s): cross-validation leaves out each of {k} contiguous "
+            f"blocks of {duration / k:.0f} s ({run.name}:1 to {run.name}:{k})")
+    return tuple(out), note
 
 
 def delayed_inputs(states: Sequence[BodyStates], dead_time_s, input_lag_s=(0.0, 0.0)) -> list[BodyStates]:

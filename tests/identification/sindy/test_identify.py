@@ -19,7 +19,7 @@ from identification.sindy.candidate_fit import refine
 from identification.sindy.identify import identify
 from identification.sindy.model import SindyModel, envelope_from_data, model_from_terms
 from identification.sindy.output_error import SindyStructure, rollout_with_sensitivities
-from identification.sindy.reference import cv_folds, reference, run_group
+from identification.sindy.reference import blocks_of_single_run, cv_folds, reference, run_group
 from identification.sindy.search import SearchGrid, search
 from groundfloor.types import TrajectoryRun
 from simulation.robot_params import RobotParams
@@ -227,6 +227,37 @@ def test_one_group_falls_back_to_leaving_out_runs_and_says_so(caplog):
     assert "one group only (2024-07-29)" in folds.note and "falls back" in caplog.text
     two = cv_folds(["a", "a", "b", "b"], [0, 1, 2, 3])
     assert two.kind == "leave-one-group-out" and list(two.fold) == [0, 0, 1, 1]
+
+
+def test_one_run_is_cut_into_contiguous_blocks_held_out_in_turn(lag_runs):
+    # by hand: a 300 s run at 10 Hz in 5 blocks of 60 s holds 600 poses per block, in time order,
+    # each its own group; the whole input track stays with every block (dead time history)
+    run = simulate_trajectory_runs(300.0, [31], f=lag_f(), dead_time_s=DEAD_TIME, rate_hz=10.0)[0]
+    n = run.poses.t.size
+    blocks, note = blocks_of_single_run([run], 5)
+    assert [b.name for b in blocks] == [f"{run.name}:{i}" for i in range(1, 6)]
+    assert [run_group(b) for b in blocks] == [b.name for b in blocks]
+    assert np.array_equal(np.concatenate([b.poses.t for b in blocks]), run.poses.t)
+    assert n == 3001 and [b.poses.t.size for b in blocks] == [600, 600, 600, 600, 601]  # the last holds t = 300 s
+    assert np.ptp(blocks[2].poses.t) < 60.0
+    assert all(b.inputs is run.inputs for b in blocks)
+    assert "leaves out each of 5 contiguous blocks of 60 s" in note
+    assert blocks_of_single_run(lag_runs, 5) == (tuple(lag_runs), "")
+    assert len(blocks_of_single_run([run], 9)[0]) == 5  # blocks of at least 60 s
+    short = simulate_trajectory_runs(100.0, [32], f=lag_f(), rate_hz=10.0)[0]
+    with pytest.raises(InputError, match=r"one train run \(.*, 100 s\); holding something out needs 2 runs or one of at least 120 s"):
+        blocks_of_single_run([short], 5)
+
+
+def test_a_single_run_identifies_its_dead_time_with_blocked_cross_validation(lag_runs, caplog):
+    # one 150 s recording of the lag with dead time: identify holds out its blocks and finds the
+    # simulator's dead times, as from three runs
+    run = simulate_trajectory_runs(150.0, [33], f=lag_f(), dead_time_s=DEAD_TIME)[0]
+    with caplog.at_level(logging.WARNING):
+        ident = identify([run], QUICK)
+    assert ident.folds.kind == "leave-one-block-out" and ident.folds.n_folds == 2
+    assert "one train run" in caplog.text and ident.model.training["cv"]["kind"] == "leave-one-block-out"
+    np.testing.assert_allclose(ident.model.dead_time_s, DEAD_TIME, atol=0.02)
 
 
 def _no_turning(t, rng):
