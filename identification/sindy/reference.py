@@ -117,7 +117,7 @@ class Folds:
     """Cross-validation folds over segments: which fold holds each segment out, and how they were made."""
 
     fold: np.ndarray  # (segments,) fold index
-    kind: str  # "leave-one-group-out", "k-fold by group", "leave-one-run-out" or "k-fold by run"
+    kind: str  # "leave-one-group-out", "k-fold by group", "leave-one-run-out", "k-fold by run" or "leave-one-block-out"
     note: str  # one line for logs and the model file
     held_out: tuple[tuple[str, ...], ...]  # per fold, the group (or run) labels held out
 
