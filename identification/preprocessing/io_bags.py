@@ -103,10 +103,15 @@ def _read_group(group: list[Path], run: str) -> dict[str, _Topic]:
 
 
 def _salvage(bag: Path, run: str, error: str) -> tuple[dict[str, _Topic], Truncation]:
-    """Return the known topics of a damaged ROS1 bag up to the damage, and the damage."""
-    found = salvage_ros1(bag, set(TOPIC_TYPES))
+    """Return the known topics of a damaged ROS1 bag up to the damage, and the damage; a bag with
+    nothing readable (empty, not a bag, its header damaged) gives no topics, with a warning: a
+    recorder killed at its start leaves such a file beside the run's good bags."""
+    try:
+        found = salvage_ros1(bag, set(TOPIC_TYPES))
+    except InputError as exc:  # not a ROS1 bag at all
+        return _unreadable(bag, run, str(exc).split(": ", 1)[-1])
     if not found.messages:
-        raise InputError(f"{bag}: cannot read bag ({error})")
+        return _unreadable(bag, run, f"cannot read bag ({error})")
     out = {t: _Topic() for t in TOPIC_TYPES}
     for m in found.messages:
         _check_type(run, m.topic, m.msgtype)
@@ -121,6 +126,13 @@ def _salvage(bag: Path, run: str, error: str) -> tuple[dict[str, _Topic], Trunca
                      size_bytes=found.size_bytes, reason=found.reason or f"no readable index: {error}")
     log.warning("run %s: %s", run, cut.describe())
     return out, cut
+
+
+def _unreadable(bag: Path, run: str, reason: str) -> tuple[dict[str, _Topic], Truncation]:
+    """Return no topics and the record of a bag of which nothing could be read (logged)."""
+    cut = Truncation(bag=bag.name, messages=0, stopped_at_byte=0, size_bytes=bag.stat().st_size, reason=reason)
+    log.warning("run %s: bag %s unreadable (%s): 0 messages; the run's other bags are read", run, bag.name, reason)
+    return {t: _Topic() for t in TOPIC_TYPES}, cut
 
 
 def read_topics(bags: list[Path], run: str) -> tuple[dict[str, _Topic], list[Truncation]]:

@@ -32,7 +32,9 @@ def bag_notes(runs: dict[str, dict]) -> list[str]:
             continue
         seen.add(source)
         lines += [f"{source}: bag {t['bag']} truncated ({t['reason']}): {t['messages']} messages read "
-                  "before the damage and used" for t in r.get("truncated") or []]
+                  "before the damage and used" if t["messages"] else
+                  f"{source}: bag {t['bag']} unreadable ({t['reason']}): left out, the run read from its other bags"
+                  for t in r.get("truncated") or []]
         for c in r.get("clock_resets") or []:
             lines.append(f"{source}: topic {c['topic']}: clock reset at message {c['message']} (stamps "
                          f"jump {c['jump_s']:+.6f} s): run cut there")

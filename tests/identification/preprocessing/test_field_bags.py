@@ -297,3 +297,25 @@ def test_a_trigger_clock_reset_cuts_every_topic_at_its_bag_time(tmp_path, synth)
         n = one.t_receive_utc[tracker].size + two.t_receive_utc[tracker].size
         assert n == getattr(synth, tracker).t_tracker.size
     assert one.t_joy_utc.max() < t_cut <= two.t_joy_utc.min()
+
+
+def test_an_unreadable_extra_bag_is_left_out_and_the_run_read_from_its_other_bags(tmp_path, synth, capsys):
+    # a recorder killed at its start leaves an empty file, another a file with its header cut:
+    # the run's good bags hold every topic, so the run is read as without them, and both are named
+    from sindy_ekf.cli import main
+
+    camp = write_campaign(tmp_path / "c", [synth], CALIBRATION.read_text())
+    run_dir = camp / "runs" / "run_01"
+    whole = read_tracker_run(run_dir)
+    (run_dir / "empty.bag").write_bytes(b"")
+    (run_dir / "cut.bag").write_bytes((run_dir / "trackers.bag").read_bytes()[:3000])
+    back = read_tracker_run(run_dir)
+    assert sorted((c.bag, c.messages) for c in back.facts.truncated) == [("cut.bag", 0), ("empty.bag", 0)]
+    np.testing.assert_array_equal(back.at960.t_tracker, whole.at960.t_tracker)
+    np.testing.assert_array_equal(back.ltd800.xyz, whole.ltd800.xyz)
+    np.testing.assert_array_equal(back.t_trigger_utc, whole.t_trigger_utc)
+    js = tmp_path / "pre.json"
+    assert main(["preprocess", str(camp), "--out", str(tmp_path / "out"), "--json", str(js), "--jobs", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "run_01: bag empty.bag unreadable (not a ROS1 bag" in out and "left out, the run read from its other bags" in out
+    assert "run_01" in json.loads(js.read_text())["runs"]
