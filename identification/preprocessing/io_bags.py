@@ -128,9 +128,15 @@ def _salvage(bag: Path, run: str, error: str) -> tuple[dict[str, _Topic], Trunca
     return out, cut
 
 
+def _unreadable_record(bag: Path, reason: str) -> Truncation:
+    """Return the record of a bag (file or ROS2 folder) of which nothing could be read."""
+    size = bag.stat().st_size if bag.is_file() else sum(f.stat().st_size for f in bag.rglob("*") if f.is_file())
+    return Truncation(bag=bag.name, messages=0, stopped_at_byte=0, size_bytes=size, reason=reason)
+
+
 def _unreadable(bag: Path, run: str, reason: str) -> tuple[dict[str, _Topic], Truncation]:
     """Return no topics and the record of a bag of which nothing could be read (logged)."""
-    cut = Truncation(bag=bag.name, messages=0, stopped_at_byte=0, size_bytes=bag.stat().st_size, reason=reason)
+    cut = _unreadable_record(bag, reason)
     log.warning("run %s: bag %s unreadable (%s): 0 messages; the run's other bags are read", run, bag.name, reason)
     return {t: _Topic() for t in TOPIC_TYPES}, cut
 
@@ -141,8 +147,8 @@ def read_topics(bags: list[Path], run: str) -> tuple[dict[str, _Topic], list[Tru
     Raises
     ------
     InputError
-        A known topic with another message type (names topic and both types), or a bag that
-        cannot be read at all (names the file).
+        A known topic with another message type (names topic and both types). A bag of which
+        nothing can be read is left out (a warning, and a record of 0 messages among the returned).
     """
     # AnyReader opens several ROS1 bags together but reads ROS2 folders one recording at a time.
     ros1 = [b for b in bags if b.suffix == ".bag"]
@@ -156,8 +162,11 @@ def read_topics(bags: list[Path], run: str) -> tuple[dict[str, _Topic], list[Tru
             raise
         except Exception as exc:  # noqa: BLE001 - a damaged bag is bad input, named by file
             error = f"{type(exc).__name__}: {exc}"
-            if group is not ros1:
-                raise InputError(f"{group[0]}: cannot read bag ({error})") from None
+            if group is not ros1:  # a ROS2 recording rosbags cannot open: the run's other bags are read
+                topics, cut = _unreadable(group[0], run, f"cannot read bag ({error})")
+                found.append(topics)
+                truncated.append(cut)
+                continue
         for bag in group:  # find the damaged ROS1 bag(s) and read the rest of them whole
             try:
                 found.append(_read_group([bag], run))

@@ -216,6 +216,9 @@ def read_csv_columns(path: Path, required: Sequence[str]) -> np.ndarray:
     return data
 
 
+_UNREADABLE_SAID: set = set()  # (run, bags) whose unreadability topic_messages has logged
+
+
 def topic_messages(bags: list[Path], topic: str, msgtype: str, run: str):
     """Yield ``(t_bag_ns, message)`` of ``topic`` across a run's bags (ROS1 bags read together,
     each ROS2 bag alone), in each reader's order; nothing when the topic is absent.
@@ -242,8 +245,11 @@ def topic_messages(bags: list[Path], topic: str, msgtype: str, run: str):
                 for conn, t_bag, raw in reader.messages(connections=conns) if conns else ():  # none: all
                     yield t_bag, reader.deserialize(raw, conn.msgtype)
         except (AnyReaderError, ReaderError1, ReaderError2) as exc:
-            log.warning("run %s: %s unreadable (%s); topic %s not read from it", run,
-                        ", ".join(b.name for b in group), str(exc).splitlines()[0], topic)
+            key = (run, tuple(str(b) for b in group))
+            if key not in _UNREADABLE_SAID:  # once per run and bags, not once per sensor topic asked for
+                _UNREADABLE_SAID.add(key)
+                log.warning("run %s: %s unreadable (%s); its sensor topics (%s, ...) not read from it", run,
+                            ", ".join(b.name for b in group), str(exc).splitlines()[0], topic)
 
 
 def read_navsat(bags: list[Path], topic: str, run: str) -> GnssFixes | None:

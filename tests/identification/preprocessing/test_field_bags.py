@@ -309,8 +309,10 @@ def test_an_unreadable_extra_bag_is_left_out_and_the_run_read_from_its_other_bag
     whole = read_tracker_run(run_dir)
     (run_dir / "empty.bag").write_bytes(b"")
     (run_dir / "cut.bag").write_bytes((run_dir / "trackers.bag").read_bytes()[:3000])
+    (run_dir / "ros2").mkdir()  # a ROS2 recording whose metadata lists no file
+    (run_dir / "ros2" / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: 5\n")
     back = read_tracker_run(run_dir)
-    assert sorted((c.bag, c.messages) for c in back.facts.truncated) == [("cut.bag", 0), ("empty.bag", 0)]
+    assert sorted((c.bag, c.messages) for c in back.facts.truncated) == [("cut.bag", 0), ("empty.bag", 0), ("ros2", 0)]
     np.testing.assert_array_equal(back.at960.t_tracker, whole.at960.t_tracker)
     np.testing.assert_array_equal(back.ltd800.xyz, whole.ltd800.xyz)
     np.testing.assert_array_equal(back.t_trigger_utc, whole.t_trigger_utc)
