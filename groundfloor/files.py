@@ -143,3 +143,20 @@ def atomic_output_dir(path: str | os.PathLike, force: bool = False) -> Iterator[
     if path.exists():
         shutil.rmtree(path)
     os.replace(tmp, path)
+
+
+def csv_header(path: str | os.PathLike) -> list[str]:
+    """Return the column names on the first line of a CSV file, stripped, a UTF-8 byte-order mark
+    (what spreadsheet exports write first) dropped."""
+    with open(path, encoding="utf-8-sig") as fh:
+        return [h.strip() for h in fh.readline().strip().split(",")]
+
+
+def missing_column(path: str | os.PathLike, column: str, header: list[str]) -> InputError:
+    """Return the one-line error of a required CSV column missing, saying so when the file is not
+    comma-separated (a semicolon or tab export: the data contract's files use commas)."""
+    line = ",".join(header)
+    sep = next((s for s in (";", "\t") if len(header) == 1 and s in line), None)
+    hint = f"; columns separated by {'tabs' if sep == chr(9) else repr(sep)}, the data contract's CSV files use commas" \
+        if sep else ""
+    return InputError(f"{path}: required column '{column}' missing (header: {line}){hint}")

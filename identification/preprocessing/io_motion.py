@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from groundfloor.errors import InputError
+from groundfloor.files import csv_header
 from identification.preprocessing.io_sensors import (
     CONTRACT_TOPICS,
     read_csv_columns,
@@ -172,8 +173,7 @@ def read_motion_csv(path: str | Path, kind: str) -> MotionSamples:
 def _gives_wheel_speeds(path: Path) -> bool:
     """Return whether an ``odometry.csv`` gives wheel speeds ``w_left,w_right`` instead of ``v,omega``."""
     try:
-        with open(path) as fh:
-            header = [c.strip() for c in fh.readline().split(",")]
+        header = csv_header(path)
     except OSError:
         return False  # read_csv_columns names the file
     return "v" not in header and all(c in header for c in WHEEL_COLUMNS)

@@ -30,6 +30,7 @@ from rosbags.rosbag2 import ReaderError as ReaderError2
 from rosbags.typesys import Stores, get_typestore
 
 from groundfloor.errors import InputError
+from groundfloor.files import csv_header, missing_column
 from groundfloor.geodetic import GeodeticOrigin
 from identification.preprocessing.io_tracker import find_bags
 
@@ -206,13 +207,13 @@ def read_csv_columns(path: Path, required: Sequence[str]) -> np.ndarray:
         Naming the file: unreadable, or a column of ``required`` missing.
     """
     try:
-        data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, ndmin=1)
+        data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, ndmin=1, encoding="utf-8-sig")
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: unreadable CSV ({str(exc).splitlines()[-1].strip()})") from None
     names = data.dtype.names or ()
     missing = [c for c in required if c not in names]
     if missing:
-        raise InputError(f"{path}: required column '{missing[0]}' missing (header: {','.join(names)})")
+        raise missing_column(path, missing[0], csv_header(path))
     return data
 
 

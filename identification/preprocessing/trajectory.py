@@ -46,7 +46,7 @@ import yaml
 
 from groundfloor import repairs as expected_repairs
 from groundfloor.errors import InputError
-from groundfloor.files import atomic_output_dir
+from groundfloor.files import atomic_output_dir, csv_header, missing_column
 from groundfloor.types import (
     BodyStates,
     InputSeries,
@@ -116,12 +116,10 @@ def _read_csv(path: Path, required: Sequence[str], optional: Sequence[str] = ())
     """Return the columns of CSV ``path`` as float arrays (optional ones NaN when absent)."""
     if not path.is_file():
         raise InputError(f"{path}: file missing")
-    with open(path) as fh:
-        header_line = fh.readline()
-    header = [h.strip() for h in header_line.strip().split(",")]
+    header = csv_header(path)
     missing = [c for c in required if c not in header]
     if missing:
-        raise InputError(f"{path}: required column '{missing[0]}' missing (header: {','.join(header)})")
+        raise missing_column(path, missing[0], header)
     wanted = [c for c in (*required, *optional) if c in header]
     try:
         data = np.genfromtxt(path, delimiter=",", skip_header=1, usecols=[header.index(c) for c in wanted],

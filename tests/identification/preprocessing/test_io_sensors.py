@@ -145,3 +145,13 @@ def test_gnss_under_its_default_name_is_read_without_a_declaration(camp, tmp_pat
     counts = write_run_gnss(root, out, {run: t_pose})
     assert counts[run] == camp.preprocessed.to_json_dict()["sensors"]["gnss"][run]
     assert (out / "runs" / run / GNSS_CSV).read_text() == (camp.trajectory / "runs" / run / GNSS_CSV).read_text()
+
+
+def test_a_gnss_csv_with_a_byte_order_mark_reads_as_without(camp, tmp_path):
+    run = sorted(p.name for p in (camp.trajectory / "runs").iterdir())[0]
+    src = camp.trajectory / "runs" / run / GNSS_CSV
+    bom = tmp_path / GNSS_CSV
+    bom.write_text("\ufeff" + src.read_text())
+    a, b = read_gnss_csv(src), read_gnss_csv(bom)
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.lla, b.lla)

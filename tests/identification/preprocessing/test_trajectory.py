@@ -267,3 +267,21 @@ def test_writer_refuses_runs_with_arrays_of_different_lengths(tmp_path):
     with pytest.raises(InputError, match="run r1: input arrays differ in length"):
         write_trajectory_campaign(tmp_path / "c", "x", [(bad, None)])
     assert not (tmp_path / "c").exists()
+
+
+def test_a_spreadsheet_export_with_a_byte_order_mark_reads_and_semicolons_are_named(tmp_path):
+    # Excel's "CSV UTF-8" starts the file with a byte-order mark; a European export separates by ';'
+    t = np.arange(50) * 0.1
+    root = _campaign(tmp_path / "c", t)
+    plain = read_trajectory_campaign(root).runs[0]
+    for name in ("poses.csv", "inputs.csv"):
+        p = root / "runs" / "a" / name
+        p.write_text("\ufeff" + p.read_text())
+    bom = read_trajectory_campaign(root).runs[0]
+    np.testing.assert_array_equal(bom.poses.t, plain.poses.t)
+    np.testing.assert_array_equal(bom.inputs.u1, plain.inputs.u1)
+    p = root / "runs" / "a" / "poses.csv"
+    p.write_text(p.read_text().lstrip("\ufeff").replace(",", ";"))
+    with pytest.raises(InputError, match=r"poses.csv: required column 't' missing \(header: t;x;y;yaw\); columns "
+                                         r"separated by ';', the data contract's CSV files use commas"):
+        read_trajectory_campaign(root)
