@@ -20,6 +20,8 @@ others as warnings):
 - rows with the same stamp are merged (``duplicate_pose_stamps``: pose rows averaged, being two
   measurements of one pose; ``duplicate_input_stamps``: the last row kept, since a later
   command supersedes an earlier one received at the same instant);
+- poses more than :data:`MAX_POSE_INTERVAL_S` apart (median) are an :class:`InputError`: a time
+  unit other than the contract's seconds (milliseconds, nanoseconds);
 - stamps going backwards are an :class:`InputError` naming file and row: the contract says rows
   are in time order, and a backward step means concatenated or re-stamped recordings, which
   sorting would silently interleave;
@@ -69,6 +71,9 @@ STATE_COLUMNS = ("t", "vx", "vy", "omega", "u1", "u2")
 GAP_FACTOR = 10.0
 #: ... and than this many seconds (the 50 Hz trigger skips a pulse every 3 s on purpose)
 GAP_MIN_S = 0.5
+#: a median pose interval above this is a time unit other than seconds (a 5 s prediction window
+#: would hold two poses): the data contract's t is in seconds
+MAX_POSE_INTERVAL_S = 2.0
 GAPS_NOTE = "pose gaps (a prism lost; never bridged)"  # how the command line's summary names them
 
 
@@ -228,6 +233,10 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     pc, repairs["duplicate_pose_stamps"] = _merge_duplicates(pc, "mean")
     if pc["t"].size < 2:
         raise InputError(f"{poses_path}: fewer than 2 valid pose rows")
+    step = float(np.median(np.diff(pc["t"])))
+    if step > MAX_POSE_INTERVAL_S:
+        raise InputError(f"{poses_path}: the poses are {step:.4g} s apart (median) over {np.ptp(pc['t']) / 3600:.3g} h: "
+                         "t must be in seconds (milliseconds or nanoseconds?)")
 
     ic = _read_csv(inputs_path, INPUT_COLUMNS)
     ic, i_rows, repairs["nan_input_rows"] = _drop_nan_rows(ic, INPUT_COLUMNS)

@@ -285,3 +285,13 @@ def test_a_spreadsheet_export_with_a_byte_order_mark_reads_and_semicolons_are_na
     with pytest.raises(InputError, match=r"poses.csv: required column 't' missing \(header: t;x;y;yaw\); columns "
                                          r"separated by ';', the data contract's CSV files use commas"):
         read_trajectory_campaign(root)
+
+
+def test_stamps_in_milliseconds_are_named_not_read_as_seconds(tmp_path):
+    # 10 Hz poses stamped in ms are 100 "s" apart: read as seconds, every later figure would be
+    # nonsense (5 s windows of 5 ms); 0.5 Hz is the slowest ground truth taken as seconds
+    t = 1722278818.878 + np.arange(300) * 0.1
+    with pytest.raises(InputError, match=r"poses.csv: the poses are 100 s apart \(median\) over 8.31 h: t must be in "
+                                         r"seconds \(milliseconds or nanoseconds\?\)"):
+        read_trajectory_campaign(_campaign(tmp_path / "ms", t * 1000.0))
+    assert read_trajectory_campaign(_campaign(tmp_path / "slow", np.arange(300) * 2.0)).runs[0].poses.t.size == 300
