@@ -22,6 +22,8 @@ others as warnings):
   command supersedes an earlier one received at the same instant);
 - poses more than :data:`MAX_POSE_INTERVAL_S` apart (median) are an :class:`InputError`: a time
   unit other than the contract's seconds (milliseconds, nanoseconds);
+- yaw turning faster than a ground robot can (:func:`_check_yaw_unit`) is an :class:`InputError`:
+  yaw in degrees;
 - stamps going backwards are an :class:`InputError` naming file and row: the contract says rows
   are in time order, and a backward step means concatenated or re-stamped recordings, which
   sorting would silently interleave;
@@ -74,6 +76,10 @@ GAP_MIN_S = 0.5
 #: a median pose interval above this is a time unit other than seconds (a 5 s prediction window
 #: would hold two poses): the data contract's t is in seconds
 MAX_POSE_INTERVAL_S = 2.0
+#: a 95th percentile of the yaw rate above this is yaw in degrees (57 times its radians) ...
+MAX_YAW_RATE_RAD_S = 10.0
+#: ... taken over this long, so that the noise of a fast pose rate stays well below it
+YAW_RATE_BASELINE_S = 0.2
 GAPS_NOTE = "pose gaps (a prism lost; never bridged)"  # how the command line's summary names them
 
 
@@ -183,6 +189,28 @@ def _merge_duplicates(cols: dict[str, np.ndarray], how: str) -> tuple[dict, int]
     return merged, n_dup
 
 
+def _check_yaw_unit(t: np.ndarray, yaw: np.ndarray, path: Path) -> None:
+    """Raise a one-line InputError when the yaw turns faster than a ground robot can: degrees.
+
+    The yaw rate is taken over about :data:`YAW_RATE_BASELINE_S` (so that a high pose rate's noise
+    does not count) within stretches without gaps; its 95th percentile (so that a glitch or a
+    wrap at +-180 degrees does not count) above :data:`MAX_YAW_RATE_RAD_S` is yaw in degrees.
+    The shared and simulated campaigns stay below 0.9 rad/s.
+    """
+    step = float(np.median(np.diff(t)))
+    k = max(int(round(YAW_RATE_BASELINE_S / step)), 1) if step > 0 else 1
+    if t.size <= k:
+        return
+    dt = t[k:] - t[:-k]
+    ok = dt <= k * gap_threshold_s(t)
+    if not ok.any():
+        return
+    rate = float(np.percentile(np.abs(yaw[k:] - yaw[:-k])[ok] / dt[ok], 95))
+    if rate > MAX_YAW_RATE_RAD_S:
+        raise InputError(f"{path}: column yaw turns at {rate:.3g} rad/s (95th percentile), faster than a ground robot "
+                         "turns: yaw must be in radians (degrees?)")
+
+
 def unwrap_yaw(yaw: np.ndarray) -> np.ndarray:
     """Return ``yaw`` unwrapped if it looks wrapped (all within [-pi, pi]), else unchanged.
 
@@ -233,6 +261,7 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     pc, repairs["duplicate_pose_stamps"] = _merge_duplicates(pc, "mean")
     if pc["t"].size < 2:
         raise InputError(f"{poses_path}: fewer than 2 valid pose rows")
+    _check_yaw_unit(pc["t"], pc["yaw"], poses_path)
     step = float(np.median(np.diff(pc["t"])))
     if step > MAX_POSE_INTERVAL_S:
         raise InputError(f"{poses_path}: the poses are {step:.4g} s apart (median) over {np.ptp(pc['t']) / 3600:.3g} h: "

@@ -295,3 +295,17 @@ def test_stamps_in_milliseconds_are_named_not_read_as_seconds(tmp_path):
                                          r"seconds \(milliseconds or nanoseconds\?\)"):
         read_trajectory_campaign(_campaign(tmp_path / "ms", t * 1000.0))
     assert read_trajectory_campaign(_campaign(tmp_path / "slow", np.arange(300) * 2.0)).runs[0].poses.t.size == 300
+
+
+def test_yaw_in_degrees_is_named_not_read_as_radians(tmp_path):
+    # a robot turning at 0.5 rad/s for 30 s, its yaw written in degrees (wrapping at +-180): read as
+    # radians it would turn at 28.6 rad/s; in radians, with 2 mrad noise at 200 Hz, it reads
+    rng = np.random.default_rng(4)
+    t = np.arange(6000) * 0.005
+    yaw = 0.5 * t + rng.normal(0.0, 0.002, t.size)
+    deg = (np.degrees(0.5 * t) + 180.0) % 360.0 - 180.0  # by hand: 0.5 rad/s is 28.65 deg/s
+    with pytest.raises(InputError, match=r"poses.csv: column yaw turns at 28.6 rad/s \(95th percentile\), faster "
+                                         r"than a ground robot turns: yaw must be in radians \(degrees\?\)"):
+        read_trajectory_campaign(_campaign(tmp_path / "deg", t, yaw=deg))
+    run = read_trajectory_campaign(_campaign(tmp_path / "rad", t, yaw=np.angle(np.exp(1j * yaw)))).runs[0]
+    np.testing.assert_allclose(run.poses.yaw, yaw, atol=1e-9)
