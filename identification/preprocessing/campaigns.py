@@ -150,3 +150,20 @@ def open_campaign(path: str | Path, cache: bool = True,
         return read_trajectory_campaign(tmp / "out")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def train_campaign_of(path: str | Path | None) -> TrajectoryCampaign | None:
+    """Return the campaign at ``path`` whose train runs fit what a command needs beside a model
+    (``--train``: the baselines' gains, the lag, the filters' process noise), None for None.
+
+    Raises
+    ------
+    InputError
+        Naming the campaign when it marks no run as train, or whatever :func:`open_campaign` finds.
+    """
+    if path is None:
+        return None
+    camp = open_campaign(path)
+    if not camp.split("train"):
+        raise InputError(f"{path}: campaign.yaml marks no run as train (--train needs runs to fit on)")
+    return camp

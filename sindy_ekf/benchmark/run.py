@@ -287,7 +287,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
         raise InputError(f"{campaign.root}: every test run is too short to benchmark "
                          f"(first: {next(iter(skipped.values()))})")
     if not train:
-        raise InputError(f"{campaign.root}: no run marked train to fit process noise on")
+        raise InputError(f"{campaign.root}: no run marked train to fit process noise on (give --train CAMPAIGN, "
+                         "e.g. the campaign the model was identified on)")
     series = train_series(train, s)
     models = fit_models(train, sindy_body, oracle_dynamics, s, series, lag="lag_ekf" in estimators)
     recorded = load_recorded_gnss(campaign) if profile == RECORDED else None

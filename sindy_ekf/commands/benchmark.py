@@ -32,6 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated subset (default: those the config enables, all available: dead_reckoning, "
                         "cv_ekf, unicycle_ekf, lag_ekf, sindy_ekf, sindy_ekf_lateral (with the v_y = 0 pseudo-measurement), "
                         "oracle_ekf on simulated campaigns, sindy_graph, sindy_graph_lateral, sindy_isam2)")
+    p.add_argument("--train", type=Path, default=None, metavar="CAMPAIGN",
+                   help="campaign whose train runs fit the process noise, the unicycle gains and the lag (default: "
+                        "CAMPAIGN's own; for a campaign of test runs only, e.g. the one the model was identified on)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--out", type=Path, default=None, metavar="DIR",
                    help="write TUM files of every estimate, the JSON and the plots into DIR")
@@ -80,7 +83,7 @@ def run(args) -> int:
     config = load_config(args.config)  # a bad file fails here, before the work
     estimators = None if args.estimators is None else tuple(n.strip() for n in args.estimators.split(","))
     result = benchmark_files(args.campaign, args.model, profile=args.gnss, seed=args.seed, estimators=estimators,
-                             config=config, workers=workers_of(args))
+                             config=config, workers=workers_of(args), train=args.train)
     if args.out is not None:
         write_benchmark(result, args.out)
         write_benchmark_figures(result, args.out)

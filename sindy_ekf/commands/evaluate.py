@@ -18,6 +18,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", type=Path, required=True, metavar="MODEL.json", help="model file of identify")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--plots", type=Path, default=None, metavar="DIR", help="write fig. 5.11/7.8 curves into DIR")
+    p.add_argument("--train", type=Path, default=None, metavar="CAMPAIGN",
+                   help="campaign whose train runs fit the unicycle and lag baselines (default: CAMPAIGN's own; "
+                        "for a campaign of test runs only, e.g. the one the model was identified on)")
 
 
 def format_errors(ev: Evaluation) -> str:
@@ -55,7 +58,7 @@ def format_errors(ev: Evaluation) -> str:
 def run(args) -> int:
     """Evaluate model, baselines and (simulated campaigns) the oracle; print and write JSON."""
     check_outputs(args)
-    ev = evaluate_files(args.campaign, args.model, methods=("rk4", "euler2"))
+    ev = evaluate_files(args.campaign, args.model, methods=("rk4", "euler2"), train=args.train)
     print(format_errors(ev))
     if args.plots:
         write_evaluation_figures(ev, args.plots)

@@ -16,7 +16,7 @@ from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
 from groundfloor.parallel import Workers
 from groundfloor.types import TrajectoryCampaign
-from identification.preprocessing.campaigns import open_campaign
+from identification.preprocessing.campaigns import open_campaign, train_campaign_of
 from identification.sindy.checks import require_checks_passed
 from identification.sindy.model import SindyModel
 from simulation.truth import true_dynamics_of
@@ -50,7 +50,8 @@ def estimators_for(estimators: Sequence[str] | None, oracle: Dynamics | None, ca
 def estimation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dynamics | None = None,
                      profile: str | None = None, seed: int | None = None, estimators: Sequence[str] | None = None,
                      campaign_path: str | Path | None = None, outages: OutageSchedule | None = None,
-                     config: FilterConfig | None = None, workers: Workers | int = 1) -> BenchmarkResult:
+                     config: FilterConfig | None = None, workers: Workers | int = 1,
+                     train_campaign: TrajectoryCampaign | None = None) -> BenchmarkResult:
     """Return the benchmark of the estimators on the test runs of ``campaign`` with the model.
 
     ``oracle`` (the simulator's true dynamics) runs as ``oracle_ekf``; ``estimators`` as in
@@ -58,6 +59,7 @@ def estimation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dy
     ``outages`` when GNSS drops out. ``config``: the filter settings (default the shipped ones,
     :mod:`sindy_ekf.config`); ``profile``, ``seed``, ``estimators`` and ``outages`` win over it
     when given. ``workers``: where the smoothers' runs go (:mod:`groundfloor.parallel`).
+    ``train_campaign``: whose train runs fit Q, the unicycle gains and the lag (default ``campaign``).
     """
     config = load_config() if config is None else config
     names = estimators_for(estimators, oracle, campaign.root if campaign_path is None else campaign_path,
@@ -66,12 +68,14 @@ def estimation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dy
     if outages is not None:
         config = config.with_overrides(outages=outages)
     return benchmark_campaign(campaign, model, profile=profile, seed=seed, oracle_dynamics=oracle, estimators=names,
-                              smoothing=None if s is None else float(s), config=config, workers=workers)
+                              smoothing=None if s is None else float(s), config=config, workers=workers,
+                              train_campaign=train_campaign)
 
 
 def benchmark_files(campaign: str | Path, model_path: str | Path, profile: str | None = None,
                     seed: int | None = None, estimators: Sequence[str] | None = None,
-                    config: FilterConfig | None = None, workers: Workers | int = 1) -> BenchmarkResult:
+                    config: FilterConfig | None = None, workers: Workers | int = 1,
+                    train: str | Path | None = None) -> BenchmarkResult:
     """Return the benchmark of the model file on a campaign (``sindy-ekf benchmark``).
 
     A tracker campaign is preprocessed first (cached); a simulated campaign's true dynamics
@@ -82,5 +86,6 @@ def benchmark_files(campaign: str | Path, model_path: str | Path, profile: str |
     model = SindyModel.load(model_path)
     require_checks_passed(model, str(model_path))
     traj = open_campaign(campaign)
+    train_campaign = train_campaign_of(train)
     return estimation_stage(traj, model, true_dynamics_of(campaign), profile, seed, estimators, campaign,
-                            config=config, workers=workers)
+                            config=config, workers=workers, train_campaign=train_campaign)

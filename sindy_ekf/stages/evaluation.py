@@ -29,7 +29,7 @@ from groundfloor.dynamics import Dynamics
 from groundfloor.errors import InputError
 from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates, InputSeries, TrajectoryCampaign, TrajectoryRun
-from identification.preprocessing.campaigns import open_campaign
+from identification.preprocessing.campaigns import open_campaign, train_campaign_of
 from identification.sindy.baselines import ConstantVelocityModel, UnicycleModel, fit_lag
 from identification.sindy.checks import require_checks_passed
 from identification.sindy.data import states_of_runs
@@ -157,16 +157,20 @@ def _score(models: dict[str, Dynamics], windows, methods=("rk4",)) -> dict[str, 
 
 
 def evaluation_stage(campaign: TrajectoryCampaign, model: SindyModel, oracle: Dynamics | None = None,
-                     methods: tuple[str, ...] = ("rk4",)) -> Evaluation:
+                     methods: tuple[str, ...] = ("rk4",), train_runs=None) -> Evaluation:
     """Return the model, the baselines and ``oracle`` (when given) evaluated on the test runs.
 
     Every model sees the same windows of the test runs' reference states (start states) and
-    measured poses (truth); the unicycle and the lag are fitted on the train runs (left out
-    without train runs). ``methods`` are integration methods of
-    :func:`identification.sindy.evaluate.rollout` for the identified model (the others RK4).
+    measured poses (truth); the unicycle and the lag are fitted on the train runs (``train_runs``,
+    default the campaign's own; left out, with a warning, without any). ``methods`` are
+    integration methods of :func:`identification.sindy.evaluate.rollout` for the identified model
+    (the others RK4).
     """
     models: dict[str, Dynamics] = {MODEL: model, "constant_velocity": ConstantVelocityModel()}
-    train = campaign.split("train")
+    train = campaign.split("train") if train_runs is None else tuple(train_runs)
+    if not train:
+        log.warning("%s: no train run to fit the unicycle and lag baselines on: they are left out (give "
+                    "--train CAMPAIGN, e.g. the campaign the model was identified on)", campaign.name)
     test = campaign.split("test")
     train_states = states_of_runs(train, model_smoothing(model))[0] if train else []
     if train:
@@ -223,11 +227,12 @@ def as_driven(run: TrajectoryRun, oracle: TrueDynamics) -> TrajectoryRun:
 
 
 def evaluate_files(campaign: str | Path, model_path: str | Path,
-                   methods: tuple[str, ...] = ("rk4", "euler2")) -> Evaluation:
+                   methods: tuple[str, ...] = ("rk4", "euler2"), train: str | Path | None = None) -> Evaluation:
     """Return the evaluation of the model file on a campaign (``sindy-ekf evaluate``).
 
     A tracker campaign is preprocessed first (cached); on a simulated campaign the simulator's
     true dynamics (:func:`simulation.truth.true_dynamics_of`) are scored beside the model.
+    ``train``: the campaign whose train runs fit the baselines (default ``campaign``'s own).
 
     Raises
     ------
@@ -240,4 +245,6 @@ def evaluate_files(campaign: str | Path, model_path: str | Path,
     traj = open_campaign(campaign)
     if not traj.split("test"):
         raise InputError(f"{campaign}: campaign.yaml marks no run as test")
-    return evaluation_stage(traj, model, true_dynamics_of(campaign), methods)
+    train_campaign = train_campaign_of(train)
+    return evaluation_stage(traj, model, true_dynamics_of(campaign), methods,
+                            None if train_campaign is None else train_campaign.split("train"))
