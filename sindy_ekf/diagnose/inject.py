@@ -18,7 +18,8 @@ dynamics, noise and timing that no simulator shaped, with a known truth:
 Poses are never touched (copied byte for byte, as is every other file of the campaign); the
 injected truth goes beside the campaign, to ``OUT.injected.yaml`` (INTERFACES.md: beside OUT,
 not inside; nothing that reads the campaign can see it). A ``states.csv`` of a preprocessed
-campaign carries the clean inputs and is therefore left out of the copy.
+campaign carries the clean inputs and is therefore left out of the copy. A tracker campaign is
+preprocessed first (cached, as every later command does) and its trajectory campaign rewritten.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import yaml
 from groundfloor.errors import InputError
 from groundfloor.files import atomic_output_dir, atomic_write_text, check_output_dir
 from groundfloor.types import InputSeries, TrajectoryRun
+from identification.preprocessing.campaigns import KEY_FILE, campaign_kind, preprocessed_dir
 from identification.preprocessing.trajectory import read_trajectory_campaign
 
 log = logging.getLogger(__name__)
@@ -155,18 +157,22 @@ def inject_campaign(campaign, out, family: str, value: float) -> Path:
     if truth_path.exists():
         raise InputError(f"{truth_path}: exists (the injected truth of another campaign?); remove it or choose another OUT")
     src = Path(campaign)
-    camp = read_trajectory_campaign(src)
+    if src.resolve() == out.resolve() or src.resolve() in out.resolve().parents:
+        raise InputError(f"{out}: output folder inside the campaign {src}")
+    if campaign_kind(src) == "tracker":  # preprocessed first (cached), as every later command does
+        log.info("%s: a tracker campaign, preprocessed first; its trajectory campaign gets the effect", src)
+        camp = read_trajectory_campaign(preprocessed_dir(src))
+    else:
+        camp = read_trajectory_campaign(src)
     root = camp.root
-    if root.resolve() == out.resolve() or root.resolve() in out.resolve().parents:
-        raise InputError(f"{out}: output folder inside the campaign {root}")
     if family == "time_dependence":
         _check_decay(camp.runs, value, str(root))
     truth = {"family": family, "mechanism": spec.mechanism, spec.parameter: value,
-             "source": str(root.resolve()),
+             "source": str(src.resolve()),
              "note": "recorded inputs rewritten so that this mechanism maps them back to the inputs recorded "
                      "in the source; poses copied unchanged"}
     with atomic_output_dir(out) as tmp:
-        shutil.copytree(root, tmp, dirs_exist_ok=True, ignore=shutil.ignore_patterns("states.csv"))
+        shutil.copytree(root, tmp, dirs_exist_ok=True, ignore=shutil.ignore_patterns("states.csv", KEY_FILE))
         for run in camp.runs:
             rec = recorded_inputs(run.inputs, family, value, float(run.poses.t[0]))
             (tmp / "runs" / run.name / "inputs.csv").write_text(_csv(rec))

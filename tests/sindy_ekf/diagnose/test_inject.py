@@ -130,3 +130,21 @@ def test_non_empty_output_and_existing_truth_refused(wheels, tmp_path, capsys):
 def test_parse_effect():
     assert parse_effect("deadband=0.1") == ("deadband", 0.1)
     assert parse_effect(" asymmetry=-0.05") == ("asymmetry", -0.05)
+
+
+def test_a_tracker_campaign_is_preprocessed_then_injected(small_campaign, small_trajectory, tmp_path):
+    # INTERFACES.md: every command after preprocess also takes a tracker campaign and preprocesses
+    # it first; inject writes the trajectory campaign with the effect (poses as preprocessed)
+    import shutil
+    tracker = shutil.copytree(small_campaign, tmp_path / "tracker")
+    out = inject_campaign(tracker, tmp_path / "d", "input_delay", 0.15)
+    ref, dst = read_trajectory_campaign(small_trajectory), read_trajectory_campaign(out)
+    assert [r.name for r in dst.runs] == [r.name for r in ref.runs]
+    for a, b in zip(ref.runs, dst.runs):
+        assert filecmp.cmp(small_trajectory / "runs" / a.name / "poses.csv", out / "runs" / b.name / "poses.csv",
+                           shallow=False)
+        np.testing.assert_allclose(b.inputs.t, a.inputs.t - 0.15, rtol=0, atol=2e-9)
+    assert read_injected(out)["source"] == str(tracker.resolve())
+    assert not (out / "cache_key.json").exists()
+    with pytest.raises(InputError, match="output folder inside the campaign"):
+        inject_campaign(tracker, tracker / "inside", "input_delay", 0.15)
