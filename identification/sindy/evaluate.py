@@ -177,12 +177,15 @@ def make_windows(states: Sequence[BodyStates], window_s: float = 5.0, overlap: f
             tracks.append(InputTrack(tr, np.column_stack([st.u1, st.u2]), "linear"))
         if len(t) < 2 or t[-1] - t[0] < window_s:
             continue
-        nominal = np.arange(t[0], t[-1] - window_s + 1e-9, window_s * (1 - overlap))
-        k = np.clip(np.searchsorted(t, nominal), 0, len(t) - 1)
-        k = np.unique(k[t[k] + window_s <= t[-1] + 1e-9])
+        # chosen in time since the run's start, so that the windows do not depend on the time base
+        # (UTC stamps near 1.7e9 s resolve 2.4e-7 s: a window ending on the run's last sample was kept
+        # or dropped by the base, and the diagnosis compared 8 windows with 9)
+        nominal = np.arange(0.0, tr[-1] - window_s + 1e-9, window_s * (1 - overlap))
+        k = np.clip(np.searchsorted(tr, nominal), 0, len(t) - 1)
+        k = np.unique(k[tr[k] + window_s <= tr[-1] + 1e-9])
         gap_s = gap_threshold_s(t) if max_gap_s is None else max_gap_s
         big_gap = np.concatenate([[0], np.cumsum(np.diff(t) > gap_s)])
-        k_end = np.searchsorted(t, t[k] + window_s)
+        k_end = np.searchsorted(tr, tr[k] + window_s)
         k = k[big_gap[np.minimum(k_end, len(t) - 1)] == big_gap[k]]
         if not len(k):
             continue

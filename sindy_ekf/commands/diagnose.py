@@ -18,6 +18,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Add the ``diagnose`` arguments to its parser."""
     p.add_argument("campaign", type=Path, help="trajectory or tracker campaign (train runs fit, test runs score)")
     p.add_argument("--model", type=Path, required=True, metavar="MODEL.json", help="model file of identify")
+    p.add_argument("--train", type=Path, default=None, metavar="CAMPAIGN",
+                   help="campaign whose train runs fit the mechanisms (default: CAMPAIGN's own; for a campaign of "
+                        "test runs only, e.g. the one the model was identified on)")
     p.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the results as JSON")
     p.add_argument("--plots", type=Path, default=None, metavar="DIR",
                    help="write residual structure, lag, family profiles and error curves into DIR")
@@ -65,7 +68,7 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
 def run(args) -> int:
     """Diagnose, print the ranking and the gain, write JSON, plots and the extended model on request."""
     check_outputs(args)
-    d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf, workers=workers_of(args))
+    d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf, workers=workers_of(args), train=args.train)
     print(format_diagnosis(d, args.model, args.campaign))
     if args.plots:
         write_diagnosis_figures(d, args.plots)

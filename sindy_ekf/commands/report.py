@@ -20,6 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for report.html (and model.json)")
     p.add_argument("--model", type=Path, default=None, metavar="MODEL.json",
                    help="model file of identify (default: identify one on the train runs)")
+    p.add_argument("--train", type=Path, default=None, metavar="CAMPAIGN",
+                   help="campaign whose train runs every stage fits on (default: CAMPAIGN's own; for a campaign of "
+                        "test runs only, e.g. the one the model was identified on)")
     p.add_argument("--quick", action="store_true",
                    help=f"identify with the quick grid ({QUICK_GRID.size} points, {QUICK_GRID.n_folds} folds) "
                         "instead of the full one")
@@ -72,7 +75,7 @@ def run(args) -> int:
     check_outputs(args, folders=("out",))
     config = load_config(args.config)  # a bad file fails here, before the work
     report = build_report(args.campaign, args.out, model=args.model, quick=args.quick, config=config,
-                          workers=workers_of(args))
+                          workers=workers_of(args), train=args.train)
     if not args.quiet:
         print(format_headline(report.chain))
     if format_problems(report.chain):

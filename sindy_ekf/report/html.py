@@ -121,7 +121,7 @@ class Report:
 
 def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | None = None, quick: bool = False,
                  grid=None, stages=STAGES, config: FilterConfig | None = None,
-                 workers: Workers | int = 1) -> Report:
+                 workers: Workers | int = 1, train: str | Path | None = None) -> Report:
     """Return the report written for ``campaign`` into ``out_dir`` (``report.html``) and its chain.
 
     Parameters
@@ -133,6 +133,7 @@ def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | 
     stages : the chain's stages to run (see :data:`sindy_ekf.stages.chain.STAGES`).
     config : the benchmark's filter settings (:func:`sindy_ekf.config.load_config`; default the shipped ones).
     workers : where the chain's parallel tasks go (:mod:`groundfloor.parallel`).
+    train : a campaign whose train runs the chain fits on instead of ``campaign``'s own.
 
     Raises
     ------
@@ -141,5 +142,6 @@ def build_report(campaign: str | Path, out_dir: str | Path, model: str | Path | 
     """
     check_report_dir(out_dir)  # fail before the work, not after it
     grid = grid if grid is not None else (QUICK if quick else None)
-    chain = run_chain(campaign, out_dir, model=model, grid=grid, stages=stages, config=config, n_jobs=workers)
+    chain = run_chain(campaign, out_dir, model=model, grid=grid, stages=stages, config=config, n_jobs=workers,
+                      train=train)
     return Report(render_report(chain, out_dir), chain)

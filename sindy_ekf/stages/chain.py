@@ -26,7 +26,7 @@ from groundfloor.progress import progress
 from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates, Survey, TrajectoryCampaign
 from identification.preprocessing.calibration import Calibration
-from identification.preprocessing.campaigns import campaign_kind, preprocessed_dir
+from identification.preprocessing.campaigns import campaign_kind, preprocessed_dir, train_campaign_of
 from identification.preprocessing.preprocess import DEFAULT_SMOOTHING, REPORT_FILE
 from identification.preprocessing.trajectory import read_trajectory_campaign
 from identification.sindy.data import states_of_runs
@@ -160,9 +160,12 @@ def identification_plan(chain: ChainResult, grid: SearchGrid | str | None) -> Id
 
 def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid, out_dir: Path | None,
                  n_jobs: Workers | int, estimators: Sequence[str] | None,
-                 outages: OutageSchedule | None, config: FilterConfig | None) -> dict[str, Callable[[], dict]]:
-    """Return each stage as a function of what the stages before it ``found``, returning its fields."""
+                 outages: OutageSchedule | None, config: FilterConfig | None,
+                 train: tuple[str | Path, TrajectoryCampaign] | None = None) -> dict[str, Callable[[], dict]]:
+    """Return each stage as a function of what the stages before it ``found``, returning its fields
+    (``train``: the path and campaign whose train runs the stages fit on, default the chain's own)."""
     traj, path = chain.trajectory, chain.campaign_path
+    train_path, train_camp = train if train is not None else (None, None)
 
     def calibration() -> dict:
         sc = calibration_stage(path)
@@ -177,7 +180,8 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
     def identification() -> dict:
         if model is not None:
             return {"model": SindyModel.load(model), "model_path": Path(model)}
-        ident = identify(identification_plan(chain, grid), n_jobs=n_jobs,
+        on = chain if train_camp is None else dataclasses.replace(chain, trajectory=train_camp)
+        ident = identify(identification_plan(on, grid), n_jobs=n_jobs,
                          out=None if out_dir is None else Path(out_dir) / "model.json")
         return {"search": ident.search, "model": ident.model, "model_path": ident.model_path}
 
@@ -186,7 +190,8 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
         found["states"] = {"test": states_of_runs(traj.split("test"), model_smoothing(m))[0]}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # envelope warnings: the evaluate command's business
-            ev = evaluation_stage(traj, m, true_dynamics_of(path))
+            ev = evaluation_stage(traj, m, true_dynamics_of(path),
+                                  train_runs=None if train_camp is None else train_camp.split("train"))
         return {"states": {"train": ev.train_states, **found["states"]},
                 "evaluation": {name: r["rk4"] for name, r in ev.results.items()}}
 
@@ -197,12 +202,12 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
         wished = estimators or (quick if grid == QUICK else None)
         names = None if wished is None else tuple(n for n in wished if n != ORACLE_EKF or oracle is not None)
         return {"benchmark": estimation_stage(traj, found["model"], oracle, estimators=names, outages=outages,
-                                              config=cfg, workers=n_jobs)}
+                                              config=cfg, workers=n_jobs, train_campaign=train_camp)}
 
     def diagnosis() -> dict:
         if found.get("model_path") is None:
             raise StageSkipped("the model was not written to a file")
-        return {"diagnosis": diagnose_campaign(path, found["model_path"], workers=n_jobs)}
+        return {"diagnosis": diagnose_campaign(path, found["model_path"], workers=n_jobs, train=train_path)}
 
     return {"calibration": calibration, "synchronisation": synchronisation, "identification": identification,
             "evaluation": evaluation, "estimation": estimation, "diagnosis": diagnosis}
@@ -210,7 +215,8 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
 
 def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: str | Path | None = None,
               grid=QUICK, stages=STAGES, n_jobs: Workers | int = 1, estimators=None,
-              outages: OutageSchedule | None = None, config: FilterConfig | None = None) -> ChainResult:
+              outages: OutageSchedule | None = None, config: FilterConfig | None = None,
+              train: str | Path | None = None) -> ChainResult:
     """Return the chain run on ``campaign``: each stage of ``stages`` in order, failures recorded.
 
     Parameters
@@ -226,6 +232,8 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
         :data:`QUICK_ESTIMATORS` with the quick grid; ``oracle_ekf`` only on a simulated campaign).
     outages : when the benchmark drops GNSS (default: ``config``'s, 5, 10, 30, 60 s in turn, 30 s apart).
     config : the benchmark's filter settings (:mod:`sindy_ekf.config`; default the shipped ones).
+    train : a campaign whose train runs the stages fit on (identification, baselines, process
+        noise, mechanisms) instead of ``campaign``'s own: for a campaign of test runs only.
 
     Raises
     ------
@@ -235,10 +243,12 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     unknown = set(stages) - set(STAGES)
     if unknown:
         raise InputError(f"stages: unknown {sorted(unknown)}; choose from {list(STAGES)}")
-    chain = open_chain(campaign, need_train=model is None)
+    train_camp = train_campaign_of(train)
+    chain = open_chain(campaign, need_train=model is None and train_camp is None)
     found: dict = {}
     errors, skipped, seconds = {}, {}, dict(chain.seconds)
-    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators, outages, config)
+    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators, outages, config,
+                         None if train_camp is None else (train, train_camp))
     for name in STAGES:
         if name not in stages:
             skipped[name] = "stage not requested"

@@ -42,6 +42,16 @@ def test_windows_start_every_half_window_and_sample_the_run_on_their_grids():
     np.testing.assert_allclose(w.pose_truth[..., 2], 0.2 + 0.05 * s_grid, atol=1e-12)
 
 
+@pytest.mark.parametrize("base", [0.0, 100.0, 1671615000.0, 1722278751.228780031])
+def test_the_windows_do_not_depend_on_the_time_base(base):
+    # the same 20 s run stamped from 0, 100 s or UTC: by hand seven windows, the last ending on the
+    # run's last sample (UTC stamps resolve 2.4e-7 s, coarser than the selection's 1e-9 s tolerance)
+    run = _linear_run()
+    moved = BodyStates(**{**run.__dict__, "t": base + (run.t - T_START)})
+    w = make_windows([moved], window_s=5.0, overlap=0.5, dt=0.02)
+    np.testing.assert_allclose(w.t0_run, [0.0, 2.5, 5.0, 7.5, 10.0, 12.5, 15.0], atol=1e-6)
+
+
 def test_windows_without_overlap_and_with_another_step():
     w = make_windows([_linear_run()], window_s=5.0, overlap=0.0, dt=0.04)
     np.testing.assert_allclose(w.t0_run, [0.0, 5.0, 10.0, 15.0], atol=1e-9)

@@ -65,3 +65,21 @@ def test_benchmark_with_train_elsewhere_equals_the_benchmark_inside_the_campaign
     assert main(["benchmark", str(b), *flags, "--train", str(b)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "campaign.yaml marks no run as train (--train needs runs to fit on)" in err
+
+
+def test_diagnose_and_the_report_chain_with_train_elsewhere_as_inside_the_campaign(camps, tmp_path, capsys):
+    from sindy_ekf.stages.chain import run_chain
+    a, b, model = camps
+    ja, jb = tmp_path / "a.json", tmp_path / "b.json"
+    assert main(["diagnose", str(a), "--model", str(model), "--no-ekf", "--json", str(ja), "--quiet"]) == 0
+    assert main(["diagnose", str(b), "--model", str(model), "--no-ekf", "--train", str(a), "--json", str(jb),
+                 "--quiet"]) == 0
+    ca, cb = json.loads(ja.read_text())["causes"], json.loads(jb.read_text())["causes"]
+    assert [c["name"] for c in cb] == [c["name"] for c in ca]
+    assert [c["pos_err_5s_m"] for c in cb] == [c["pos_err_5s_m"] for c in ca]
+    capsys.readouterr()
+    assert main(["diagnose", str(b), "--model", str(model), "--no-ekf", "--quiet"]) == 2
+    assert "nothing to fit a mechanism on (give --train CAMPAIGN" in capsys.readouterr().err
+    inside = run_chain(a, model=model, stages=("identification", "evaluation"))
+    elsewhere = run_chain(b, model=model, stages=("identification", "evaluation"), train=a)
+    assert not elsewhere.errors and elsewhere.evaluation["lag"].pos_err_5s_m == inside.evaluation["lag"].pos_err_5s_m
