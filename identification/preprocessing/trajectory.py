@@ -30,6 +30,8 @@ others as warnings):
 - poses beyond the inputs' time span (by more than :func:`gap_threshold_s` of the input
   stamps: a recording that ends with only some topics present) are left out and counted
   (``poses_outside_inputs``): the inputs there were never recorded;
+- holes in the inputs longer than :data:`INPUT_HOLE_S` while the poses go on are counted
+  (``input_holes``) and named, the inputs held through them as recorded;
 - holes in the poses are not an error but are counted (``gaps``: intervals longer than
   :func:`gap_threshold_s`); :func:`gap_segments` gives the stretches between them, which
   splines and windows must not bridge;
@@ -80,6 +82,8 @@ MAX_POSE_INTERVAL_S = 2.0
 MAX_YAW_RATE_RAD_S = 10.0
 #: ... taken over this long, so that the noise of a fast pose rate stays well below it
 YAW_RATE_BASELINE_S = 0.2
+#: inputs silent this long while the poses go on are named (held, not cut: see :func:`_input_holes`)
+INPUT_HOLE_S = 2.0
 GAPS_NOTE = "pose gaps (a prism lost; never bridged)"  # how the command line's summary names them
 
 
@@ -248,6 +252,25 @@ def _within_inputs(pc: dict[str, np.ndarray], t_i: np.ndarray, name: str, poses_
     return {c: v[inside] for c, v in pc.items()}, n_out
 
 
+def _input_holes(t_i: np.ndarray, t_p: np.ndarray, name: str, inputs_path: Path) -> int:
+    """Return the number of holes in the inputs longer than :data:`INPUT_HOLE_S` while the poses
+    go on, named in a warning with the longest (the data are kept: a joystick that publishes on
+    change leaves such holes while the stick is held, a recorder's pause leaves them too, and
+    only the user can tell which)."""
+    if t_i.size < 2:
+        return 0
+    dt = np.diff(t_i)
+    holes = np.flatnonzero(dt > INPUT_HOLE_S)
+    # a hole counts where poses were recorded inside it (a pause of the whole recording is a pose gap)
+    holes = [k for k in holes if np.count_nonzero((t_p > t_i[k]) & (t_p < t_i[k + 1])) > 1]
+    if holes:
+        k = max(holes, key=lambda j: dt[j])
+        log.warning("run %s: %s holds its inputs through %d holes longer than %g s while the poses go on, the "
+                    "longest %.1f s from t = %.3f s: a command held that long, or a recorder's pause",
+                    name, inputs_path.name, len(holes), INPUT_HOLE_S, dt[k], t_i[k])
+    return len(holes)
+
+
 def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> TrajectoryRun:
     """Return one validated run of a trajectory campaign (see the module docstring)."""
     repairs: dict[str, int] = {}
@@ -282,6 +305,7 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
         raise InputError(f"run {name}: poses ({t_p[0]:.3f} to {t_p[-1]:.3f} s) and inputs "
                          f"({t_i[0]:.3f} to {t_i[-1]:.3f} s) do not overlap in time")
     pc, repairs["poses_outside_inputs"] = _within_inputs(pc, t_i, name, poses_path)
+    repairs["input_holes"] = _input_holes(t_i, pc["t"], name, inputs_path)
     check_poses_move(pc["x"], pc["y"], pc["yaw"], f"run {name} ({poses_path})")
     repairs["gaps"] = int(gap_segments(pc["t"]).shape[0] - 1)
 
@@ -289,7 +313,7 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     # a hole in the poses is a prism lost for a moment, part of normal tracker data: counted and
     # summarised once per command; the other repairs mean the files hold something wrong
     expected_repairs.note(GAPS_NOTE, name, repairs.get("gaps", 0))
-    problems = {k: v for k, v in repairs.items() if k not in ("gaps", "poses_outside_inputs")}  # named above
+    problems = {k: v for k, v in repairs.items() if k not in ("gaps", "poses_outside_inputs", "input_holes")}  # named above
     if problems:
         log.warning("run %s: %s", name, ", ".join(f"{k}={v}" for k, v in problems.items()))
     poses = PoseTrack(**{c: np.ascontiguousarray(pc[c]) for c in POSE_COLUMNS})

@@ -309,3 +309,19 @@ def test_yaw_in_degrees_is_named_not_read_as_radians(tmp_path):
         read_trajectory_campaign(_campaign(tmp_path / "deg", t, yaw=deg))
     run = read_trajectory_campaign(_campaign(tmp_path / "rad", t, yaw=np.angle(np.exp(1j * yaw)))).runs[0]
     np.testing.assert_allclose(run.poses.yaw, yaw, atol=1e-9)
+
+
+def test_a_hole_in_the_inputs_while_the_poses_go_on_is_named_and_held(tmp_path, caplog):
+    # 10 Hz poses over 40 s; 20 Hz inputs silent from 10 s to 20 s (a recorder's pause, or a
+    # stick held on a joystick that publishes on change): named, counted, the inputs kept as they are
+    t = np.arange(400) * 0.1
+    t_in = np.concatenate([np.arange(0.0, 10.0 + 1e-9, 0.05), np.arange(20.0, 39.95, 0.05)])
+    with caplog.at_level(logging.WARNING):
+        run = read_trajectory_campaign(_campaign(tmp_path / "c", t, t_input=t_in)).runs[0]
+    assert run.repairs == {"input_holes": 1} and run.poses.t.size == 400 and run.inputs.t.size == t_in.size
+    assert "inputs.csv holds its inputs through 1 holes longer than 2 s while the poses go on, the longest " \
+           "10.0 s from t = 10.000 s" in caplog.text
+    # the same hole in the poses too (the whole recording paused) is a pose gap, not an input hole
+    t_gap = t[(t < 10.0) | (t > 20.0)]
+    run = read_trajectory_campaign(_campaign(tmp_path / "d", t_gap, t_input=t_in)).runs[0]
+    assert run.repairs == {"gaps": 1}
