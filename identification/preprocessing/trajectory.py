@@ -20,18 +20,19 @@ others as warnings):
 - rows with the same stamp are merged (``duplicate_pose_stamps``: pose rows averaged, being two
   measurements of one pose; ``duplicate_input_stamps``: the last row kept, since a later
   command supersedes an earlier one received at the same instant);
-- poses more than :data:`MAX_POSE_INTERVAL_S` apart (median) are an :class:`InputError`: a time
-  unit other than the contract's seconds (milliseconds, nanoseconds);
-- yaw turning faster than a ground robot can (:func:`_check_yaw_unit`) is an :class:`InputError`:
-  yaw in degrees;
+- the checks of :mod:`identification.preprocessing.trajectory_checks`: poses more than
+  ``MAX_POSE_INTERVAL_S`` apart (median) are an :class:`InputError` (a time unit other than the
+  contract's seconds: milliseconds, nanoseconds);
+- yaw turning faster than a ground robot can (``check_yaw_unit``, the same module) is an
+  :class:`InputError`: yaw in degrees;
 - stamps going backwards are an :class:`InputError` naming file and row: the contract says rows
   are in time order, and a backward step means concatenated or re-stamped recordings, which
   sorting would silently interleave;
 - poses beyond the inputs' time span (by more than :func:`gap_threshold_s` of the input
   stamps: a recording that ends with only some topics present) are left out and counted
   (``poses_outside_inputs``): the inputs there were never recorded;
-- holes in the inputs longer than :data:`INPUT_HOLE_S` while the poses go on are counted
-  (``input_holes``) and named, the inputs held through them as recorded;
+- holes in the inputs longer than ``INPUT_HOLE_S`` (the same module) while the poses go on are
+  counted (``input_holes``) and named, the inputs held through them as recorded;
 - holes in the poses are not an error but are counted (``gaps``: intervals longer than
   :func:`gap_threshold_s`); :func:`gap_segments` gives the stretches between them, which
   splines and windows must not bridge;
@@ -62,6 +63,15 @@ from groundfloor.types import (
     check_input_range,
     check_poses_move,
 )
+from identification.preprocessing.trajectory_checks import (  # noqa: F401 - the gap rule re-exported
+    GAP_FACTOR,
+    GAP_MIN_S,
+    check_time_unit,
+    check_yaw_unit,
+    gap_threshold_s,
+    input_holes,
+    within_inputs,
+)
 
 log = logging.getLogger(__name__)
 
@@ -71,36 +81,11 @@ POSE_COLUMNS = ("t", "x", "y", "z", "pitch", "yaw", "x_std", "y_std", "z_std", "
 INPUT_COLUMNS = ("t", "u1", "u2")
 STATE_COLUMNS = ("t", "vx", "vy", "omega", "u1", "u2")
 
-#: a pose interval counts as a gap when longer than this many median intervals ...
-GAP_FACTOR = 10.0
-#: ... and than this many seconds (the 50 Hz trigger skips a pulse every 3 s on purpose)
-GAP_MIN_S = 0.5
-#: a median pose interval above this is a time unit other than seconds (a 5 s prediction window
-#: would hold two poses): the data contract's t is in seconds
-MAX_POSE_INTERVAL_S = 2.0
-#: a 95th percentile of the yaw rate above this is yaw in degrees (57 times its radians) ...
-MAX_YAW_RATE_RAD_S = 10.0
-#: ... taken over this long, so that the noise of a fast pose rate stays well below it
-YAW_RATE_BASELINE_S = 0.2
-#: inputs silent this long while the poses go on are named (held, not cut: see :func:`_input_holes`)
-INPUT_HOLE_S = 2.0
 GAPS_NOTE = "pose gaps (a prism lost; never bridged)"  # how the command line's summary names them
 
 
 # ---------------------------------------------------------------------------------------------
 # gaps
-
-
-def gap_threshold_s(t: np.ndarray) -> float:
-    """Return the pose interval (s) above which a hole counts as a gap for stamps ``t``.
-
-    ``max(GAP_MIN_S, GAP_FACTOR * median(diff(t)))``: 1 s for 10 Hz ICP poses, 0.5 s for
-    50 Hz tracker poses.
-    """
-    dt = np.diff(np.asarray(t, dtype=float))
-    if dt.size == 0:
-        return GAP_MIN_S
-    return float(max(GAP_MIN_S, GAP_FACTOR * np.median(dt)))
 
 
 def gap_segments(t: np.ndarray, max_gap_s: float | None = None) -> np.ndarray:
@@ -193,28 +178,6 @@ def _merge_duplicates(cols: dict[str, np.ndarray], how: str) -> tuple[dict, int]
     return merged, n_dup
 
 
-def _check_yaw_unit(t: np.ndarray, yaw: np.ndarray, path: Path) -> None:
-    """Raise a one-line InputError when the yaw turns faster than a ground robot can: degrees.
-
-    The yaw rate is taken over about :data:`YAW_RATE_BASELINE_S` (so that a high pose rate's noise
-    does not count) within stretches without gaps; its 95th percentile (so that a glitch or a
-    wrap at +-180 degrees does not count) above :data:`MAX_YAW_RATE_RAD_S` is yaw in degrees.
-    The shared and simulated campaigns stay below 0.9 rad/s.
-    """
-    step = float(np.median(np.diff(t)))
-    k = max(int(round(YAW_RATE_BASELINE_S / step)), 1) if step > 0 else 1
-    if t.size <= k:
-        return
-    dt = t[k:] - t[:-k]
-    ok = dt <= k * gap_threshold_s(t)
-    if not ok.any():
-        return
-    rate = float(np.percentile(np.abs(yaw[k:] - yaw[:-k])[ok] / dt[ok], 95))
-    if rate > MAX_YAW_RATE_RAD_S:
-        raise InputError(f"{path}: column yaw turns at {rate:.3g} rad/s (95th percentile), faster than a ground robot "
-                         "turns: yaw must be in radians (degrees?)")
-
-
 def unwrap_yaw(yaw: np.ndarray) -> np.ndarray:
     """Return ``yaw`` unwrapped if it looks wrapped (all within [-pi, pi]), else unchanged.
 
@@ -224,51 +187,6 @@ def unwrap_yaw(yaw: np.ndarray) -> np.ndarray:
     if yaw.size and np.all(np.abs(yaw) <= math.pi + 1e-6):
         return np.unwrap(yaw)
     return yaw
-
-
-def _within_inputs(pc: dict[str, np.ndarray], t_i: np.ndarray, name: str, poses_path: Path
-                   ) -> tuple[dict[str, np.ndarray], int]:
-    """Return the pose columns ``pc`` within the inputs' time span, and the pose rows left out.
-
-    Before its first and after its last sample an input track holds its end values; beyond
-    :func:`gap_threshold_s` of the inputs' own stamps that hold is a guess (a recording that
-    stopped, a logger started late), and a run whose inputs end half-way would otherwise be
-    fitted and scored on motion under inputs it never recorded. Those poses are left out,
-    counted and named with their duration.
-    """
-    t_p = pc["t"]
-    hold_s = gap_threshold_s(t_i)
-    inside = (t_p >= t_i[0] - hold_s) & (t_p <= t_i[-1] + hold_s)
-    n_out = int(np.count_nonzero(~inside))
-    if n_out == 0:
-        return pc, 0
-    if np.count_nonzero(inside) < 2:
-        raise InputError(f"run {name}: fewer than 2 poses ({poses_path}) within the inputs' time span "
-                         f"({t_i[0]:.3f} to {t_i[-1]:.3f} s)")
-    kept = t_p[inside]
-    log.warning("run %s: %d poses (%.1f s before the first input, %.1f s after the last) left out: "
-                "the inputs there were not recorded", name, n_out, max(kept[0] - t_p[0], 0.0),
-                max(t_p[-1] - kept[-1], 0.0))
-    return {c: v[inside] for c, v in pc.items()}, n_out
-
-
-def _input_holes(t_i: np.ndarray, t_p: np.ndarray, name: str, inputs_path: Path) -> int:
-    """Return the number of holes in the inputs longer than :data:`INPUT_HOLE_S` while the poses
-    go on, named in a warning with the longest (the data are kept: a joystick that publishes on
-    change leaves such holes while the stick is held, a recorder's pause leaves them too, and
-    only the user can tell which)."""
-    if t_i.size < 2:
-        return 0
-    dt = np.diff(t_i)
-    holes = np.flatnonzero(dt > INPUT_HOLE_S)
-    # a hole counts where poses were recorded inside it (a pause of the whole recording is a pose gap)
-    holes = [k for k in holes if np.count_nonzero((t_p > t_i[k]) & (t_p < t_i[k + 1])) > 1]
-    if holes:
-        k = max(holes, key=lambda j: dt[j])
-        log.warning("run %s: %s holds its inputs through %d holes longer than %g s while the poses go on, the "
-                    "longest %.1f s from t = %.3f s: a command held that long, or a recorder's pause",
-                    name, inputs_path.name, len(holes), INPUT_HOLE_S, dt[k], t_i[k])
-    return len(holes)
 
 
 def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> TrajectoryRun:
@@ -284,11 +202,8 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     pc, repairs["duplicate_pose_stamps"] = _merge_duplicates(pc, "mean")
     if pc["t"].size < 2:
         raise InputError(f"{poses_path}: fewer than 2 valid pose rows")
-    _check_yaw_unit(pc["t"], pc["yaw"], poses_path)
-    step = float(np.median(np.diff(pc["t"])))
-    if step > MAX_POSE_INTERVAL_S:
-        raise InputError(f"{poses_path}: the poses are {step:.4g} s apart (median) over {np.ptp(pc['t']) / 3600:.3g} h: "
-                         "t must be in seconds (milliseconds or nanoseconds?)")
+    check_time_unit(pc["t"], poses_path)
+    check_yaw_unit(pc["t"], pc["yaw"], poses_path)
 
     ic = _read_csv(inputs_path, INPUT_COLUMNS)
     ic, i_rows, repairs["nan_input_rows"] = _drop_nan_rows(ic, INPUT_COLUMNS)
@@ -304,8 +219,8 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     if overlap_s <= 0:
         raise InputError(f"run {name}: poses ({t_p[0]:.3f} to {t_p[-1]:.3f} s) and inputs "
                          f"({t_i[0]:.3f} to {t_i[-1]:.3f} s) do not overlap in time")
-    pc, repairs["poses_outside_inputs"] = _within_inputs(pc, t_i, name, poses_path)
-    repairs["input_holes"] = _input_holes(t_i, pc["t"], name, inputs_path)
+    pc, repairs["poses_outside_inputs"] = within_inputs(pc, t_i, name, poses_path)
+    repairs["input_holes"] = input_holes(t_i, pc["t"], name, inputs_path)
     check_poses_move(pc["x"], pc["y"], pc["yaw"], f"run {name} ({poses_path})")
     repairs["gaps"] = int(gap_segments(pc["t"]).shape[0] - 1)
 
@@ -313,7 +228,8 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     # a hole in the poses is a prism lost for a moment, part of normal tracker data: counted and
     # summarised once per command; the other repairs mean the files hold something wrong
     expected_repairs.note(GAPS_NOTE, name, repairs.get("gaps", 0))
-    problems = {k: v for k, v in repairs.items() if k not in ("gaps", "poses_outside_inputs", "input_holes")}  # named above
+    named = ("gaps", "poses_outside_inputs", "input_holes")  # said in their own lines above
+    problems = {k: v for k, v in repairs.items() if k not in named}
     if problems:
         log.warning("run %s: %s", name, ", ".join(f"{k}={v}" for k, v in problems.items()))
     poses = PoseTrack(**{c: np.ascontiguousarray(pc[c]) for c in POSE_COLUMNS})
