@@ -37,7 +37,8 @@ KEY_FILE = "cache_key.json"
 # modules whose source decides what preprocessing writes: a change invalidates the cache
 _CODE_MODULES = ("io_tracker", "io_bags", "io_bag_salvage", "stamp_order", "io_survey", "calibration",
                  "network_transform", "body_frame", "sync", "clock_sync", "extra_offset", "hub", "poses",
-                 "smoothing_spline", "states", "preprocess", "trajectory", "io_sensors", "io_motion")
+                 "smoothing_spline", "states", "preprocess", "trajectory", "trajectory_checks", "io_sensors",
+                 "io_motion")
 
 
 def campaign_kind(path: str | Path) -> str:
