@@ -128,15 +128,10 @@ def _salvage(bag: Path, run: str, error: str) -> tuple[dict[str, _Topic], Trunca
     return out, cut
 
 
-def _unreadable_record(bag: Path, reason: str) -> Truncation:
-    """Return the record of a bag (file or ROS2 folder) of which nothing could be read."""
-    size = bag.stat().st_size if bag.is_file() else sum(f.stat().st_size for f in bag.rglob("*") if f.is_file())
-    return Truncation(bag=bag.name, messages=0, stopped_at_byte=0, size_bytes=size, reason=reason)
-
-
 def _unreadable(bag: Path, run: str, reason: str) -> tuple[dict[str, _Topic], Truncation]:
-    """Return no topics and the record of a bag of which nothing could be read (logged)."""
-    cut = _unreadable_record(bag, reason)
+    """Return no topics and the record of a bag (file or ROS2 folder) of which nothing could be read (logged)."""
+    size = bag.stat().st_size if bag.is_file() else sum(f.stat().st_size for f in bag.rglob("*") if f.is_file())
+    cut = Truncation(bag=bag.name, messages=0, stopped_at_byte=0, size_bytes=size, reason=reason)
     log.warning("run %s: bag %s unreadable (%s): 0 messages; the run's other bags are read", run, bag.name, reason)
     return {t: _Topic() for t in TOPIC_TYPES}, cut
 

@@ -24,12 +24,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from groundfloor.errors import InputError
 from groundfloor.files import csv_header
 from identification.preprocessing.io_sensors import (
     CONTRACT_TOPICS,
+    WHEEL_KEYS,
     read_csv_columns,
     read_sensors_config,
     topic_messages,
@@ -50,10 +50,9 @@ KINDS = {
 }
 DEFAULT_TOPICS = {IMU: CONTRACT_TOPICS["imu"], ODOMETRY: CONTRACT_TOPICS["odometry"],
                   WHEELS: CONTRACT_TOPICS["wheels"]}  # data contract part 1
-#: an odometry.csv may give the wheel speeds of each side instead of v, omega (rad/s) ...
+#: an odometry.csv may give the wheel speeds of each side instead of v, omega (rad/s), with
+#: io_sensors.WHEEL_KEYS in campaign.yaml
 WHEEL_COLUMNS = ("w_left", "w_right")
-#: ... with these keys of campaign.yaml (metres)
-WHEEL_KEYS = ("wheel_radius_m", "track_m")
 
 
 @dataclass(frozen=True)
@@ -179,39 +178,19 @@ def _gives_wheel_speeds(path: Path) -> bool:
     return "v" not in header and all(c in header for c in WHEEL_COLUMNS)
 
 
-def wheel_geometry(campaign_yaml: Path, source: str) -> tuple[float, float]:
-    """Return ``wheel_radius_m`` and ``track_m`` of ``campaign.yaml`` (data contract part 2).
-
-    Raises
-    ------
-    InputError
-        Naming the file and key: missing, not a positive number, or the file unreadable;
-        ``source`` (what needs them) in the message.
-    """
-    try:
-        meta = yaml.safe_load(Path(campaign_yaml).read_text()) or {}
-    except (OSError, yaml.YAMLError):
-        raise InputError(f"{campaign_yaml}: unreadable; {source} gives wheel speeds, which need "
-                         f"{' and '.join(WHEEL_KEYS)}") from None
-    out = []
-    for key in WHEEL_KEYS:
-        value = meta.get(key) if isinstance(meta, dict) else None
-        if value is None:
-            raise InputError(f"{campaign_yaml}: key '{key}' missing; {source} gives wheel speeds "
-                             f"({','.join(WHEEL_COLUMNS)}), which need {' and '.join(WHEEL_KEYS)}")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
-            raise InputError(f"{campaign_yaml}: key '{key}' is {value!r}, expected a positive number of metres")
-        out.append(float(value))
-    return out[0], out[1]
-
-
 def _wheel_odometry(path: Path) -> MotionSamples:
     """Return the odometry of an ``odometry.csv`` with wheel speeds ``w_left,w_right`` (rad/s, each
     side's wheels): ``v = r (w_l + w_r) / 2`` and ``omega = r (w_r - w_l) / b`` with the wheel radius
     ``r`` and track ``b`` of the campaign's ``campaign.yaml`` (data contract part 2). The track is the
     geometric one: a skid-steered robot turns slower than it says (the filters' ``scale_std``)."""
     data = read_csv_columns(path, ("t",) + WHEEL_COLUMNS)
-    radius, track = wheel_geometry(path.parent.parent.parent / "campaign.yaml", str(path))
+    campaign = path.parent.parent.parent
+    config = read_sensors_config(campaign)  # checks the keys' values (positive numbers)
+    for key in WHEEL_KEYS:
+        if getattr(config, key) is None:
+            raise InputError(f"{campaign / 'campaign.yaml'}: key '{key}' missing; {path} gives wheel speeds "
+                             f"({','.join(WHEEL_COLUMNS)}), which need {' and '.join(WHEEL_KEYS)}")
+    radius, track = config.wheel_radius_m, config.track_m
     w_l, w_r = np.array(data["w_left"], float), np.array(data["w_right"], float)
     return MotionSamples(ODOMETRY, np.array(data["t"], float),
                          {"v": radius * (w_l + w_r) / 2.0, "omega": radius * (w_r - w_l) / track})

@@ -42,6 +42,8 @@ SENSOR_TYPES = {"sensor_msgs/NavSatFix": GNSS, "sensor_msgs/Imu": "imu",
                 "sensor_msgs/JointState": "wheels", "nav_msgs/Odometry": "odometry"}
 DEFAULT_TYPES = {"gnss": "sensor_msgs/NavSatFix", "imu": "sensor_msgs/Imu",
                  "wheels": "sensor_msgs/JointState", "odometry": "nav_msgs/Odometry"}
+#: the keys of campaign.yaml that turn wheel speeds into v and omega (metres)
+WHEEL_KEYS = ("wheel_radius_m", "track_m")
 #: the optional topics' default names (data contract part 1), read without a declaration
 CONTRACT_TOPICS = {"gnss": "/gnss/fix", "imu": "/imu/data", "wheels": "/wheels/joint_states",
                    "odometry": "/odometry"}
@@ -101,7 +103,7 @@ class SensorsConfig:
         if self.enu_to_local_yaw_deg is not None:
             out["enu_to_local_yaw_deg"] = float(self.enu_to_local_yaw_deg)
             out["enu_to_local_t_m"] = [float(v) for v in self.enu_to_local_t_m]
-        for key in ("wheel_radius_m", "track_m"):
+        for key in WHEEL_KEYS:
             if getattr(self, key) is not None:
                 out[key] = float(getattr(self, key))
         return out
@@ -158,7 +160,7 @@ def read_sensors_config(root: str | Path) -> SensorsConfig:
             raise InputError(f"{file}: enu_to_local_yaw_deg given without geodetic_origin")
     t = _numbers(doc.get("enu_to_local_t_m", (0.0, 0.0, 0.0)), 3, "enu_to_local_t_m", str(file))
     wheels = {}
-    for key in ("wheel_radius_m", "track_m"):
+    for key in WHEEL_KEYS:
         if doc.get(key) is not None:
             value = _numbers([doc[key]], 1, key, str(file))[0]
             if value <= 0:

@@ -107,10 +107,11 @@ def input_holes(t_i: np.ndarray, t_p: np.ndarray, name: str, inputs_path: Path) 
     dt = np.diff(t_i)
     holes = np.flatnonzero(dt > INPUT_HOLE_S)
     # a hole counts where poses were recorded inside it (a pause of the whole recording is a pose gap)
-    holes = [k for k in holes if np.count_nonzero((t_p > t_i[k]) & (t_p < t_i[k + 1])) > 1]
-    if holes:
-        k = max(holes, key=lambda j: dt[j])
+    inside = np.searchsorted(t_p, t_i[holes + 1], "left") - np.searchsorted(t_p, t_i[holes], "right")
+    holes = holes[inside > 1]
+    if holes.size:
+        k = holes[np.argmax(dt[holes])]
         log.warning("run %s: %s holds its inputs through %d holes longer than %g s while the poses go on, the "
                     "longest %.1f s from t = %.3f s: a command held that long, or a recorder's pause",
                     name, inputs_path.name, len(holes), INPUT_HOLE_S, dt[k], t_i[k])
-    return len(holes)
+    return int(holes.size)

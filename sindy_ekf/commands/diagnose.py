@@ -7,6 +7,7 @@ from pathlib import Path
 
 from groundfloor.files import atomic_write_json, check_outputs
 from groundfloor.numbers import format_sig
+from identification.preprocessing.campaigns import train_campaign_of
 from sindy_ekf.cli_workers import add_worker_arguments, workers_of
 from sindy_ekf.diagnose import Diagnosis, diagnose_campaign
 from sindy_ekf.diagnose.figures import write_diagnosis_figures
@@ -68,7 +69,9 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
 def run(args) -> int:
     """Diagnose, print the ranking and the gain, write JSON, plots and the extended model on request."""
     check_outputs(args)
-    d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf, workers=workers_of(args), train=args.train)
+    train = train_campaign_of(args.train)
+    d = diagnose_campaign(args.campaign, args.model, ekf=not args.no_ekf, workers=workers_of(args),
+                          train_runs=None if train is None else train.split("train"))
     print(format_diagnosis(d, args.model, args.campaign))
     if args.plots:
         write_diagnosis_figures(d, args.plots)

@@ -20,7 +20,7 @@ from groundfloor.errors import InputError
 from groundfloor.parallel import Workers
 from groundfloor.results import PredictionError
 from groundfloor.types import BodyStates
-from identification.preprocessing.campaigns import open_campaign, train_campaign_of
+from identification.preprocessing.campaigns import open_campaign
 from identification.sindy.checks import stable_at_rest
 from identification.sindy.data import states_of_runs
 from identification.sindy.evaluate import EvaluationResult
@@ -405,20 +405,20 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
 
 
 def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence[str] = FAMILIES,
-                      workers: Workers | int = 1, train=None) -> Diagnosis:
+                      workers: Workers | int = 1, train_runs=None) -> Diagnosis:
     """Return the diagnosis of the model in ``model_path`` on a campaign (trajectory or tracker).
 
     Body states come from the project's spline step (``identification.sindy.data.states_of_runs``,
     smoothing ``s`` of the model's hyperparameters); a run split at a gap becomes several segments.
-    ``train``: the campaign whose train runs fit the mechanisms (default ``campaign``'s own).
+    ``train_runs``: the runs that fit the mechanisms (default ``campaign``'s train runs; ``--train``
+    gives another campaign's, :func:`identification.preprocessing.campaigns.train_campaign_of`).
     """
     model = load_model(model_path)
     camp = open_campaign(campaign)
     s = model.hyperparameters.get("s")
     s = 0.0 if s is None else float(s)
-    train_runs, test_runs = camp.split("train"), camp.split("test")
-    if train is not None:
-        train_runs = train_campaign_of(train).split("train")
+    train_runs = camp.split("train") if train_runs is None else tuple(train_runs)
+    test_runs = camp.split("test")
     if not test_runs:
         raise InputError(f"{campaign}: campaign.yaml marks no run as test, nothing to score out of sample on")
     if not train_runs:

@@ -161,11 +161,11 @@ def identification_plan(chain: ChainResult, grid: SearchGrid | str | None) -> Id
 def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid, out_dir: Path | None,
                  n_jobs: Workers | int, estimators: Sequence[str] | None,
                  outages: OutageSchedule | None, config: FilterConfig | None,
-                 train: tuple[str | Path, TrajectoryCampaign] | None = None) -> dict[str, Callable[[], dict]]:
+                 train_camp: TrajectoryCampaign | None = None) -> dict[str, Callable[[], dict]]:
     """Return each stage as a function of what the stages before it ``found``, returning its fields
-    (``train``: the path and campaign whose train runs the stages fit on, default the chain's own)."""
+    (``train_camp``: the campaign whose train runs the stages fit on, default the chain's own)."""
     traj, path = chain.trajectory, chain.campaign_path
-    train_path, train_camp = train if train is not None else (None, None)
+    train_runs = None if train_camp is None else train_camp.split("train")
 
     def calibration() -> dict:
         sc = calibration_stage(path)
@@ -190,8 +190,7 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
         found["states"] = {"test": states_of_runs(traj.split("test"), model_smoothing(m))[0]}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # envelope warnings: the evaluate command's business
-            ev = evaluation_stage(traj, m, true_dynamics_of(path),
-                                  train_runs=None if train_camp is None else train_camp.split("train"))
+            ev = evaluation_stage(traj, m, true_dynamics_of(path), train_runs=train_runs)
         return {"states": {"train": ev.train_states, **found["states"]},
                 "evaluation": {name: r["rk4"] for name, r in ev.results.items()}}
 
@@ -207,7 +206,7 @@ def _stage_steps(chain: ChainResult, found: dict, model: str | Path | None, grid
     def diagnosis() -> dict:
         if found.get("model_path") is None:
             raise StageSkipped("the model was not written to a file")
-        return {"diagnosis": diagnose_campaign(path, found["model_path"], workers=n_jobs, train=train_path)}
+        return {"diagnosis": diagnose_campaign(path, found["model_path"], workers=n_jobs, train_runs=train_runs)}
 
     return {"calibration": calibration, "synchronisation": synchronisation, "identification": identification,
             "evaluation": evaluation, "estimation": estimation, "diagnosis": diagnosis}
@@ -247,8 +246,7 @@ def run_chain(campaign: str | Path, out_dir: str | Path | None = None, model: st
     chain = open_chain(campaign, need_train=model is None and train_camp is None)
     found: dict = {}
     errors, skipped, seconds = {}, {}, dict(chain.seconds)
-    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators, outages, config,
-                         None if train_camp is None else (train, train_camp))
+    steps = _stage_steps(chain, found, model, grid, out_dir, n_jobs, estimators, outages, config, train_camp)
     for name in STAGES:
         if name not in stages:
             skipped[name] = "stage not requested"
