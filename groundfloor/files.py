@@ -160,3 +160,16 @@ def missing_column(path: str | os.PathLike, column: str, header: list[str]) -> I
     hint = f"; columns separated by {'tabs' if sep == chr(9) else repr(sep)}, the data contract's CSV files use commas" \
         if sep else ""
     return InputError(f"{path}: required column '{column}' missing (header: {line}){hint}")
+
+
+def unlisted_runs(root: str | os.PathLike, listed) -> list[str]:
+    """Return the folders under ``root/runs`` that ``campaign.yaml`` does not list (hidden ones
+    aside), sorted: a run copied in without its entry would otherwise be left out unsaid.
+
+    A part ``<run>.k`` of a listed run counts as listed (its folder is the run's own)."""
+    names = set(listed)
+    runs = Path(root) / "runs"
+    if not runs.is_dir():
+        return []
+    return sorted(p.name for p in runs.iterdir()
+                  if p.is_dir() and not p.name.startswith(".") and p.name not in names)

@@ -9,7 +9,8 @@ a ``sensor_msgs/Imu`` topic gives ``imu.csv`` (``t,wz,ax,ay``: UTC s, the yaw ra
 ``t,wz`` resp. ``t,v,omega`` are required (std columns missing: the filter's defaults); an
 ``odometry.csv`` may give ``t,w_left,w_right`` (wheel speeds, rad/s) instead, with
 ``wheel_radius_m`` and ``track_m`` in ``campaign.yaml`` (data contract part 2). Rows with
-a non-finite time or value are dropped and counted; samples outside the run's pose span are cut;
+a non-finite time or value are dropped and counted (a message whose header stamp was never set, zero,
+takes its bag time, counted); samples outside the run's pose span are cut;
 none inside it is an :class:`InputError` naming the file. ``sensor_msgs/JointState`` wheel speeds
 (the joints named ``left`` and ``right`` averaged per side, rad/s) give ``odometry.csv`` as
 ``t,w_left,w_right`` where a run has no ``nav_msgs/Odometry``; the trajectory campaign carries the
@@ -36,6 +37,7 @@ from identification.preprocessing.io_sensors import (
     undeclared_guard,
 )
 from identification.preprocessing.io_tracker import find_bags
+from identification.preprocessing.stamp_order import unstamped_to_receive
 
 log = logging.getLogger(__name__)
 
@@ -62,10 +64,11 @@ class MotionSamples:
     kind: str  # imu or odometry
     t: np.ndarray  # (n,) UTC s (header stamps)
     columns: dict  # name -> (n,) array, e.g. wz, ax, ay, wz_std or v, omega, v_std, omega_std
+    unstamped: int = 0  # messages whose header stamp was never set (zero): their bag time taken
 
     def select(self, keep: np.ndarray) -> MotionSamples:
         """Return the samples where ``keep``."""
-        return MotionSamples(self.kind, self.t[keep], {k: v[keep] for k, v in self.columns.items()})
+        return MotionSamples(self.kind, self.t[keep], {k: v[keep] for k, v in self.columns.items()}, self.unstamped)
 
     def std(self, name: str) -> np.ndarray | None:
         """Return the stated std column of ``name`` (e.g. ``wz``), or None when not given."""
@@ -76,7 +79,7 @@ def clean_samples(s: MotionSamples, source: str) -> tuple[MotionSamples, dict[st
     """Return the samples without non-finite times or required values, sorted, duplicates dropped, and the counts."""
     required = KINDS[s.kind][2]
     ok = np.isfinite(s.t) & np.all([np.isfinite(s.columns[c]) for c in required], axis=0)
-    counts = {"samples": int(s.t.size), "nan_dropped": int((~ok).sum())}
+    counts = {"samples": int(s.t.size), "nan_dropped": int((~ok).sum()), "unstamped_receive_time": s.unstamped}
     if (~ok).any():
         log.info("%s: dropped %d non-finite %s samples", source, (~ok).sum(), s.kind)
     kept = s.select(ok)
@@ -131,15 +134,20 @@ def read_motion_topic(bags: list[Path], topic: str, kind: str, run: str) -> Moti
         The topic recorded with another message type (names run, topic and type).
     """
     msgtype, names = KINDS[kind][1], KINDS[kind][2] + KINDS[kind][3]
-    rows = [(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, *_row(kind, m))
-            for _, m in topic_messages(bags, topic, msgtype, run)]
+    rows = [(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, t_bag * 1e-9, *_row(kind, m))
+            for t_bag, m in topic_messages(bags, topic, msgtype, run)]
     if not rows:
         return None
     a = np.array(rows, float)
+    t, unset = unstamped_to_receive(a[:, 0], a[:, 1])
+    if unset:
+        log.warning("run %s: topic %s: %d of %d messages have no header stamp (zero); their bag times are taken",
+                    run, topic, unset, len(t))
+    a = np.column_stack([t, a[:, 2:]])
     if kind == WHEELS and not np.isfinite(a[:, 1:]).all(axis=1).any():
         raise InputError(f"run {run}: topic {topic}: no message with a velocity of a joint named left and "
                          "of one named right (sensor_msgs/JointState wheel speeds)")
-    return MotionSamples(kind, a[:, 0], {n: a[:, 1 + i] for i, n in enumerate(names)})
+    return MotionSamples(kind, a[:, 0], {n: a[:, 1 + i] for i, n in enumerate(names)}, unset)
 
 
 def write_motion_csv(path: str | Path, s: MotionSamples) -> Path:

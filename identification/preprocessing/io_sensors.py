@@ -33,6 +33,7 @@ from groundfloor.errors import InputError
 from groundfloor.files import csv_header, missing_column
 from groundfloor.geodetic import GeodeticOrigin
 from identification.preprocessing.io_tracker import find_bags
+from identification.preprocessing.stamp_order import unstamped_to_receive
 
 log = logging.getLogger(__name__)
 
@@ -185,11 +186,18 @@ class GnssFixes:
 
 
 def clean_fixes(fixes: GnssFixes, source: str) -> tuple[GnssFixes, dict[str, int]]:
-    """Return the fixes without NO_FIX and non-finite ones, sorted by time, and the counts dropped."""
+    """Return the fixes without NO_FIX and non-finite ones, sorted by time, and the counts dropped
+    (a fix whose header stamp was never set takes its bag time, counted as ``unstamped_receive_time``)."""
+    t, unset = unstamped_to_receive(fixes.t, fixes.t_arrival)
+    if unset:
+        log.warning("%s: %d of %d GNSS fixes have no header stamp (zero); their bag times are taken", source,
+                    unset, len(t))
+        fixes = replace(fixes, t=t)
     no_fix = fixes.status < 0
     bad = ~no_fix & ~(np.all(np.isfinite(fixes.lla), 1) & np.isfinite(fixes.t)
                       & np.all(np.isfinite(fixes.cov_enu[:, :2, :2].reshape(-1, 4)), 1))
-    counts = {"fixes": int(len(fixes.t)), "no_fix_dropped": int(no_fix.sum()), "nan_dropped": int(bad.sum())}
+    counts = {"fixes": int(len(fixes.t)), "no_fix_dropped": int(no_fix.sum()), "nan_dropped": int(bad.sum()),
+              "unstamped_receive_time": unset}
     if no_fix.any() or bad.any():
         log.info("%s: dropped %d NO_FIX and %d non-finite GNSS fixes", source, no_fix.sum(), bad.sum())
     kept = fixes.select(~no_fix & ~bad)

@@ -7,7 +7,9 @@ step of the stamps longer than half a trigger period) cuts the run, at the bag t
 first message after it, into parts ``<run>.1``, ``<run>.2``, ... (a part too short to be
 synchronised is dropped with a warning); within each part the messages are put in stamp order
 and the reorderings counted; a tracker message repeating the previous stamp is dropped and
-counted. What was found is in each run's :class:`ReadFacts`.
+counted. Before all that, a Joy or hub message whose header stamp was never set (zero) takes its bag
+time (counted); Joy stamps that miss both the trigger's UTC span and their own bag times by more than
+:data:`UTC_SLACK_S` are on another clock (seconds since boot) and an error. What was found is in each run's :class:`ReadFacts`.
 
 A run that cannot go on (no bags, a required topic missing or empty, a known topic of another
 message type, no part long enough) raises :class:`InputError` from :func:`read_tracker_parts`;
@@ -28,6 +30,7 @@ import numpy as np
 import yaml
 
 from groundfloor.errors import InputError
+from groundfloor.files import unlisted_runs
 from groundfloor.types import PointSeries, RawRun, TrackerCampaign, check_input_range
 from identification.preprocessing.io_bags import (
     TOPIC_AT960,
@@ -50,11 +53,17 @@ from identification.preprocessing.stamp_order import (
     half_trigger_period_s,
     in_stamp_order,
     stamps_recover,
+    unstamped_to_receive,
 )
 
 log = logging.getLogger(__name__)
 
 REQUIRED_TOPICS = (TOPIC_TRIGGER, TOPIC_AT960, TOPIC_LTD800, TOPIC_JOY)
+#: topics whose header stamps are UTC (data contract): an unset (zero) stamp takes the bag time
+UTC_HEADER_TOPICS = (TOPIC_JOY, TOPIC_HUB)
+#: the Joy stamps must come this close to the trigger's UTC span or to their own bag times, or they
+#: are on another clock (a trigger clock that jumped, or a bag re-recorded later, moves only one of them)
+UTC_SLACK_S = 60.0
 OPTIONAL_TOPICS = (TOPIC_HUB,)  # without it the hub model (eq. 5.25) is skipped, poses are not
 SPLITS = ("train", "test")
 RECOVERS_HINT = (" (the stamps pass the jump's start again within 1 s: a message received more than half a "
@@ -71,6 +80,7 @@ class ReadFacts:
     clock_resets: tuple[ClockReset, ...] = ()  # of the whole run the part was cut from
     part_of: str | None = None  # the run a part was cut from (None: the run is whole)
     parts_dropped: tuple[str, ...] = ()  # why each part too short was dropped
+    unstamped: dict[str, int] = field(default_factory=dict)  # topic -> header stamps never set, bag time taken
 
     def to_json_dict(self) -> dict:
         """Return the facts under the keys of a run in the preprocess JSON."""
@@ -78,7 +88,8 @@ class ReadFacts:
                 "repeated_stamps_dropped": dict(self.repeated_dropped),
                 "truncated": [t.to_dict() for t in self.truncated],
                 "clock_resets": [r.to_dict() for r in self.clock_resets],
-                "part_of": self.part_of, "parts_dropped": list(self.parts_dropped)}
+                "part_of": self.part_of, "parts_dropped": list(self.parts_dropped),
+                "unstamped_receive_time": dict(self.unstamped)}
 
 
 @dataclass(frozen=True)
@@ -173,6 +184,12 @@ def _bag_run(name: str, split: str, topics: dict[str, TopicColumns]) -> BagRun:
         if topic in (TOPIC_TRIGGER, TOPIC_AT960, TOPIC_LTD800):
             c, repeated[topic] = _without_repeats(name, topic, c)
         cols[topic] = c
+    joy, trig = cols[TOPIC_JOY].stamp, cols[TOPIC_TRIGGER].stamp
+    off_trigger = joy.max() < trig.min() - UTC_SLACK_S or joy.min() > trig.max() + UTC_SLACK_S
+    if off_trigger and np.median(np.abs(joy - cols[TOPIC_JOY].t_receive)) > UTC_SLACK_S:
+        raise InputError(f"run {name}: topic {TOPIC_JOY}: header stamps {joy.min():.3f} to {joy.max():.3f} s are "
+                         f"not on the trigger's UTC ({trig.min():.3f} to {trig.max():.3f} s); the data contract "
+                         "stamps the joystick with the robot's UTC clock (NTP)")
     if not np.all(np.isfinite(cols[TOPIC_JOY].values)):
         raise InputError(f"run {name}: topic {TOPIC_JOY}: non-finite axes")
     for j, column in enumerate(("axes[1] (u1)", "axes[0] (u2)")):
@@ -215,6 +232,15 @@ def read_tracker_parts(run_dir: str | Path, name: str | None = None,
         if not len(found[topic]):
             raise InputError(f"run {name}: topic {topic} missing or empty")
     topics = {t: topic_columns(t, found[t], name) for t in TOPIC_TYPES if len(found[t])}
+    unstamped = {}
+    for t in UTC_HEADER_TOPICS:
+        if t in topics:
+            stamp, n = unstamped_to_receive(topics[t].stamp, topics[t].t_receive)
+            if n:
+                unstamped[t] = n
+                topics[t] = replace(topics[t], stamp=stamp)
+                log.warning("run %s: topic %s: %d of %d messages have no header stamp (zero); their bag times "
+                            "are taken", name, t, n, len(stamp))
 
     half_period = half_trigger_period_s(topics[TOPIC_TRIGGER].stamp)
     resets = sorted((r for t, c in topics.items() for r in find_clock_resets(t, c, half_period)),
@@ -245,7 +271,7 @@ def read_tracker_parts(run_dir: str | Path, name: str | None = None,
         raise InputError(dropped[-1])
     return tuple(replace(r, facts=replace(r.facts, truncated=tuple(truncated), clock_resets=tuple(resets),
                                           part_of=name if r.name != name else None,
-                                          parts_dropped=tuple(dropped)))
+                                          parts_dropped=tuple(dropped), unstamped=unstamped))
                  for r in runs)
 
 
@@ -297,6 +323,10 @@ def read_tracker_campaign(path: str | Path) -> TrackerCampaign:
     if not calib.is_file():
         raise InputError(f"{root}: calibration.yaml missing")
     survey = read_survey(calib)
+    extra = unlisted_runs(root, (r for r, _ in runs))
+    if extra:
+        log.warning("%s: run folder%s %s not listed in campaign.yaml; not read", root / "runs",
+                    "s" if len(extra) > 1 else "", ", ".join(extra) + (" are" if len(extra) > 1 else " is"))
     good, skipped = [], {}
     for run_name, split in runs:
         try:

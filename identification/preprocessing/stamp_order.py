@@ -21,6 +21,12 @@ synchroniser counts it as outside the trigger train or as a lost pulse; no stamp
 
 The half period comes from the trigger stamps themselves (the median positive step), not from a
 constant: the data contract says only "about 50 Hz".
+
+A header stamp of exactly zero is one its publisher never set (a ROS node leaves ``header.stamp``
+at zero unless it fills it in; a joystick or odometry node republished by hand often does):
+such a message of a UTC-stamped topic takes its bag time instead (:func:`unstamped_to_receive`),
+counted per topic, before anything above is judged; otherwise every such run would start in 1970
+or be cut at each unstamped message.
 """
 
 from __future__ import annotations
@@ -114,6 +120,18 @@ def stamps_recover(cols: TopicColumns, reset: ClockReset, within_s: float = 1.0)
     i = reset.message
     later = (cols.t_receive[i:] < reset.t_receive_utc + within_s)
     return bool(np.any(cols.stamp[i:][later] > reset.stamp_before))
+
+
+def unstamped_to_receive(stamp: np.ndarray, t_receive: np.ndarray) -> tuple[np.ndarray, int]:
+    """Return ``stamp`` with its zeros (header stamps never set) replaced by the bag times
+    ``t_receive`` (the recording computer's UTC, which the data contract's NTP-synchronised
+    stamps agree with to the message's latency), and how many were replaced (a zero bag time
+    replaces nothing: no receive time known)."""
+    stamp = np.asarray(stamp, dtype=float)
+    unset = (stamp == 0.0) & (np.asarray(t_receive, dtype=float) != 0.0)
+    if not unset.any():
+        return stamp, 0
+    return np.where(unset, np.asarray(t_receive, dtype=float), stamp), int(unset.sum())
 
 
 def in_stamp_order(cols: TopicColumns) -> tuple[TopicColumns, int]:

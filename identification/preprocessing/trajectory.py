@@ -53,7 +53,7 @@ import yaml
 
 from groundfloor import repairs as expected_repairs
 from groundfloor.errors import InputError
-from groundfloor.files import atomic_output_dir, csv_header, missing_column
+from groundfloor.files import atomic_output_dir, csv_header, missing_column, unlisted_runs
 from groundfloor.types import (
     BodyStates,
     InputSeries,
@@ -292,6 +292,10 @@ def read_trajectory_campaign(path: str | os.PathLike) -> TrajectoryCampaign:
         if (root / "calibration.yaml").exists():
             raise InputError(f"{yaml_path}: a tracker campaign (no 'kind: trajectory'); preprocess it first")
         log.warning("%s: no 'kind' key; reading it as a trajectory campaign", yaml_path)
+    extra = unlisted_runs(root, (r["name"] for r in meta["runs"]))
+    if extra:
+        log.warning("%s: run folder%s %s not listed in campaign.yaml; not read", root / "runs",
+                    "s" if len(extra) > 1 else "", ", ".join(extra) + (" are" if len(extra) > 1 else " is"))
     runs = []
     for r in meta["runs"]:
         run_dir = root / "runs" / r["name"]

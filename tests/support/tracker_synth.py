@@ -84,8 +84,11 @@ def synth_run(seed: int = 0, minutes: float = 1.0, drift_ltd_ppm: float = 16.2,
 
 # --- bags -----------------------------------------------------------------------------------
 
-def _messages(raw: BagRun, store):
-    """Yield ``(topic, msgtype, bag_time_ns, message)`` of a raw run for a rosbags typestore."""
+def _messages(raw: BagRun, store, header_stamps=None):
+    """Yield ``(topic, msgtype, bag_time_ns, message)`` of a raw run for a rosbags typestore;
+    ``header_stamps`` (topic -> f): the Joy or hub message ``i`` of UTC ``t`` stamped ``f(i, t)``
+    (received at ``t`` all the same), e.g. 0 for a stamp its publisher never set."""
+    header_stamps = header_stamps or {}
     T = store.types
     Time, Header = T["builtin_interfaces/msg/Time"], T["std_msgs/msg/Header"]
 
@@ -109,24 +112,28 @@ def _messages(raw: BagRun, store):
         for t, p, r in zip(ps.t_tracker, ps.xyz, rx):
             yield (f"/{tracker}/measurement", PS.__msgtype__, r,
                    PS(header=hd(t, tracker), point=P(x=p[0], y=p[1], z=p[2])))
-    for t, u in zip(raw.t_joy_utc, raw.u_joy):
+    def stamp(topic, i, t):
+        return header_stamps[topic](i, t) if topic in header_stamps else t
+
+    for i, (t, u) in enumerate(zip(raw.t_joy_utc, raw.u_joy)):
         axes = np.array([u[1], u[0], 0, 0], dtype=np.float32)
-        yield "/joy_teleop/joy", Joy.__msgtype__, t, Joy(header=hd(t), axes=axes,
+        yield "/joy_teleop/joy", Joy.__msgtype__, t, Joy(header=hd(stamp("/joy_teleop/joy", i, t)), axes=axes,
                                                           buttons=np.zeros(4, dtype=np.int32))
-    for t, a in zip(raw.t_hub_utc, raw.hub_azimuth):
+    for i, (t, a) in enumerate(zip(raw.t_hub_utc, raw.hub_azimuth)):
         yield "/turning_hub/azimuth", JS.__msgtype__, t, JS(
-            header=hd(t), name=["front", "rear"], position=np.asarray(a, float),
+            header=hd(stamp("/turning_hub/azimuth", i, t)), name=["front", "rear"], position=np.asarray(a, float),
             velocity=np.zeros(0), effort=np.zeros(0))
 
 
-def write_run_bags(run_dir: Path, raw: BagRun, ros2: bool = False, drop_topics=()) -> Path:
-    """Write a raw run as bags: ROS1 split into a robot and a tracker bag, or one ROS2 folder."""
+def write_run_bags(run_dir: Path, raw: BagRun, ros2: bool = False, drop_topics=(), header_stamps=None) -> Path:
+    """Write a raw run as bags: ROS1 split into a robot and a tracker bag, or one ROS2 folder
+    (``header_stamps``: as :func:`_messages`)."""
     from rosbags.typesys import Stores, get_typestore
 
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     store = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
-    msgs = sorted((m for m in _messages(raw, store) if m[0] not in drop_topics), key=lambda m: m[2])
+    msgs = sorted((m for m in _messages(raw, store, header_stamps) if m[0] not in drop_topics), key=lambda m: m[2])
     if ros2:
         from rosbags.rosbag2 import Writer
 

@@ -321,3 +321,52 @@ def test_an_unreadable_extra_bag_is_left_out_and_the_run_read_from_its_other_bag
     out = capsys.readouterr().out
     assert "run_01: bag empty.bag unreadable (not a ROS1 bag" in out and "left out, the run read from its other bags" in out
     assert "run_01" in json.loads(js.read_text())["runs"]
+
+
+JOY, HUB = "/joy_teleop/joy", "/turning_hub/azimuth"
+
+
+@pytest.mark.parametrize("every", [1, 2])
+def test_header_stamps_never_set_take_the_bag_time_and_are_counted(tmp_path, synth, every):
+    # a joystick or hub node that never fills header.stamp (ROS leaves it at zero): all of its
+    # messages, or every other one. The synthetic bags receive each at its true UTC stamp, so the
+    # times read must be those, with no clock reset at each unset stamp (every == 2) and no run in 1970.
+    unset = {JOY: lambda i, t: 0.0 if i % every == 0 else t, HUB: lambda i, t: 0.0 if i % every == 0 else t}
+    write_run_bags(tmp_path / "run_01", synth, header_stamps=unset)
+    (run,) = read_tracker_parts(tmp_path / "run_01")
+    np.testing.assert_allclose(run.t_joy_utc, synth.t_joy_utc, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(run.u_joy, synth.u_joy, rtol=0, atol=1e-6)  # float32 axes
+    np.testing.assert_allclose(run.t_hub_utc, synth.t_hub_utc, rtol=0, atol=1e-6)
+    assert run.facts.clock_resets == ()
+    assert run.facts.unstamped == {JOY: len(range(0, synth.t_joy_utc.size, every)),
+                                   HUB: len(range(0, synth.t_hub_utc.size, every))}
+
+
+def test_an_unstamped_joystick_preprocesses_as_a_stamped_one_and_the_json_counts_it(tmp_path, synth, caplog):
+    from sindy_ekf.cli import main
+
+    stamped = write_campaign(tmp_path / "a", [synth], CALIBRATION.read_text())
+    unstamped = write_campaign(tmp_path / "b", [synth], CALIBRATION.read_text())
+    for bag in (unstamped / "runs" / "run_01").glob("*.bag"):
+        bag.unlink()
+    write_run_bags(unstamped / "runs" / "run_01", synth, header_stamps={JOY: lambda i, t: 0.0})
+    for camp in (stamped, unstamped):
+        assert main(["preprocess", str(camp), "--out", str(camp.parent / f"{camp.name}_out"),
+                     "--json", str(camp.parent / f"{camp.name}.json"), "--jobs", "1"]) == 0
+    assert ("run run_01: topic /joy_teleop/joy: 400 of 400 messages have no header stamp (zero); their bag times "
+            "are taken") in caplog.text and synth.t_joy_utc.size == 400
+    run = json.loads((tmp_path / "b.json").read_text())["runs"]["run_01"]
+    assert run["unstamped_receive_time"] == {JOY: synth.t_joy_utc.size}
+    assert json.loads((tmp_path / "a.json").read_text())["runs"]["run_01"]["unstamped_receive_time"] == {}
+    a, b = (np.loadtxt(tmp_path / f"{x}_out" / "runs" / "run_01" / "inputs.csv", delimiter=",", skiprows=1)
+            for x in "ab")
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-6)
+    assert a[0, 0] == pytest.approx(synth.t_joy_utc[0], abs=1e-6)
+
+
+def test_joystick_stamps_on_another_clock_are_one_line_naming_run_and_topic(tmp_path, synth):
+    # stamped with the seconds since the robot booted instead of UTC (received at UTC all the same)
+    write_run_bags(tmp_path / "run_01", synth, header_stamps={JOY: lambda i, t: t - synth.t_joy_utc[0] + 12.5})
+    with pytest.raises(InputError, match=r"^run run_01: topic /joy_teleop/joy: header stamps 12\.500 to .* s are not "
+                                         r"on the trigger's UTC \(.*\); the data contract stamps the joystick"):
+        read_tracker_parts(tmp_path / "run_01")

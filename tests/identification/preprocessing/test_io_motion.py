@@ -78,7 +78,8 @@ def test_clean_samples_sorts_and_drops_duplicates():
     from identification.preprocessing.io_motion import MotionSamples
     s = MotionSamples(IMU, np.array([2.0, 1.0, 1.0, np.nan]), {"wz": np.array([0.2, 0.1, 0.1, 0.3])})
     kept, counts = clean_samples(s, "x")
-    assert kept.t.tolist() == [1.0, 2.0] and counts == {"samples": 4, "nan_dropped": 1, "duplicates_dropped": 1}
+    assert kept.t.tolist() == [1.0, 2.0] and counts == {"samples": 4, "nan_dropped": 1, "duplicates_dropped": 1,
+                                                   "unstamped_receive_time": 0}
 
 
 def test_unknown_readers_ignored_and_a_wrong_message_type_named(camp, tmp_path):
@@ -164,8 +165,10 @@ def test_an_undeclared_topic_of_another_type_is_skipped_with_a_warning(caplog):
         undeclared_guard(wrong, True, "r", "/imu/data")
 
 
-def _joint_state_bag(path, t_utc: np.ndarray, names: list[str], velocity: np.ndarray, topic="/wheels/joint_states"):
-    """Write a ROS1 bag of sensor_msgs/JointState wheel speeds with rosbags directly (not the simulator's writer)."""
+def _joint_state_bag(path, t_utc: np.ndarray, names: list[str], velocity: np.ndarray, topic="/wheels/joint_states",
+                     stamp=lambda i, t: t):
+    """Write a ROS1 bag of sensor_msgs/JointState wheel speeds with rosbags directly (not the simulator's
+    writer), message ``i`` received at ``t_utc[i]`` and stamped ``stamp(i, t_utc[i])``."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
     ts = get_typestore(Stores.ROS1_NOETIC)
@@ -173,8 +176,8 @@ def _joint_state_bag(path, t_utc: np.ndarray, names: list[str], velocity: np.nda
     with Writer(path) as w:
         c = w.add_connection(topic, JS.__msgtype__, typestore=ts)
         for i, t in enumerate(t_utc):
-            ns = int(round(t * 1e9))
-            msg = JS(header=H(seq=i, stamp=T(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=""), name=list(names),
+            ns, hs = int(round(t * 1e9)), int(round(stamp(i, t) * 1e9))
+            msg = JS(header=H(seq=i, stamp=T(sec=hs // 10**9, nanosec=hs % 10**9), frame_id=""), name=list(names),
                      position=np.zeros(len(names)), velocity=np.asarray(velocity[i], float), effort=np.zeros(0))
             w.write(c, ns, ts.serialize_ros1(msg, JS.__msgtype__))
 
@@ -211,3 +214,16 @@ def test_joint_state_wheel_speeds_become_odometry_by_hand(camp, tmp_path):
     (root / "campaign.yaml").write_text(yaml.safe_dump({**doc, "sensors": {"wheels": "/wheels/joint_states"}}))
     with pytest.raises(InputError, match=r"run run_01: topic /wheels/joint_states: no message with a velocity of a joint named left"):
         write_run_motion(root, out, {"run_01": t_pose})
+
+
+def test_sensor_messages_whose_header_stamp_was_never_set_take_their_bag_time(tmp_path):
+    # a wheel-speed node that stamps every third message and leaves the others at zero
+    from identification.preprocessing.io_motion import WHEELS, read_motion_topic
+
+    t = 1.7e9 + np.arange(300) * 0.02
+    _joint_state_bag(tmp_path / "w.bag", t, ["left", "right"], np.tile([1.0, 2.0], (t.size, 1)),
+                     stamp=lambda i, ti: ti if i % 3 == 0 else 0.0)
+    s = read_motion_topic([tmp_path / "w.bag"], "/wheels/joint_states", WHEELS, "run_01")
+    np.testing.assert_allclose(s.t, t, rtol=0, atol=1e-6)
+    kept, counts = clean_samples(s, "run_01")
+    assert counts["unstamped_receive_time"] == 200 and counts["duplicates_dropped"] == 0 and kept.t.size == 300

@@ -101,7 +101,8 @@ def test_gnss_csv_in_std_form_and_the_drop_rule_by_hand(tmp_path):
     f = read_gnss_csv(path)
     np.testing.assert_allclose(f.cov_enu[0], np.diag([0.25, 0.16, 1.0]))
     kept, counts = clean_fixes(f, str(path))
-    assert counts == {"fixes": 5, "no_fix_dropped": 1, "nan_dropped": 1, "duplicates_dropped": 1}
+    assert counts == {"fixes": 5, "no_fix_dropped": 1, "nan_dropped": 1, "duplicates_dropped": 1,
+                      "unstamped_receive_time": 0}
     np.testing.assert_allclose(kept.t, [10.0, 10.6])
     np.testing.assert_allclose(kept.t_arrival, kept.t)  # no t_arrival column: received when valid
     path.write_text("t,lat,lon,alt\n1,2,3,4\n")
@@ -155,3 +156,28 @@ def test_a_gnss_csv_with_a_byte_order_mark_reads_as_without(camp, tmp_path):
     a, b = read_gnss_csv(src), read_gnss_csv(bom)
     np.testing.assert_array_equal(a.t, b.t)
     np.testing.assert_array_equal(a.lla, b.lla)
+
+
+def test_gnss_fixes_whose_header_stamp_was_never_set_take_their_bag_time(tmp_path):
+    # a NavSatFix bag written with rosbags directly: fixes 1 and 3 of 5 never stamped (zero)
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from identification.preprocessing.io_sensors import clean_fixes, read_navsat
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    NF, H, T, ST = (ts.types[k] for k in ("sensor_msgs/msg/NavSatFix", "std_msgs/msg/Header",
+                                          "builtin_interfaces/msg/Time", "sensor_msgs/msg/NavSatStatus"))
+    t = 1.7e9 + np.arange(5) * 1.0
+    with Writer(tmp_path / "g.bag") as w:
+        c = w.add_connection("/gnss/fix", NF.__msgtype__, typestore=ts)
+        for i, ti in enumerate(t):
+            ns = int(round(ti * 1e9)) - 100_000_000  # stamped 0.1 s before it was received
+            hs = 0 if i in (1, 3) else ns
+            msg = NF(header=H(seq=i, stamp=T(sec=hs // 10**9, nanosec=hs % 10**9), frame_id="gps"),
+                     status=ST(status=0, service=1), latitude=48.2, longitude=16.37, altitude=200.0,
+                     position_covariance=np.eye(3).ravel() * 0.04, position_covariance_type=2)
+            w.write(c, int(round(ti * 1e9)), ts.serialize_ros1(msg, NF.__msgtype__))
+    fixes, counts = clean_fixes(read_navsat([tmp_path / "g.bag"], "/gnss/fix", "run_01"), "run_01")
+    np.testing.assert_allclose(fixes.t, t - np.array([0.1, 0, 0.1, 0, 0.1]), rtol=0, atol=1e-6)
+    assert counts["unstamped_receive_time"] == 2 and counts["fixes"] == 5

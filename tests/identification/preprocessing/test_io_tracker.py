@@ -163,6 +163,16 @@ def test_campaign_skips_bad_runs_and_lists_them(tmp_path, raw, caplog):
     assert "run_02" in caplog.text
 
 
+def test_run_folders_not_listed_are_named_and_not_read(tmp_path, raw, caplog):
+    root = write_campaign(tmp_path / "c", [raw], CALIBRATION.read_text())
+    shutil.copytree(root / "runs" / "run_01", root / "runs" / "run_02")
+    shutil.copytree(root / "runs" / "run_01", root / "runs" / "run_03")
+    with caplog.at_level(logging.WARNING):
+        c = read_tracker_campaign(root)
+    assert [r.name for r in c.runs] == ["run_01"] and c.skipped == {}
+    assert f"{root / 'runs'}: run folders run_02, run_03 are not listed in campaign.yaml; not read" in caplog.text
+
+
 def test_campaign_with_no_usable_run_is_an_error(tmp_path, raw):
     root = write_campaign(tmp_path / "c", [raw], CALIBRATION.read_text())
     shutil.rmtree(root / "runs" / "run_01")

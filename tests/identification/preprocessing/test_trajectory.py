@@ -325,3 +325,21 @@ def test_a_hole_in_the_inputs_while_the_poses_go_on_is_named_and_held(tmp_path, 
     t_gap = t[(t < 10.0) | (t > 20.0)]
     run = read_trajectory_campaign(_campaign(tmp_path / "d", t_gap, t_input=t_in)).runs[0]
     assert run.repairs == {"gaps": 1}
+
+
+def test_run_folders_not_listed_in_campaign_yaml_are_named_not_read(tmp_path, caplog):
+    # a run copied into runs/ without its entry in campaign.yaml: left out, but said so
+    import shutil
+
+    t = np.arange(100) * 0.1
+    root = _campaign(tmp_path / "c", t)
+    with caplog.at_level(logging.WARNING):
+        read_trajectory_campaign(root)
+    assert "not listed" not in caplog.text
+    shutil.copytree(root / "runs" / "a", root / "runs" / "b_copied")
+    (root / "runs" / ".hidden").mkdir()
+    (root / "runs" / "notes.txt").write_text("x")
+    with caplog.at_level(logging.WARNING):
+        camp = read_trajectory_campaign(root)
+    assert [r.name for r in camp.runs] == ["a"]
+    assert f"{root / 'runs'}: run folder b_copied is not listed in campaign.yaml; not read" in caplog.text
