@@ -173,8 +173,9 @@ def reading_json(r: RunResult) -> dict:
     ``reordered`` (topic -> messages stored right after one with a later stamp, sorted),
     ``nan_points_dropped`` (topic -> tracker samples with NaN coordinates, kept for the clock
     only), ``repeated_stamps_dropped``, ``truncated`` (bags read up to their damage),
-    ``clock_resets`` (of the run a part was cut from), ``part_of`` (that run, or null) and
-    ``parts_dropped`` (why a part too short was dropped).
+    ``clock_resets`` (of the run a part was cut from), ``part_of`` (that run, or null),
+    ``parts_dropped`` (why a part too short was dropped) and ``unstamped_receive_time`` (topic ->
+    header stamps never set, timed by their bag time).
     """
     out = {"nan_points_dropped": {f"/{k}/measurement": int(c.dropped_nan)
                                   for k, c in r.synced.counts.items()}}

@@ -20,13 +20,16 @@ def bag_words(run: dict) -> str:
 
 
 def bag_notes(runs: dict[str, dict]) -> list[str]:
-    """Return one line per topic stored out of stamp order, truncated bag, clock reset and part
-    dropped, each run cut at clock resets named once."""
+    """Return one line per topic stored out of stamp order or timed by its bag time, truncated bag,
+    clock reset and part dropped, each run cut at clock resets named once."""
     lines, seen = [], set()
     for name, r in runs.items():
         stored = ", ".join(f"{t} {n}" for t, n in (r.get("reordered") or {}).items() if n)
         if stored:
             lines.append(f"{name}: messages stored out of stamp order, sorted: {stored}")
+        unset = ", ".join(f"{t} {n}" for t, n in (r.get("unstamped_receive_time") or {}).items() if n)
+        if unset:
+            lines.append(f"{name}: header stamps never set (zero), timed by their bag time: {unset}")
         source = r.get("part_of") or name
         if source in seen:
             continue

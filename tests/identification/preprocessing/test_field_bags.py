@@ -342,7 +342,7 @@ def test_header_stamps_never_set_take_the_bag_time_and_are_counted(tmp_path, syn
                                    HUB: len(range(0, synth.t_hub_utc.size, every))}
 
 
-def test_an_unstamped_joystick_preprocesses_as_a_stamped_one_and_the_json_counts_it(tmp_path, synth, caplog):
+def test_an_unstamped_joystick_preprocesses_as_a_stamped_one_and_the_json_counts_it(tmp_path, synth, caplog, capsys):
     from sindy_ekf.cli import main
 
     stamped = write_campaign(tmp_path / "a", [synth], CALIBRATION.read_text())
@@ -355,6 +355,9 @@ def test_an_unstamped_joystick_preprocesses_as_a_stamped_one_and_the_json_counts
                      "--json", str(camp.parent / f"{camp.name}.json"), "--jobs", "1"]) == 0
     assert ("run run_01: topic /joy_teleop/joy: 400 of 400 messages have no header stamp (zero); their bag times "
             "are taken") in caplog.text and synth.t_joy_utc.size == 400
+    out = capsys.readouterr().out
+    assert out.count("header stamps never set") == 1  # the summary's note, for the unstamped campaign alone
+    assert "run_01: header stamps never set (zero), timed by their bag time: /joy_teleop/joy 400" in out
     run = json.loads((tmp_path / "b.json").read_text())["runs"]["run_01"]
     assert run["unstamped_receive_time"] == {JOY: synth.t_joy_utc.size}
     assert json.loads((tmp_path / "a.json").read_text())["runs"]["run_01"]["unstamped_receive_time"] == {}
