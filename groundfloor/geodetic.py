@@ -18,11 +18,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import pymap3d
+import scipy.stats
 
 from groundfloor.errors import InputError
 
 OUTLIER_SIGMA = 4.0  # residuals above this many stated stds are left out of the refits
 MAX_REFITS = 10
+#: a mirror image of the fixes fitting the better at this significance (F test) is a left-handed frame
+MIRROR_P = 1e-6
 
 
 @dataclass(frozen=True)
@@ -117,6 +120,14 @@ def _fit(e: np.ndarray, loc: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarr
     return float(yaw), cl - np.array([[c, -s], [s, c]]) @ ce
 
 
+def _median_residual(e: np.ndarray, loc: np.ndarray, w: np.ndarray) -> float:
+    """Return the median horizontal residual, in stated stds, of the Procrustes fit of ``e`` onto ``loc``."""
+    yaw, t2 = _fit(e, loc, w)
+    c, s = np.cos(yaw), np.sin(yaw)
+    res = e @ np.array([[c, -s], [s, c]]).T + t2 - loc
+    return float(np.median(np.hypot(res[:, 0], res[:, 1]) * np.sqrt(w)))
+
+
 def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndarray,
                           source: str = "GNSS") -> EnuToLocal:
     """Return the ENU -> local transform fitted to fixes and true antenna positions, with its covariance.
@@ -140,6 +151,16 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     e, loc, w = p_enu[ok], p_local[ok], w[ok]
     if np.linalg.norm(e[:, :2] - e[:, :2].mean(0), axis=1).max() < 1.0:
         raise InputError(f"{source}: the antenna moved less than 1 m; ENU -> local yaw not observable")
+    # a left-handed local frame (north-east-down, or y or yaw negated) is no rotation of ENU: the best
+    # rotation then leaves residuals of the size of the trajectory, its mirror image fits
+    # (squared median residuals compared by an F test, conservatively on one degree of freedom per fix)
+    rotated, mirrored = (_median_residual(e[:, :2] * [1.0, sign], loc[:, :2], w) for sign in (1.0, -1.0))
+    dof = len(e) - 3
+    if (rotated / max(mirrored, 1e-12)) ** 2 > scipy.stats.f.ppf(1.0 - MIRROR_P, dof, dof):
+        raise InputError(f"{source}: the local frame is mirrored against east-north-up (left-handed, e.g. x north and "
+                         f"y east as NED, or y and yaw negated): the best rotation leaves a median residual of "
+                         f"{rotated:.3g} stated stds, the mirror image {mirrored:.3g}; the data contract's local "
+                         "frame is right-handed, z up")
     keep = np.ones(len(e), bool)
     for _ in range(MAX_REFITS):
         yaw, t2 = _fit(e[keep, :2], loc[keep, :2], w[keep])

@@ -66,6 +66,7 @@ from groundfloor.types import (
 from identification.preprocessing.trajectory_checks import (  # noqa: F401 - the gap rule re-exported
     GAP_FACTOR,
     GAP_MIN_S,
+    check_input_signs,
     check_time_unit,
     check_yaw_unit,
     gap_threshold_s,
@@ -302,6 +303,7 @@ def read_trajectory_campaign(path: str | os.PathLike) -> TrajectoryCampaign:
         if not run_dir.is_dir():
             raise InputError(f"{yaml_path}: run {r['name']}: folder {run_dir} missing")
         runs.append(_read_run(run_dir, r["name"], r["split"], str(r.get("group") or "")))
+    check_input_signs(runs, yaml_path)
     return TrajectoryCampaign(root=root, name=str(meta.get("name") or root.name), runs=tuple(runs))
 
 

@@ -1,6 +1,7 @@
 """Checks of a trajectory run's poses and inputs against the data contract (part 2), beside the
 reader (:mod:`identification.preprocessing.trajectory`, which applies them): the pose gaps'
-threshold, the time and yaw units, the poses beyond the inputs' span and the holes in the inputs.
+threshold, the time and yaw units, the poses beyond the inputs' span, the holes in the inputs and
+the signs of the inputs against the motion.
 """
 
 from __future__ import annotations
@@ -27,6 +28,9 @@ MAX_YAW_RATE_RAD_S = 10.0
 YAW_RATE_BASELINE_S = 0.2
 #: inputs silent this long while the poses go on are named (held, not cut: see :func:`input_holes`)
 INPUT_HOLE_S = 2.0
+#: a correlation of an input with the motion it commands below this is an axis against the contract's
+#: sign (pooled over a campaign's runs; the shared, default and ten variant campaigns: +0.70 to +0.96)
+MIN_SIGN_CORRELATION = -0.3
 
 def gap_threshold_s(t: np.ndarray) -> float:
     """Return the pose interval (s) above which a hole counts as a gap for stamps ``t``.
@@ -115,3 +119,60 @@ def input_holes(t_i: np.ndarray, t_p: np.ndarray, name: str, inputs_path: Path) 
                     "longest %.1f s from t = %.3f s: a command held that long, or a recorder's pause",
                     name, inputs_path.name, len(holes), INPUT_HOLE_S, dt[k], t_i[k])
     return int(holes.size)
+
+
+def _motion_and_inputs(run) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return the forward speed and yaw rate of a run's poses over about :data:`YAW_RATE_BASELINE_S`
+    (within stretches without gaps) and the inputs ``u1, u2`` held at the middle of each interval."""
+    t, yaw = run.poses.t, run.poses.yaw
+    empty = np.zeros(0)
+    if t.size < 3:
+        return empty, empty, empty, empty
+    step = float(np.median(np.diff(t)))
+    k = max(int(round(YAW_RATE_BASELINE_S / step)), 1) if step > 0 else 1
+    if t.size <= k:
+        return empty, empty, empty, empty
+    dt = t[k:] - t[:-k]
+    ok = (dt > 0) & (dt <= k * gap_threshold_s(t))
+    heading = 0.5 * (yaw[k:] + yaw[:-k])
+    speed = (np.cos(heading) * (run.poses.x[k:] - run.poses.x[:-k])
+             + np.sin(heading) * (run.poses.y[k:] - run.poses.y[:-k]))[ok] / dt[ok]
+    rate = (yaw[k:] - yaw[:-k])[ok] / dt[ok]
+    mid = 0.5 * (t[k:] + t[:-k])[ok]
+    i = np.clip(np.searchsorted(run.inputs.t, mid, side="right") - 1, 0, run.inputs.t.size - 1)
+    return speed, rate, run.inputs.u1[i], run.inputs.u2[i]
+
+
+def input_sign_correlations(runs) -> dict[str, float]:
+    """Return the correlation, pooled over ``runs``, of ``u1`` with the poses' forward speed and of
+    ``u2`` with their yaw rate (NaN where an input or the motion does not vary)."""
+    parts = [_motion_and_inputs(r) for r in runs]
+    speed, rate, u1, u2 = (np.concatenate([p[j] for p in parts]) for j in range(4))
+    out = {}
+    for name, u, m in (("u1", u1, speed), ("u2", u2, rate)):
+        ok = np.isfinite(u) & np.isfinite(m)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[name] = float(np.corrcoef(u[ok], m[ok])[0, 1]) if ok.sum() > 2 else float("nan")
+    return out
+
+
+def check_input_signs(runs, source: Path) -> dict[str, float]:
+    """Warn where an input moves the robot against the data contract's sign; return the correlations.
+
+    ``u1`` is positive forward and ``u2`` positive to the left (counter-clockwise seen from above,
+    the yaw's sense). An input anti-correlated with its motion over the whole campaign (below
+    :data:`MIN_SIGN_CORRELATION`) is an inverted axis, or a pose frame that is not the contract's:
+    a yaw 180 degrees off the robot's forward axis (``u1``), a left-handed local frame such as
+    north-east-down (``u2``). A model learns either sign; recorded GNSS and a gyro contradict a
+    left-handed frame, and the diagnosis reads the inputs' signs as the contract gives them.
+    """
+    r = input_sign_correlations(runs)
+    hints = {"u1": ("the forward speed of the poses", "positive forward",
+                    "a throttle axis inverted, or a pose yaw 180 degrees off the robot's forward (x) axis?"),
+             "u2": ("the yaw rate of the poses", "positive to the left (counter-clockwise, as the yaw)",
+                    "a steering axis inverted, or a left-handed local frame (x north, y east, as NED)?")}
+    for name, (motion, sense, why) in hints.items():
+        if r[name] < MIN_SIGN_CORRELATION:
+            log.warning("%s: %s and %s are anti-correlated (r = %.2f over all runs); the data contract has %s %s: %s",
+                        source, name, motion, r[name], name, sense, why)
+    return r

@@ -99,3 +99,29 @@ def test_origin_from_yaml_names_the_source():
         GeodeticOrigin.from_yaml({"lat_deg": 1.0}, "c.yaml")
     with pytest.raises(InputError, match="out of range"):
         GeodeticOrigin.from_yaml({"lat_deg": 91.0, "lon_deg": 0, "alt_m": 0}, "c.yaml")
+
+
+@pytest.mark.parametrize("size_m, std_m", [(20.0, 0.3), (4.0, 0.3), (20.0, 0.02)])
+def test_a_left_handed_local_frame_is_one_line_and_a_right_handed_one_passes(size_m, std_m):
+    # the same track in a frame with y negated (x north, y east as NED): no rotation maps ENU onto it.
+    # (4 m across with 0.3 m fixes: the first minute of the simulated lab campaign's recorded GNSS)
+    rng = np.random.default_rng(3)
+    yaw, t = np.radians(-64.0), np.array([1.0, 0.7, 0.0])
+    s = np.linspace(0, 4 * np.pi, 300)
+    local = np.column_stack([np.cos(s) + s / 10, 0.6 * np.sin(s), np.full(s.size, -1.0)]) * [size_m / 2, size_m / 2, 1]
+    enu = EnuToLocal(yaw, t).inverse(local) + rng.standard_normal(local.shape) * std_m
+    est = estimate_enu_to_local(enu, local, np.full(s.size, std_m))
+    assert abs(est.yaw_rad - yaw) < 4 * np.sqrt(est.cov[0, 0])
+    with pytest.raises(InputError, match=r"^run_x: the local frame is mirrored against east-north-up \(left-handed"):
+        estimate_enu_to_local(enu, local * [1.0, -1.0, 1.0], np.full(s.size, std_m), "run_x")
+
+
+def test_a_straight_track_cannot_tell_a_mirror_and_is_fitted():
+    # along a line a reflection is a rotation: nothing to refuse
+    rng = np.random.default_rng(4)
+    s = np.linspace(0.0, 20.0, 200)
+    local = np.column_stack([s, 0.5 * s, np.zeros_like(s)])
+    tr = EnuToLocal(np.radians(20.0), np.array([2.0, 1.0, 0.0]))
+    enu = tr.inverse(local) + rng.standard_normal(local.shape) * 0.1
+    for target in (local, local * [1.0, -1.0, 1.0]):
+        estimate_enu_to_local(enu, target, np.full(len(s), 0.1))

@@ -343,3 +343,38 @@ def test_run_folders_not_listed_in_campaign_yaml_are_named_not_read(tmp_path, ca
         camp = read_trajectory_campaign(root)
     assert [r.name for r in camp.runs] == ["a"]
     assert f"{root / 'runs'}: run folder b_copied is not listed in campaign.yaml; not read" in caplog.text
+
+
+def _unicycle_campaign(root: Path, mirror=False, flip_u1=False, yaw_offset=0.0) -> Path:
+    """Write a one-run campaign of a unicycle driven by its inputs (v = u1 m/s, omega = u2 rad/s,
+    integrated by hand at 100 Hz, poses at 10 Hz), its frame or an input's sign changed as asked."""
+    dt = 0.01
+    t = np.arange(0.0, 60.0, dt)
+    u1, u2 = 0.5 + 0.3 * np.sin(0.3 * t), np.sin(0.5 * t)
+    yaw = np.concatenate([[0.0], np.cumsum(u2[:-1] * dt)])
+    x = np.concatenate([[0.0], np.cumsum(u1[:-1] * np.cos(yaw[:-1]) * dt)])
+    y = np.concatenate([[0.0], np.cumsum(u1[:-1] * np.sin(yaw[:-1]) * dt)])
+    if mirror:  # a left-handed frame: y and the yaw's sense negated
+        y, yaw = -y, -yaw
+    k = slice(None, None, 10)
+    meta = {"name": "hand", "kind": "trajectory", "runs": [{"name": "a", "split": "train"}]}
+    root.mkdir(parents=True)
+    (root / "campaign.yaml").write_text(yaml.safe_dump(meta))
+    _write_csv(root / "runs" / "a" / "poses.csv", ["t", "x", "y", "yaw"],
+               [[repr(float(v)) for v in r] for r in np.column_stack([t[k], x[k], y[k], yaw[k] + yaw_offset])])
+    _write_csv(root / "runs" / "a" / "inputs.csv", ["t", "u1", "u2"],
+               [[repr(float(v)) for v in r] for r in np.column_stack([t, -u1 if flip_u1 else u1, u2])])
+    return root
+
+
+@pytest.mark.parametrize("change, named", [({}, ()), ({"mirror": True}, ("u2",)), ({"flip_u1": True}, ("u1",)),
+                                           ({"yaw_offset": np.pi}, ("u1",))])
+def test_an_input_against_the_contracts_sign_is_named(tmp_path, caplog, change, named):
+    # u1 forward and u2 left (counter-clockwise) positive: a left-handed (NED-like) frame turns u2
+    # against the yaw rate, an inverted throttle or a yaw 180 degrees off turns u1 against the speed
+    root = _unicycle_campaign(tmp_path / "c", **change)
+    with caplog.at_level(logging.WARNING):
+        read_trajectory_campaign(root)
+    for u in ("u1", "u2"):
+        said = f"{u} and the " in caplog.text and "are anti-correlated" in caplog.text
+        assert said == (u in named), (u, caplog.text)
