@@ -15,6 +15,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
+
 from groundfloor.errors import InputError
 
 
@@ -173,3 +175,23 @@ def unlisted_runs(root: str | os.PathLike, listed) -> list[str]:
         return []
     return sorted(p.name for p in runs.iterdir()
                   if p.is_dir() and not p.name.startswith(".") and p.name not in names)
+
+
+def no_numbers(path: str | os.PathLike, header: list[str], column: str, values: np.ndarray) -> InputError | None:
+    """Return the one-line error of a CSV column that holds text where numbers belong (every value
+    read as NaN, the first one not empty or ``nan``: a date and time, units written beside the
+    numbers), or None. Without it each such row would be dropped as a NaN row and the file read as
+    empty."""
+    values = np.asarray(values, dtype=float)
+    if not values.size or not np.isnan(values).all() or column not in header:
+        return None
+    with open(path, encoding="utf-8-sig") as fh:
+        fh.readline()
+        fields = fh.readline().rstrip("\r\n").split(",")
+    k = header.index(column)
+    first = fields[k].strip() if k < len(fields) else ""
+    if first.lower() in ("", "nan"):
+        return None
+    hint = "; a date and time? the data contract's t is in seconds (e.g. since the epoch)" \
+        if column == "t" and any(ch in first for ch in "-:") else ""
+    return InputError(f"{path}: column {column} holds no numbers (first value {first!r}){hint}")

@@ -30,7 +30,7 @@ from rosbags.rosbag2 import ReaderError as ReaderError2
 from rosbags.typesys import Stores, get_typestore
 
 from groundfloor.errors import InputError
-from groundfloor.files import csv_header, missing_column
+from groundfloor.files import csv_header, missing_column, no_numbers
 from groundfloor.geodetic import GeodeticOrigin
 from identification.preprocessing.io_tracker import find_bags
 from identification.preprocessing.stamp_order import unstamped_to_receive
@@ -224,6 +224,9 @@ def read_csv_columns(path: Path, required: Sequence[str]) -> np.ndarray:
     missing = [c for c in required if c not in names]
     if missing:
         raise missing_column(path, missing[0], csv_header(path))
+    for c in required:
+        if (err := no_numbers(path, csv_header(path), c, data[c])) is not None:
+            raise err
     return data
 
 

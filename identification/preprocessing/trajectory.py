@@ -53,7 +53,7 @@ import yaml
 
 from groundfloor import repairs as expected_repairs
 from groundfloor.errors import InputError
-from groundfloor.files import atomic_output_dir, csv_header, missing_column, unlisted_runs
+from groundfloor.files import atomic_output_dir, csv_header, missing_column, no_numbers, unlisted_runs
 from groundfloor.types import (
     BodyStates,
     InputSeries,
@@ -129,6 +129,9 @@ def _read_csv(path: Path, required: Sequence[str], optional: Sequence[str] = ())
         raise InputError(f"{path}: unreadable CSV ({str(exc).splitlines()[-1].strip()})") from None
     if data.size == 0:
         data = np.empty((0, len(wanted)))
+    for i, c in enumerate(wanted):
+        if c in required and (err := no_numbers(path, header, c, data[:, i])) is not None:
+            raise err
     out = {c: data[:, i].copy() for i, c in enumerate(wanted)}
     n = data.shape[0]
     for c in optional:

@@ -181,3 +181,13 @@ def test_gnss_fixes_whose_header_stamp_was_never_set_take_their_bag_time(tmp_pat
     fixes, counts = clean_fixes(read_navsat([tmp_path / "g.bag"], "/gnss/fix", "run_01"), "run_01")
     np.testing.assert_allclose(fixes.t, t - np.array([0.1, 0, 0.1, 0, 0.1]), rtol=0, atol=1e-6)
     assert counts["unstamped_receive_time"] == 2 and counts["fixes"] == 5
+
+
+def test_a_gnss_csv_with_date_times_in_t_is_named(tmp_path):
+    from identification.preprocessing.io_sensors import read_gnss_csv
+
+    path = tmp_path / "gnss.csv"
+    path.write_text("t,lat,lon,alt,std_e,std_n,std_u\n"
+                    "2024-07-29T18:45:51.2Z,48.1,16.3,200.0,0.5,0.4,1.0\n2024-07-29T18:45:52.2Z,48.1,16.3,200.0,0.5,0.4,1.0\n")
+    with pytest.raises(InputError, match=r"gnss.csv: column t holds no numbers \(first value '2024-07-29T18:45:51.2Z'\); a date"):
+        read_gnss_csv(path)

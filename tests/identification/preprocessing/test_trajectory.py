@@ -378,3 +378,23 @@ def test_an_input_against_the_contracts_sign_is_named(tmp_path, caplog, change, 
     for u in ("u1", "u2"):
         said = f"{u} and the " in caplog.text and "are anti-correlated" in caplog.text
         assert said == (u in named), (u, caplog.text)
+
+
+def test_a_column_of_text_is_named_not_read_as_nan_rows(tmp_path):
+    # a logger's ISO date-times in t, or units beside every number: each row used to be dropped as a
+    # NaN row, and the file called "fewer than 2 valid pose rows"
+    t = np.arange(50) * 0.1
+    root = _campaign(tmp_path / "c", t)
+    poses = root / "runs" / "a" / "poses.csv"
+    rows = list(csv.reader(open(poses)))
+    iso = [rows[0]] + [[f"2024-07-29T18:45:{float(r[0]):09.6f}Z"] + r[1:] for r in rows[1:]]
+    _write_csv(poses, iso[0], iso[1:])
+    with pytest.raises(InputError, match=r"poses.csv: column t holds no numbers \(first value '2024-07-29T18:45:00.000000Z'\); "
+                                         r"a date and time\? the data contract's t is in seconds"):
+        read_trajectory_campaign(root)
+    _write_csv(poses, rows[0], [[r[0], r[1] + " m"] + r[2:] for r in rows[1:]])
+    with pytest.raises(InputError, match=r"poses.csv: column x holds no numbers \(first value '0.0 m'\)$"):
+        read_trajectory_campaign(root)
+    rows[5][1] = "n/a"  # one row of text stays a NaN row, dropped and counted
+    _write_csv(poses, rows[0], rows[1:])
+    assert read_trajectory_campaign(root).runs[0].repairs["nan_pose_rows"] == 1
