@@ -221,8 +221,13 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     t_p, t_i = pc["t"], ic["t"]
     overlap_s = min(t_p[-1], t_i[-1]) - max(t_p[0], t_i[0])
     if overlap_s <= 0:
+        span_p, span_i = t_p[-1] - t_p[0], t_i[-1] - t_i[0]
+        # about as long as each other: the same recording on two time bases (one counted from its start)
+        hint = ("; they last about as long (%.1f s and %.1f s): one file counted from the run's start, the "
+                "other on a clock? both must be on the same time base" % (span_p, span_i)
+                if 0.0 < span_i and abs(span_p - span_i) < 0.1 * max(span_p, span_i) else "")
         raise InputError(f"run {name}: poses ({t_p[0]:.3f} to {t_p[-1]:.3f} s) and inputs "
-                         f"({t_i[0]:.3f} to {t_i[-1]:.3f} s) do not overlap in time")
+                         f"({t_i[0]:.3f} to {t_i[-1]:.3f} s) do not overlap in time{hint}")
     pc, repairs["poses_outside_inputs"] = within_inputs(pc, t_i, name, poses_path)
     repairs["input_holes"] = input_holes(t_i, pc["t"], name, inputs_path)
     check_poses_move(pc["x"], pc["y"], pc["yaw"], f"run {name} ({poses_path})")

@@ -162,7 +162,13 @@ def test_wrapped_yaw_is_unwrapped_and_extra_columns_ignored(tmp_path):
 def test_poses_and_inputs_without_overlap_name_the_run(tmp_path):
     t = np.arange(50) * 0.1
     root = _campaign(tmp_path / "c", t, t_input=t + 100.0)
-    with pytest.raises(InputError, match=r"run a: poses .* do not overlap"):
+    with pytest.raises(InputError, match=r"run a: poses .* do not overlap in time; they last about as long "
+                                         r"\(4.9 s and 4.9 s\): one file counted from the run's start"):
+        read_trajectory_campaign(root)
+    # inputs of another recording altogether (a quarter as long): no such guess
+    root = _campaign(tmp_path / "d", t, t_input=t[:12] + 100.0)
+    with pytest.raises(InputError, match=r"run a: poses \(0.000 to 4.900 s\) and inputs \(100.000 to 101.100 s\) "
+                                         r"do not overlap in time$"):
         read_trajectory_campaign(root)
 
 
