@@ -56,11 +56,11 @@ def campaign_kind(path: str | Path) -> str:
     if isinstance(meta, dict) and meta.get("kind") == "trajectory":
         return "trajectory"
     runs = root / "runs"
-    if runs.is_dir() and any(runs.glob("*/poses.csv")):
+    if runs.is_dir() and (any(runs.glob("*/poses.csv")) or any(runs.glob("*/poses.tum"))):
         return "trajectory"
     if runs.is_dir() and any(find_bags(d) for d in runs.iterdir() if d.is_dir()):
         return "tracker"
-    raise InputError(f"{path}: neither a trajectory campaign (no runs/*/poses.csv) nor a tracker "
+    raise InputError(f"{path}: neither a trajectory campaign (no runs/*/poses.csv or poses.tum) nor a tracker "
                      "campaign (no bags under runs/)")
 
 

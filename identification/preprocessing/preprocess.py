@@ -349,7 +349,7 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
     name, run_list = read_campaign_yaml(root)
     sensors_config = read_sensors_config(root)  # an unknown sensor type fails before the work
     if not (root / "calibration.yaml").is_file():
-        if any((root / "runs").glob("*/poses.csv")):
+        if any((root / "runs").glob("*/poses.csv")) or any((root / "runs").glob("*/poses.tum")):
             raise InputError(f"{root}: a trajectory campaign (runs/*/poses.csv): preprocessed already; identify, "
                              "evaluate, benchmark and diagnose take it as it is")
         raise InputError(f"{root}: calibration.yaml missing")

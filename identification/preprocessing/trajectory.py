@@ -4,6 +4,7 @@ A trajectory campaign is poses and inputs per run::
 
     CAMPAIGN/campaign.yaml            kind: trajectory; runs with split
     CAMPAIGN/runs/<run>/poses.csv     t,x,y,yaw required; z,pitch,*_std optional
+                                      (without it, poses.tum: t x y z qx qy qz qw, TUM format)
     CAMPAIGN/runs/<run>/inputs.csv    t,u1,u2 on their own (irregular) stamps
 
 It is what every stage after preprocessing reads, and what ``sindy-ekf preprocess`` writes
@@ -139,6 +140,27 @@ def _read_csv(path: Path, required: Sequence[str], optional: Sequence[str] = ())
     return out
 
 
+def read_tum(path: Path) -> dict[str, np.ndarray]:
+    """Return the pose columns of a TUM trajectory file (``t x y z qx qy qz qw`` per line, spaces,
+    ``#`` comments: what evo and the SLAM benchmarks read and write, and ``preprocess`` writes beside
+    ``poses.csv``): yaw and pitch of ``R = Rz(yaw) Ry(pitch) Rx(roll)``, the stds NaN. A run without a
+    ``poses.csv`` is read from it."""
+    try:
+        data = np.loadtxt(path, comments="#", ndmin=2, dtype=float)
+    except ValueError as exc:
+        raise InputError(f"{path}: not a TUM trajectory ({str(exc).splitlines()[-1].strip()})") from None
+    if data.size and data.shape[1] != 8:
+        raise InputError(f"{path}: a TUM trajectory has 8 columns (t x y z qx qy qz qw), this one {data.shape[1]}")
+    data = data.reshape(-1, 8)
+    q = data[:, 4:8] / np.linalg.norm(data[:, 4:8], axis=1, keepdims=True)
+    qx, qy, qz, qw = q.T
+    nan = np.full(len(data), np.nan)
+    out = {"t": data[:, 0], "x": data[:, 1], "y": data[:, 2], "z": data[:, 3],
+           "yaw": np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)),
+           "pitch": np.arcsin(np.clip(2.0 * (qw * qy - qz * qx), -1.0, 1.0))}
+    return out | {c: nan for c in POSE_OPTIONAL if c not in out}
+
+
 def _drop_nan_rows(cols: dict[str, np.ndarray], required: Sequence[str]) -> tuple[dict, np.ndarray, int]:
     """Return the columns without rows that have NaN in a required column, file row numbers, count."""
     n = cols[required[0]].size
@@ -197,8 +219,12 @@ def _read_run(run_dir: Path, name: str, split: str, group: str = "") -> Trajecto
     """Return one validated run of a trajectory campaign (see the module docstring)."""
     repairs: dict[str, int] = {}
     poses_path, inputs_path = run_dir / "poses.csv", run_dir / "inputs.csv"
-
-    pc = _read_csv(poses_path, POSE_REQUIRED, POSE_OPTIONAL)
+    if not poses_path.is_file() and (run_dir / "poses.tum").is_file():
+        poses_path = run_dir / "poses.tum"
+        log.info("run %s: poses from %s (TUM: t x y z qx qy qz qw; no poses.csv)", name, poses_path)
+        pc = read_tum(poses_path)
+    else:
+        pc = _read_csv(poses_path, POSE_REQUIRED, POSE_OPTIONAL)
     pc, p_rows, n_nan = _drop_nan_rows(pc, POSE_REQUIRED)
     repairs["nan_pose_rows"] = n_nan
     _check_order(pc["t"], p_rows, poses_path)

@@ -404,3 +404,30 @@ def test_a_column_of_text_is_named_not_read_as_nan_rows(tmp_path):
     rows[5][1] = "n/a"  # one row of text stays a NaN row, dropped and counted
     _write_csv(poses, rows[0], rows[1:])
     assert read_trajectory_campaign(root).runs[0].repairs["nan_pose_rows"] == 1
+
+
+def test_a_run_with_a_tum_trajectory_instead_of_poses_csv_is_read(tmp_path):
+    # evo's and the SLAM benchmarks' format: t x y z qx qy qz qw; quaternions from scipy's Rotation
+    # (not the project's writer), with a roll the reader must not mistake for yaw or pitch
+    from scipy.spatial.transform import Rotation
+
+    t = np.arange(100) * 0.1
+    yaw = 1.2 * t - 3.0  # 12 rad: wraps several times
+    pitch, roll = 0.05 * np.sin(t), 0.04 * np.cos(t)
+    q = Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_quat()  # x, y, z, w
+    root = _campaign(tmp_path / "c", t, meta={"name": "tum", "runs": [{"name": "a", "split": "test"}]})
+    (root / "runs" / "a" / "poses.csv").unlink()
+    xyz = np.column_stack([0.1 * t, -0.2 * t, np.full_like(t, 0.3)])
+    lines = ["# t x y z qx qy qz qw"] + [" ".join(repr(float(v)) for v in row) for row in np.column_stack([t, xyz, q])]
+    (root / "runs" / "a" / "poses.tum").write_text("\n".join(lines) + "\n")
+    from identification.preprocessing.campaigns import campaign_kind
+
+    assert campaign_kind(root) == "trajectory"  # no 'kind' key: found by its files
+    run = read_trajectory_campaign(root).runs[0]
+    np.testing.assert_allclose(run.poses.yaw - run.poses.yaw[0] + yaw[0], yaw, atol=1e-9)
+    assert abs(run.poses.yaw[0] - yaw[0]) < 1e-9 or abs(abs(run.poses.yaw[0] - yaw[0]) - 2 * np.pi) < 1e-9
+    np.testing.assert_allclose(run.poses.pitch, pitch, atol=1e-9)
+    np.testing.assert_allclose(np.column_stack([run.poses.x, run.poses.y, run.poses.z]), xyz, atol=1e-12)
+    (root / "runs" / "a" / "poses.tum").write_text("\n".join(line.rsplit(" ", 1)[0] for line in lines) + "\n")
+    with pytest.raises(InputError, match=r"poses.tum: a TUM trajectory has 8 columns \(t x y z qx qy qz qw\), this one 7"):
+        read_trajectory_campaign(root)
