@@ -8,6 +8,7 @@ temporary name and renamed into place at the end.
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import os
 import shutil
@@ -149,9 +150,11 @@ def atomic_output_dir(path: str | os.PathLike, force: bool = False) -> Iterator[
 
 def csv_header(path: str | os.PathLike) -> list[str]:
     """Return the column names on the first line of a CSV file, stripped, a UTF-8 byte-order mark
-    (what spreadsheet exports write first) dropped."""
+    (what spreadsheet exports write first) dropped, and quotes around a name (R's ``write.csv``
+    quotes every one) taken off."""
     with open(path, encoding="utf-8-sig") as fh:
-        return [h.strip() for h in fh.readline().strip().split(",")]
+        line = fh.readline().strip()
+    return [h.strip() for h in next(csv.reader([line]), [""])] or [""]
 
 
 def missing_column(path: str | os.PathLike, column: str, header: list[str]) -> InputError:

@@ -217,7 +217,9 @@ def read_csv_columns(path: Path, required: Sequence[str]) -> np.ndarray:
         Naming the file: unreadable, or a column of ``required`` missing.
     """
     try:
-        data = np.genfromtxt(path, delimiter=",", names=True, dtype=float, ndmin=1, encoding="utf-8-sig")
+        header = csv_header(path)  # the names as the project reads them (quotes and a byte-order mark off)
+        data = np.genfromtxt(path, delimiter=",", skip_header=1, names=header, dtype=float, ndmin=1,
+                             encoding="utf-8-sig")
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: unreadable CSV ({str(exc).splitlines()[-1].strip()})") from None
     names = data.dtype.names or ()

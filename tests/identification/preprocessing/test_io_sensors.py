@@ -191,3 +191,16 @@ def test_a_gnss_csv_with_date_times_in_t_is_named(tmp_path):
                     "2024-07-29T18:45:51.2Z,48.1,16.3,200.0,0.5,0.4,1.0\n2024-07-29T18:45:52.2Z,48.1,16.3,200.0,0.5,0.4,1.0\n")
     with pytest.raises(InputError, match=r"gnss.csv: column t holds no numbers \(first value '2024-07-29T18:45:51.2Z'\); a date"):
         read_gnss_csv(path)
+
+
+def test_a_gnss_csv_with_quoted_column_names_reads_as_without(tmp_path):
+    # R's write.csv quotes every column name
+    from identification.preprocessing.io_sensors import read_gnss_csv
+
+    body = "10.0,48.1,16.3,200.0,0.5,0.4,1.0\n11.0,48.1,16.3,200.0,0.5,0.4,1.0\n"
+    (tmp_path / "a.csv").write_text("t,lat,lon,alt,std_e,std_n,std_u\n" + body)
+    (tmp_path / "b.csv").write_text('"t","lat","lon","alt","std_e","std_n","std_u"\n' + body)
+    a, b = read_gnss_csv(tmp_path / "a.csv"), read_gnss_csv(tmp_path / "b.csv")
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.lla, b.lla)
+    np.testing.assert_array_equal(a.cov_enu, b.cov_enu)

@@ -286,8 +286,15 @@ def test_a_spreadsheet_export_with_a_byte_order_mark_reads_and_semicolons_are_na
     bom = read_trajectory_campaign(root).runs[0]
     np.testing.assert_array_equal(bom.poses.t, plain.poses.t)
     np.testing.assert_array_equal(bom.inputs.u1, plain.inputs.u1)
+    for name in ("poses.csv", "inputs.csv"):  # R's write.csv quotes every column name
+        p = root / "runs" / "a" / name
+        head, body = p.read_text().lstrip("\ufeff").split("\n", 1)
+        p.write_text(",".join(f'"{h}"' for h in head.split(",")) + "\n" + body)
+    quoted = read_trajectory_campaign(root).runs[0]
+    np.testing.assert_array_equal(quoted.poses.yaw, plain.poses.yaw)
+    np.testing.assert_array_equal(quoted.inputs.u2, plain.inputs.u2)
     p = root / "runs" / "a" / "poses.csv"
-    p.write_text(p.read_text().lstrip("\ufeff").replace(",", ";"))
+    p.write_text(p.read_text().replace('"', "").replace(",", ";"))
     with pytest.raises(InputError, match=r"poses.csv: required column 't' missing \(header: t;x;y;yaw\); columns "
                                          r"separated by ';', the data contract's CSV files use commas"):
         read_trajectory_campaign(root)
