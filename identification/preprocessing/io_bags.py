@@ -180,6 +180,19 @@ def read_topics(bags: list[Path], run: str) -> tuple[dict[str, _Topic], list[Tru
     return out, truncated
 
 
+def topics_of_type(bags: list[Path], msgtype: str) -> list[str]:
+    """Return the topics of ``msgtype`` recorded in ``bags`` (their connections only; a bag that
+    cannot be opened is passed over), sorted: where a required topic went under another name."""
+    names: set[str] = set()
+    for bag in bags:
+        try:
+            with AnyReader([bag], default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
+                names |= {c.topic for c in reader.connections if c.msgtype == msgtype}
+        except Exception:  # noqa: BLE001 - only a hint: the caller's error stands without it
+            continue
+    return sorted(names)
+
+
 def _stamp(stamp) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 

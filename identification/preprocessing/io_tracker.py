@@ -42,6 +42,7 @@ from identification.preprocessing.io_bags import (
     Truncation,
     read_topics,
     topic_columns,
+    topics_of_type,
 )
 from identification.preprocessing.io_survey import read_survey
 from identification.preprocessing.stamp_order import (
@@ -230,7 +231,10 @@ def read_tracker_parts(run_dir: str | Path, name: str | None = None,
     found, truncated = read_topics(bags, name)
     for topic in REQUIRED_TOPICS:
         if not len(found[topic]):
-            raise InputError(f"run {name}: topic {topic} missing or empty")
+            elsewhere = [t for t in topics_of_type(bags, TOPIC_TYPES[topic]) if t not in TOPIC_TYPES]
+            hint = (f"; {TOPIC_TYPES[topic]} is recorded on {', '.join(elsewhere)} instead: the data contract "
+                    f"names that topic {topic}" if elsewhere else "")
+            raise InputError(f"run {name}: topic {topic} missing or empty{hint}")
     topics = {t: topic_columns(t, found[t], name) for t in TOPIC_TYPES if len(found[t])}
     unstamped = {}
     for t in UTC_HEADER_TOPICS:

@@ -72,6 +72,25 @@ def test_missing_topic_names_run_and_topic(tmp_path, raw):
         read_tracker_run(tmp_path / "run_01")
 
 
+def test_a_required_topic_under_another_name_is_pointed_to(tmp_path, raw):
+    # the joystick recorded on /joy (a common driver default) instead of the contract's /joy_teleop/joy
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    write_run_bags(tmp_path / "src", raw)
+    (tmp_path / "run_01").mkdir()
+    shutil.copy(tmp_path / "src" / "trackers.bag", tmp_path / "run_01" / "trackers.bag")
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(tmp_path / "src" / "robot.bag") as r, Writer(tmp_path / "run_01" / "robot.bag") as w:
+        conns = {c.id: w.add_connection("/joy" if c.topic == "/joy_teleop/joy" else c.topic, c.msgtype, typestore=store)
+                 for c in r.connections}
+        for c, t, data in r.messages():
+            w.write(conns[c.id], t, data)
+    with pytest.raises(InputError, match=r"^run run_01: topic /joy_teleop/joy missing or empty; sensor_msgs/msg/Joy is "
+                                         r"recorded on /joy instead: the data contract names that topic /joy_teleop/joy$"):
+        read_tracker_run(tmp_path / "run_01")
+
+
 def test_missing_hub_topic_only_warns(tmp_path, raw, caplog):
     write_run_bags(tmp_path / "run_01", raw, drop_topics=("/turning_hub/azimuth",))
     with caplog.at_level(logging.WARNING):
