@@ -60,6 +60,7 @@ from identification.preprocessing.io_survey import read_survey
 from identification.preprocessing.io_tracker import (
     BagRun,
     ReadFacts,
+    check_point_units,
     read_campaign_yaml,
     read_run_groups,
     read_tracker_parts,
@@ -277,7 +278,7 @@ def preprocess_run(raw: RawRun, calibration: Calibration, smoothing: float = DEF
 def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | None]]:
     """Read one run's bags and preprocess it, or each of its parts between clock resets (a
     worker: one run per call, in any process); return ``(name, result, reason)`` per part."""
-    root, name, split, calibration, smoothing, hub_correction, plots_dir = job
+    root, name, split, survey, calibration, smoothing, hub_correction, plots_dir = job
     tic = time.perf_counter()
     try:
         parts = read_tracker_parts(Path(root) / "runs" / name, name, split)
@@ -287,6 +288,7 @@ def _read_and_process(job: tuple) -> list[tuple[str, RunResult | None, str | Non
     done = []
     for raw in parts:
         try:
+            check_point_units(raw, survey)
             result = preprocess_run(raw, calibration, smoothing, hub_correction)
         except InputError as exc:
             done.append((raw.name, None, str(exc)))
@@ -353,10 +355,11 @@ def preprocess_campaign(campaign_dir: str | Path, out_dir: str | Path,
             raise InputError(f"{root}: a trajectory campaign (runs/*/poses.csv): preprocessed already; identify, "
                              "evaluate, benchmark and diagnose take it as it is")
         raise InputError(f"{root}: calibration.yaml missing")
-    calibration = calibrate(read_survey(root / "calibration.yaml"))
+    survey = read_survey(root / "calibration.yaml")
+    calibration = calibrate(survey)
     seconds["calibrate"] = time.perf_counter() - tic
 
-    jobs_args = [(root, n, split, calibration, smoothing, hub_correction, plots_dir)
+    jobs_args = [(root, n, split, survey, calibration, smoothing, hub_correction, plots_dir)
                  for n, split in run_list]
     tic = time.perf_counter()
     done = [part for parts in parallel_map(_read_and_process, jobs_args, jobs, desc="preprocess",

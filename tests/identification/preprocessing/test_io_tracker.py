@@ -192,6 +192,23 @@ def test_run_folders_not_listed_are_named_and_not_read(tmp_path, raw, caplog):
     assert f"{root / 'runs'}: run folders run_02, run_03 are not listed in campaign.yaml; not read" in caplog.text
 
 
+def test_tracker_points_in_millimetres_are_named_before_synchronisation(tmp_path, raw, capsys):
+    # laser-tracker software exports millimetres; the survey in calibration.yaml is in metres
+    from sindy_ekf.cli import main
+
+    mm = replace(raw, name="run_02", ltd800=PointSeries(raw.ltd800.t_tracker, raw.ltd800.xyz * 1000.0))
+    root = write_campaign(tmp_path / "c", [raw, mm], CALIBRATION.read_text())
+    c = read_tracker_campaign(root)
+    assert [r.name for r in c.runs] == ["run_01"]
+    assert re.fullmatch(r"run run_02: topic /ltd800/measurement: points a median [\d.]+ from the tracker, its network "
+                        r"points in calibration.yaml [\d.]+: one of them is not in metres \(millimetres\?\)",
+                        c.skipped["run_02"])
+    root2 = write_campaign(tmp_path / "d", [replace(mm, name="run_01")], CALIBRATION.read_text())
+    assert main(["preprocess", str(root2), "--out", str(tmp_path / "out"), "--jobs", "1", "--quiet"]) == 2
+    assert "run run_01: topic /ltd800/measurement: points a median" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_campaign_with_no_usable_run_is_an_error(tmp_path, raw):
     root = write_campaign(tmp_path / "c", [raw], CALIBRATION.read_text())
     shutil.rmtree(root / "runs" / "run_01")
