@@ -244,3 +244,54 @@ def write_run_motion(campaign_dir: Path, out_dir: Path, runs: dict[str, np.ndarr
                     "fusing odometry needs them", campaign_dir / "campaign.yaml", ", ".join(out[WHEELS]),
                     " and ".join(WHEEL_KEYS))
     return out
+
+
+#: a sensor column anti-correlated with the motion it measures (the poses' yaw rate or forward speed)
+#: below this is a sign against the data contract's axes (the simulated gyro and odometry: +0.88 to +1.00)
+MIN_SENSOR_CORRELATION = -0.3
+#: ... and one that follows it (correlation above 0.5) this many times larger, another unit: degrees
+#: per second are 57 times radians per second, wheel rpm about 9.5 times rad/s (a skid-steered robot's
+#: odometry overstates its turn rate by up to about 2 or 3, which stays below)
+MAX_SENSOR_SCALE = {"wz": 20.0, "omega": 20.0, "v": 5.0}
+
+
+def check_against_poses(s: MotionSamples, poses, source: str) -> None:
+    """Raise a one-line InputError naming ``source`` and the column when a gyro or odometry column
+    runs against the ground truth's motion (a z-down IMU frame, left and right wheels swapped, a
+    reversed speed) or is many times larger than it (degrees per second, rpm).
+
+    The truth: the poses' yaw rate and forward speed over about 0.2 s, at the samples' times.
+    A run whose truth barely moves says nothing and passes.
+    """
+    t, yaw = np.asarray(poses.t, float), np.asarray(poses.yaw, float)
+    if t.size < 3 or s.t.size < 3:
+        return
+    k = max(int(round(0.2 / float(np.median(np.diff(t))))), 1)
+    if t.size <= k:
+        return
+    dt = t[k:] - t[:-k]
+    heading = 0.5 * (yaw[k:] + yaw[:-k])
+    truth = {"rate": (yaw[k:] - yaw[:-k]) / dt,
+             "speed": (np.cos(heading) * (poses.x[k:] - poses.x[:-k])
+                       + np.sin(heading) * (poses.y[k:] - poses.y[:-k])) / dt}
+    mid = 0.5 * (t[k:] + t[:-k])
+    pairs = {IMU: (("wz", "rate"),), ODOMETRY: (("v", "speed"), ("omega", "rate"))}[s.kind]
+    words = {"rate": "the poses' yaw rate", "speed": "the poses' forward speed"}
+    for column, motion in pairs:
+        m = np.interp(s.t, mid, truth[motion], left=np.nan, right=np.nan)
+        a = s.columns[column]
+        ok = np.isfinite(a) & np.isfinite(m)
+        if ok.sum() < 10 or np.std(m[ok]) < 1e-3 or np.std(a[ok]) == 0:
+            continue
+        r = float(np.corrcoef(a[ok], m[ok])[0, 1])
+        slope = float(np.sum(a[ok] * m[ok]) / np.sum(m[ok] ** 2))
+        if r < MIN_SENSOR_CORRELATION:
+            why = ("the data contract's gyro z axis is up, counter-clockwise positive (a z-down IMU frame?)"
+                   if column == "wz" else "the data contract's v is positive forward and omega counter-clockwise "
+                   "(left and right wheels swapped, or a reversed axis?)")
+            raise InputError(f"{source}: column {column} runs against {words[motion]} (r = {r:.2f}, slope {slope:.2f}): "
+                             f"{why}")
+        if r > 0.5 and slope > MAX_SENSOR_SCALE[column]:
+            raise InputError(f"{source}: column {column} is {slope:.3g} times {words[motion]} (r = {r:.2f}): another "
+                             f"unit than the data contract's {'m/s' if column == 'v' else 'rad/s'} (degrees per "
+                             "second? wheel rpm?)")

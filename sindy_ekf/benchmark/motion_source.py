@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from groundfloor.errors import InputError
-from identification.preprocessing.io_motion import IMU, KINDS, ODOMETRY, load_run_motion
+from identification.preprocessing.io_motion import IMU, KINDS, ODOMETRY, check_against_poses, load_run_motion
 from sindy_ekf.benchmark.health import RunStatus, guarded
 from sindy_ekf.estimation.ekf import EkfRun
 from sindy_ekf.estimation.ekf_motion import GyroNoise, MotionSensors, OdometryNoise, run_ekf_motion
@@ -33,14 +33,17 @@ def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -
     Raises
     ------
     InputError
-        A wanted file missing (names it), or without a sample inside the poses.
+        A wanted file missing (names it), without a sample inside the poses, or a column against
+        the truth's motion in sign or unit (:func:`identification.preprocessing.io_motion.check_against_poses`).
     """
     run_dir = campaign.root / "runs" / run_name
+    poses = next(r.poses for r in campaign.runs if r.name == run_name)
     got = {}
     for kind in kinds:
         loaded = load_run_motion(run_dir, kind, t_pose)
         if loaded is None:
             raise InputError(f"{run_dir / KINDS[kind][0]}: missing; sensors: [{kind}] needs it")
+        check_against_poses(loaded[0], poses, str(run_dir / KINDS[kind][0]))
         got[kind] = loaded[0]
     im, od = got.get(IMU), got.get(ODOMETRY)
     gyro = {} if im is None else {"t_gyro": im.t, "wz": im.columns["wz"], "wz_std": im.std("wz")}

@@ -54,7 +54,12 @@ from sindy_ekf.benchmark.health import (
     score_partial,
     split_short_runs,
 )
-from sindy_ekf.benchmark.motion_source import isam2_motion_tasks, run_motion_ekfs, run_motion_graphs
+from sindy_ekf.benchmark.motion_source import (
+    isam2_motion_tasks,
+    motion_sensors_of,
+    run_motion_ekfs,
+    run_motion_graphs,
+)
 from sindy_ekf.benchmark.result import BenchmarkResult, Estimate
 from sindy_ekf.benchmark.scoring import chi2_bounds_95, pose_truth
 from sindy_ekf.config import EstimatorSettings, FilterConfig, OutageSchedule, load_config
@@ -294,6 +299,11 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
     recorded = load_recorded_gnss(campaign) if profile == RECORDED else None
     runs = [_prepare_run(r, profile, seed + i, oracle_dynamics, s, outages.warmup_s, outages.recovery_s,
                          outages.durations_s, recorded) for i, r in enumerate(test)]
+    # the recorded gyro and odometry the estimators fuse: missing, or against the truth in sign or
+    # unit, is one line before any filter runs
+    fused = tuple(sorted({k for n in estimators for k in config.estimator(n).motion_sensors}))
+    for r in runs if fused else ():
+        motion_sensors_of(campaign, r.name, r.t_pose, fused)
     estimates: dict[str, dict[str, Estimate]] = {}
     # estimator -> run -> its states on the whole grid (None: it stopped early), to start a smoother from
     on_grid: dict[str, dict[str, np.ndarray | None]] = {}

@@ -227,3 +227,46 @@ def test_sensor_messages_whose_header_stamp_was_never_set_take_their_bag_time(tm
     np.testing.assert_allclose(s.t, t, rtol=0, atol=1e-6)
     kept, counts = clean_samples(s, "run_01")
     assert counts["unstamped_receive_time"] == 200 and counts["duplicates_dropped"] == 0 and kept.t.size == 300
+
+
+def _unicycle_poses(rate_hz=20.0):
+    """Return poses of a unicycle at v = 0.5 + 0.3 sin(0.3 t) m/s, omega = sin(0.5 t) rad/s
+    (integrated by hand at 100 Hz), and that v and omega at 50 Hz sample times."""
+    from groundfloor.types import PoseTrack
+
+    dt = 0.01
+    t = np.arange(0.0, 60.0, dt)
+    v, om = 0.5 + 0.3 * np.sin(0.3 * t), np.sin(0.5 * t)
+    yaw = np.concatenate([[0.0], np.cumsum(om[:-1] * dt)])
+    x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(yaw[:-1]) * dt)])
+    y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(yaw[:-1]) * dt)])
+    k = slice(None, None, int(round(1 / (rate_hz * dt))))
+    nan = np.full(t[k].size, np.nan)
+    poses = PoseTrack(t=t[k], x=x[k], y=y[k], yaw=yaw[k], z=nan, pitch=nan, x_std=nan, y_std=nan, z_std=nan,
+                      pitch_std=nan, yaw_std=nan)
+    ts = np.arange(0.5, 59.5, 0.02)
+    return poses, ts, 0.5 + 0.3 * np.sin(0.3 * ts), np.sin(0.5 * ts)
+
+
+@pytest.mark.parametrize("column, factor, said", [
+    ("wz", 1.0, None), ("wz", -1.0, "column wz runs against the poses' yaw rate"),
+    ("wz", np.degrees(1.0), "column wz is 57.[0-9] times the poses' yaw rate"),
+    ("omega", 1.8, None),  # a skid-steered robot's odometry overstates its turns
+    ("omega", -1.0, "column omega runs against the poses' yaw rate"),
+    ("v", -1.0, "column v runs against the poses' forward speed"),
+    ("v", 60 / (2 * np.pi), "column v is 9.5[0-9] times the poses' forward speed")])
+def test_a_gyro_or_odometry_against_the_truth_in_sign_or_unit_is_named(column, factor, said):
+    from identification.preprocessing.io_motion import MotionSamples, check_against_poses
+
+    poses, ts, v, om = _unicycle_poses()
+    rng = np.random.default_rng(0)
+    if column == "wz":
+        s = MotionSamples(IMU, ts, {"wz": factor * om + 0.01 + rng.normal(0, 0.01, ts.size)})  # a bias and noise
+    else:
+        s = MotionSamples(ODOMETRY, ts, {"v": (factor if column == "v" else 1.0) * v,
+                                         "omega": (factor if column == "omega" else 1.0) * om})
+    if said is None:
+        check_against_poses(s, poses, "x/imu.csv")
+    else:
+        with pytest.raises(InputError, match="^x/imu.csv: " + said.replace("(", r"\(")):
+            check_against_poses(s, poses, "x/imu.csv")

@@ -37,6 +37,25 @@ def test_imu_and_odometry_through_simulate_preprocess_and_benchmark(tmp_path, ca
         assert doc["config"]["estimators"][name]["sensors"] == ["gnss", "imu", "odometry"]
         assert doc["estimators"][name]["ate_pos_m"] < 0.05  # rtk: 2 cm fixes
         assert doc["estimators"][name]["status"] == "ok"
+    # a gyro in a z-down frame, wheel speeds in rpm: one line naming the file before any filter runs
+    import numpy as np
+
+    for name, column, factor, said in (("imu.csv", "wz", -1.0, "column wz runs against the poses' yaw rate"),
+                                       ("odometry.csv", "v", 60 / (2 * np.pi), "column v is 9.5")):
+        files = sorted(traj.glob(f"runs/*/{name}"))
+        saved = [f.read_text() for f in files]
+        for f in files:
+            head, *rows = f.read_text().splitlines()
+            k = head.split(",").index(column)
+            rows = [",".join(repr(float(v) * factor) if i == k else v for i, v in enumerate(r.split(","))) for r in rows]
+            f.write_text("\n".join([head, *rows]) + "\n")
+        capsys.readouterr()
+        assert cli.main(["benchmark", str(traj), "--model", str(model), "--gnss", "recorded", "--estimators",
+                         "sindy_ekf", "--config", str(cfg)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"/{name}: {said}" in err[0], err
+        for f, text in zip(files, saved):
+            f.write_text(text)
     # the same campaign without imu.csv: an error naming the file
     for p in traj.glob("runs/*/imu.csv"):
         p.unlink()
