@@ -38,6 +38,7 @@ from identification.preprocessing.io_sensors import (
 )
 from identification.preprocessing.io_tracker import find_bags
 from identification.preprocessing.stamp_order import unstamped_to_receive
+from identification.preprocessing.trajectory_checks import pose_motion
 
 log = logging.getLogger(__name__)
 
@@ -260,21 +261,14 @@ def check_against_poses(s: MotionSamples, poses, source: str) -> None:
     runs against the ground truth's motion (a z-down IMU frame, left and right wheels swapped, a
     reversed speed) or is many times larger than it (degrees per second, rpm).
 
-    The truth: the poses' yaw rate and forward speed over about 0.2 s, at the samples' times.
+    The truth: the poses' yaw rate and forward speed over about 0.2 s
+    (:func:`identification.preprocessing.trajectory_checks.pose_motion`), at the samples' times.
     A run whose truth barely moves says nothing and passes.
     """
-    t, yaw = np.asarray(poses.t, float), np.asarray(poses.yaw, float)
-    if t.size < 3 or s.t.size < 3:
+    mid, speed, rate = pose_motion(poses)
+    if mid.size < 3 or s.t.size < 3:
         return
-    k = max(int(round(0.2 / float(np.median(np.diff(t))))), 1)
-    if t.size <= k:
-        return
-    dt = t[k:] - t[:-k]
-    heading = 0.5 * (yaw[k:] + yaw[:-k])
-    truth = {"rate": (yaw[k:] - yaw[:-k]) / dt,
-             "speed": (np.cos(heading) * (poses.x[k:] - poses.x[:-k])
-                       + np.sin(heading) * (poses.y[k:] - poses.y[:-k])) / dt}
-    mid = 0.5 * (t[k:] + t[:-k])
+    truth = {"rate": rate, "speed": speed}
     pairs = {IMU: (("wz", "rate"),), ODOMETRY: (("v", "speed"), ("omega", "rate"))}[s.kind]
     words = {"rate": "the poses' yaw rate", "speed": "the poses' forward speed"}
     for column, motion in pairs:

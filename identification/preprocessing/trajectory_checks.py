@@ -121,24 +121,26 @@ def input_holes(t_i: np.ndarray, t_p: np.ndarray, name: str, inputs_path: Path) 
     return int(holes.size)
 
 
-def _motion_and_inputs(run) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Return the forward speed and yaw rate of a run's poses over about :data:`YAW_RATE_BASELINE_S`
-    (within stretches without gaps) and the inputs ``u1, u2`` held at the middle of each interval."""
-    t, yaw = run.poses.t, run.poses.yaw
+def pose_motion(poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the middle times, forward speed and yaw rate of ``poses`` (a :class:`PoseTrack`) over
+    about :data:`YAW_RATE_BASELINE_S`, within stretches without gaps (empty with too few poses)."""
+    t, yaw = np.asarray(poses.t, float), np.asarray(poses.yaw, float)
     empty = np.zeros(0)
-    if t.size < 3:
-        return empty, empty, empty, empty
-    step = float(np.median(np.diff(t)))
+    step = float(np.median(np.diff(t))) if t.size >= 3 else 0.0
     k = max(int(round(YAW_RATE_BASELINE_S / step)), 1) if step > 0 else 1
-    if t.size <= k:
-        return empty, empty, empty, empty
+    if t.size < 3 or t.size <= k:
+        return empty, empty, empty
     dt = t[k:] - t[:-k]
     ok = (dt > 0) & (dt <= k * gap_threshold_s(t))
     heading = 0.5 * (yaw[k:] + yaw[:-k])
-    speed = (np.cos(heading) * (run.poses.x[k:] - run.poses.x[:-k])
-             + np.sin(heading) * (run.poses.y[k:] - run.poses.y[:-k]))[ok] / dt[ok]
-    rate = (yaw[k:] - yaw[:-k])[ok] / dt[ok]
-    mid = 0.5 * (t[k:] + t[:-k])[ok]
+    speed = (np.cos(heading) * (poses.x[k:] - poses.x[:-k]) + np.sin(heading) * (poses.y[k:] - poses.y[:-k]))[ok] / dt[ok]
+    return 0.5 * (t[k:] + t[:-k])[ok], speed, (yaw[k:] - yaw[:-k])[ok] / dt[ok]
+
+
+def _motion_and_inputs(run) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return the forward speed and yaw rate of a run's poses (:func:`pose_motion`) and the inputs
+    ``u1, u2`` held at the middle of each interval."""
+    mid, speed, rate = pose_motion(run.poses)
     i = np.clip(np.searchsorted(run.inputs.t, mid, side="right") - 1, 0, run.inputs.t.size - 1)
     return speed, rate, run.inputs.u1[i], run.inputs.u2[i]
 
