@@ -24,8 +24,9 @@ from groundfloor.errors import InputError
 
 OUTLIER_SIGMA = 4.0  # residuals above this many stated stds are left out of the refits
 MAX_REFITS = 10
-#: a mirror image of the fixes fitting the better at this significance (F test) is a left-handed frame
-MIRROR_P = 1e-6
+#: a fit of the fixes better at this significance (F test) than the one stamped or rotated: a mirror
+#: image (a left-handed frame), another time (a time base other than the poses')
+SIGNIFICANCE_P = 1e-6
 
 
 @dataclass(frozen=True)
@@ -120,8 +121,9 @@ def _fit(e: np.ndarray, loc: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarr
     return float(yaw), cl - np.array([[c, -s], [s, c]]) @ ce
 
 
-def _median_residual(e: np.ndarray, loc: np.ndarray, w: np.ndarray) -> float:
-    """Return the median horizontal residual, in stated stds, of the Procrustes fit of ``e`` onto ``loc``."""
+def median_residual(e: np.ndarray, loc: np.ndarray, w: np.ndarray) -> float:
+    """Return the median horizontal residual, in stated stds, of the Procrustes fit of ``e`` onto ``loc``
+    (``(n, 2)`` each, weights ``w`` the inverse variances)."""
     yaw, t2 = _fit(e, loc, w)
     c, s = np.cos(yaw), np.sin(yaw)
     res = e @ np.array([[c, -s], [s, c]]).T + t2 - loc
@@ -154,9 +156,8 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     # a left-handed local frame (north-east-down, or y or yaw negated) is no rotation of ENU: the best
     # rotation then leaves residuals of the size of the trajectory, its mirror image fits
     # (squared median residuals compared by an F test, conservatively on one degree of freedom per fix)
-    rotated, mirrored = (_median_residual(e[:, :2] * [1.0, sign], loc[:, :2], w) for sign in (1.0, -1.0))
-    dof = len(e) - 3
-    if (rotated / max(mirrored, 1e-12)) ** 2 > scipy.stats.f.ppf(1.0 - MIRROR_P, dof, dof):
+    rotated, mirrored = (median_residual(e[:, :2] * [1.0, sign], loc[:, :2], w) for sign in (1.0, -1.0))
+    if significantly_better(rotated, mirrored, len(e)):
         raise InputError(f"{source}: the local frame is mirrored against east-north-up (left-handed, e.g. x north and "
                          f"y east as NED, or y and yaw negated): the best rotation leaves a median residual of "
                          f"{rotated:.3g} stated stds, the mirror image {mirrored:.3g}; the data contract's local "
@@ -187,3 +188,10 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     finite_z = keep & np.isfinite(loc[:, 2]) & np.isfinite(e[:, 2])
     tz = float(np.average(loc[finite_z, 2] - e[finite_z, 2], weights=w[finite_z])) if finite_z.any() else 0.0
     return EnuToLocal(yaw, np.array([t2[0], t2[1], tz]), cov, int(keep.sum()), int((~keep).sum()), sigma0)
+
+
+def significantly_better(worse: float, better: float, n: int, p: float = SIGNIFICANCE_P) -> bool:
+    """Return whether a fit of median residual ``better`` beats one of ``worse`` on ``n`` fixes at
+    significance ``p`` (an F test of the squared medians, conservatively on ``n - 3`` degrees of freedom)."""
+    dof = max(n - 3, 1)
+    return (worse / max(better, 1e-12)) ** 2 > scipy.stats.f.ppf(1.0 - p, dof, dof)

@@ -19,7 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundfloor.errors import InputError
-from groundfloor.geodetic import EnuToLocal, GeodeticOrigin, estimate_enu_to_local, geodetic_to_enu
+from groundfloor.geodetic import (
+    EnuToLocal,
+    GeodeticOrigin,
+    estimate_enu_to_local,
+    geodetic_to_enu,
+    median_residual,
+    significantly_better,
+)
 from groundfloor.gnss import GnssSeries
 from identification.preprocessing.io_sensors import (
     GNSS,
@@ -35,6 +42,10 @@ log = logging.getLogger(__name__)
 
 RECORDED = "recorded"
 ESTIMATE_WINDOW_S = 60.0  # seconds of each run's start the ENU -> local estimate rests on
+#: time shifts of the fixes against the poses scored by :func:`check_time_base` (s), and the shift
+#: below which a better fit is a receiver's latency (0.1 to 0.2 s on the simulated receivers), not a time base
+OFFSET_GRID_S = np.round(np.arange(-30.0, 30.0 + 1e-9, 0.25), 2)
+MIN_TIME_OFFSET_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -85,15 +96,54 @@ def antenna_local(poses, t: np.ndarray, lever_arm_body_m: np.ndarray) -> np.ndar
                             np.interp(t, tp, z) + lz])
 
 
+def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigin, lever: np.ndarray,
+                    source: str) -> None:
+    """Raise a one-line InputError when the fixes fit the ground truth significantly better at
+    another time than their own, by more than :data:`MIN_TIME_OFFSET_S`: a ``t`` on another time base
+    than the poses' (GPS time, 18 s ahead of UTC; a receiver's clock; the arrival time of a late log).
+
+    Each shift of :data:`OFFSET_GRID_S` is scored by the median residual of the best ENU -> local
+    rotation of the fixes whose shifted time lies inside their run against the true antenna
+    positions at ``t + shift`` (at least 20 fixes); the best shift against zero by the F test of
+    :func:`groundfloor.geodetic.significantly_better` on the fewer of the two sets. A robot standing
+    still or driving straight cannot tell a shift and passes.
+    """
+    parts = [(run.poses, fixes[run.name]) for run in campaign.runs if run.name in fixes]
+    enu = [geodetic_to_enu(f.lla[:, 0], f.lla[:, 1], f.lla[:, 2], origin)[:, :2] for _, f in parts]
+    w = [2.0 / (f.cov_enu[:, 0, 0] + f.cov_enu[:, 1, 1]) for _, f in parts]
+    scores = []
+    for shift in OFFSET_GRID_S:
+        inside = [(f.t + shift >= p.t[0]) & (f.t + shift <= p.t[-1]) for p, f in parts]
+        n = int(sum(k.sum() for k in inside))
+        if n < 20:
+            scores.append((np.inf, n))
+            continue
+        local = np.concatenate([antenna_local(p, f.t[k] + shift, lever)[:, :2] for (p, f), k in zip(parts, inside)])
+        scores.append((median_residual(np.concatenate([e[k] for e, k in zip(enu, inside)]), local,
+                                       np.concatenate([wk[k] for wk, k in zip(w, inside)])), n))
+    residual = np.array([r for r, _ in scores])
+    zero = int(np.argmin(np.abs(OFFSET_GRID_S)))
+    best = int(np.argmin(residual))
+    if not np.isfinite(residual[zero]) or not np.isfinite(residual[best]):
+        return
+    shift, n = float(OFFSET_GRID_S[best]), min(scores[best][1], scores[zero][1])
+    if abs(shift) > MIN_TIME_OFFSET_S and significantly_better(float(residual[zero]), float(residual[best]), n):
+        leap = "; GPS time runs 18 s ahead of UTC" if abs(abs(shift) - 18.0) < 1.0 else ""
+        raise InputError(f"{source}: the fixes fit the ground truth best at their stamps {shift:+.2f} s (median "
+                         f"residual {residual[best]:.3g} stated stds there, {residual[zero]:.3g} as stamped): t of "
+                         f"{GNSS_CSV} (the NavSatFix header stamp) must be on the poses' time base{leap}")
+
+
 def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> RecordedGnss:
     """Return the recorded GNSS of a trajectory campaign, the ENU -> local transform given or estimated.
 
     Raises
     ------
     InputError
-        No test run with a ``gnss.csv``; a ``gnss.csv`` without a fix inside its run's poses
-        (names the file); a bad sensor declaration in ``campaign.yaml``; too little motion to
-        estimate the transform.
+        No test run with a ``gnss.csv``; fixes on another time base than the poses
+        (:func:`check_time_base`); a ``gnss.csv`` without a fix inside its run's poses (names the
+        file); a bad sensor declaration in ``campaign.yaml``; too little motion to estimate the
+        transform; a mirrored local frame.
     """
     root = campaign.root
     config = read_sensors_config(root)
@@ -104,10 +154,14 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
         path = root / "runs" / run.name / GNSS_CSV
         if not path.is_file():
             continue
-        f, counts[run.name] = clean_fixes(read_gnss_csv(path), str(path))
-        fixes[run.name] = overlapping(f, run.poses.t, str(path))
+        fixes[run.name], counts[run.name] = clean_fixes(read_gnss_csv(path), str(path))
     if not any(r.name in fixes for r in campaign.split("test")):
         raise InputError(f"{root}: --gnss recorded needs runs/<run>/{GNSS_CSV} in the test runs (none found)")
+    # the time base first: fixes stamped on another clock may miss a short run's poses altogether
+    check_time_base(campaign, fixes, config.origin or GeodeticOrigin(*(float(v) for v in next(iter(fixes.values())).lla[0])),
+                    lever, f"{root}: GNSS")
+    fixes = {name: overlapping(f, next(r.poses.t for r in campaign.runs if r.name == name),
+                               str(root / "runs" / name / GNSS_CSV)) for name, f in fixes.items()}
     first = fixes[next(iter(fixes))]
     origin = config.origin or GeodeticOrigin(*(float(v) for v in first.lla[0]))
     if config.enu_to_local_yaw_deg is not None:

@@ -127,3 +127,36 @@ def test_no_gnss_file_or_no_overlap_is_one_line_error_naming_it(camp, tmp_path):
     with pytest.raises(InputError, match="--gnss recorded needs runs/<run>/gnss.csv"):
         benchmark_campaign(read_trajectory_campaign(root), model_from_terms(RobotParams().terms()), "recorded",
                            estimators=("cv_ekf",))
+
+
+def _shift_gnss_times(root, seconds: float) -> None:
+    """Add ``seconds`` to t (and t_arrival) of every gnss.csv under ``root``, as text."""
+    for path in root.glob("runs/*/gnss.csv"):
+        head, *rows = path.read_text().splitlines()
+        cols = head.split(",")
+        at = [cols.index(c) for c in ("t", "t_arrival") if c in cols]
+        rows = [",".join(f"{float(v) + seconds:.9f}" if i in at else v for i, v in enumerate(r.split(",")))
+                for r in rows]
+        path.write_text("\n".join([head, *rows]) + "\n")
+
+
+@pytest.mark.parametrize("seconds, leap", [(18.0, True), (-2.5, False)])
+def test_fixes_on_another_time_base_are_one_line_with_the_offset(camp, tmp_path, seconds, leap):
+    # GPS time (18 s ahead of UTC) in the NavSatFix stamps, or a receiver clock 2.5 s behind: the
+    # transform would be fitted to fixes that are not where the robot was, and every filter misled
+    c, _, _ = camp
+    root = shutil.copytree(c.trajectory, tmp_path / "t")
+    _shift_gnss_times(root, seconds)
+    with pytest.raises(InputError) as err:
+        load_recorded_gnss(read_trajectory_campaign(root))
+    msg = str(err.value)
+    assert msg.startswith(f"{root}: GNSS: the fixes fit the ground truth best at their stamps {-seconds:+.2f} s (median")
+    assert msg.endswith("must be on the poses' time base" + ("; GPS time runs 18 s ahead of UTC" if leap else ""))
+
+
+def test_a_receiver_latency_is_not_called_another_time_base(camp, tmp_path):
+    # fixes stamped 0.5 s late (a latency, below the 1 s a time base needs): the transform is estimated
+    c, _, _ = camp
+    root = shutil.copytree(c.trajectory, tmp_path / "t")
+    _shift_gnss_times(root, 0.5)
+    load_recorded_gnss(read_trajectory_campaign(root))
