@@ -25,8 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import scipy.stats
 
 from groundfloor.errors import InputError
+from groundfloor.geodetic import SIGNIFICANCE_P
 from groundfloor.files import csv_header
 from identification.preprocessing.io_sensors import (
     CONTRACT_TOPICS,
@@ -254,12 +256,48 @@ MIN_SENSOR_CORRELATION = -0.3
 #: per second are 57 times radians per second, wheel rpm about 9.5 times rad/s (a skid-steered robot's
 #: odometry overstates its turn rate by up to about 2 or 3, which stays below)
 MAX_SENSOR_SCALE = {"wz": 20.0, "omega": 20.0, "v": 5.0}
+#: time shifts of a sensor against the poses scored by :func:`check_against_poses` (s); a best shift
+#: beyond MIN_TIME_OFFSET_S that correlates significantly better (:func:`_fisher_worse`) is
+#: another time base or a latency the filters do not model (a gyro stamped 0.5 s late took the simulated
+#: campaign's sindy_ekf from 0.04 to 3.7 m); a gyro's or an odometry's own delay is milliseconds
+OFFSET_GRID_S = np.round(np.arange(-30.0, 30.0 + 1e-9, 0.05), 2)
+MIN_TIME_OFFSET_S = 0.25
+#: correlations with the poses' finite-difference rates above this are told apart by their noise alone
+MAX_RESOLVED_CORRELATION = 0.99
+
+
+def _fisher_worse(r_low: float, r_high: float, seconds: float) -> bool:
+    """Return whether a correlation ``r_low`` is significantly below ``r_high`` (Fisher's z at
+    :data:`~groundfloor.geodetic.SIGNIFICANCE_P`, on one independent sample a second: consecutive
+    samples of a motion are not independent)."""
+    # beyond 0.99 the pose-derived rates' own noise, not the alignment, makes the difference
+    z = np.arctanh(np.clip([r_low, r_high], -MAX_RESOLVED_CORRELATION, MAX_RESOLVED_CORRELATION))
+    return seconds > 3 and (z[1] - z[0]) * np.sqrt((seconds - 3) / 2.0) > scipy.stats.norm.isf(SIGNIFICANCE_P)
+
+
+def _shift_scores(t: np.ndarray, a: np.ndarray, t_truth: np.ndarray, truth: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Return, per shift of :data:`OFFSET_GRID_S`, the correlation of ``a`` (at ``t``) with ``truth``
+    at ``t + shift`` and the seconds it rests on (NaN where less than half of the samples' time span
+    stays inside the truth's: a correlation over a few seconds at the edge of a short run means nothing)."""
+    k = max(t.size // 2000, 1)  # 2000 samples are plenty for a correlation; 1200 shifts of 30000 are not
+    t, a = t[::k], a[::k]
+    span = float(t[-1] - t[0]) if t.size else 0.0
+    r, seconds = np.full(OFFSET_GRID_S.size, np.nan), np.zeros(OFFSET_GRID_S.size)
+    for i, shift in enumerate(OFFSET_GRID_S):
+        m = np.interp(t + shift, t_truth, truth, left=np.nan, right=np.nan)
+        ok = np.isfinite(a) & np.isfinite(m)
+        if ok.sum() < 20 or np.ptp(t[ok]) < 0.5 * span or np.std(m[ok]) == 0 or np.std(a[ok]) == 0:
+            continue
+        r[i], seconds[i] = np.corrcoef(a[ok], m[ok])[0, 1], np.ptp(t[ok])
+    return r, seconds
 
 
 def check_against_poses(s: MotionSamples, poses, source: str) -> None:
     """Raise a one-line InputError naming ``source`` and the column when a gyro or odometry column
     runs against the ground truth's motion (a z-down IMU frame, left and right wheels swapped, a
-    reversed speed) or is many times larger than it (degrees per second, rpm).
+    reversed speed), is many times larger than it (degrees per second, rpm), or follows it best
+    seconds away from its stamps (another time base: :data:`OFFSET_GRID_S`).
 
     The truth: the poses' yaw rate and forward speed over about 0.2 s
     (:func:`identification.preprocessing.trajectory_checks.pose_motion`), at the samples' times.
@@ -279,6 +317,24 @@ def check_against_poses(s: MotionSamples, poses, source: str) -> None:
             continue
         r = float(np.corrcoef(a[ok], m[ok])[0, 1])
         slope = float(np.sum(a[ok] * m[ok]) / np.sum(m[ok] ** 2))
+        # the time base: of the shifts that correlate about as well as the best in magnitude (a
+        # periodic drive, a figure of eight, repeats itself, and half a period away it is inverted),
+        # the nearest to the stamps; refused where it is more than a latency away and the stamps
+        # themselves correlate significantly worse
+        rs, seconds = _shift_scores(s.t, a, mid, truth[motion])
+        zero = int(np.argmin(np.abs(OFFSET_GRID_S)))
+        if np.isfinite(rs).any() and np.isfinite(rs[zero]):
+            top = int(np.nanargmax(np.abs(rs)))
+            near = next(i for i in np.argsort(np.abs(OFFSET_GRID_S), kind="stable") if np.isfinite(rs[i])
+                        and not _fisher_worse(abs(rs[i]), abs(rs[top]), seconds[top]))
+            # the best within a second of it: the band of "about as well" is wide, its edge no estimate
+            around = np.flatnonzero((np.abs(OFFSET_GRID_S - OFFSET_GRID_S[near]) <= 1.0) & np.isfinite(rs))
+            near = int(around[np.argmax(np.abs(rs[around]))])
+            shift = float(OFFSET_GRID_S[near])
+            if abs(shift) > MIN_TIME_OFFSET_S and _fisher_worse(abs(rs[zero]), abs(rs[top]), seconds[top]):
+                raise InputError(f"{source}: column {column} follows {words[motion]} best at its stamps {shift:+.2f} s "
+                                 f"(r = {rs[near]:.2f} there, {rs[zero]:.2f} as stamped): t must be on the poses' "
+                                 "time base")
         if r < MIN_SENSOR_CORRELATION:
             why = ("the data contract's gyro z axis is up, counter-clockwise positive (a z-down IMU frame?)"
                    if column == "wz" else "the data contract's v is positive forward and omega counter-clockwise "

@@ -104,8 +104,10 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
 
     Each shift of :data:`OFFSET_GRID_S` is scored by the median residual of the best ENU -> local
     rotation of the fixes whose shifted time lies inside their run against the true antenna
-    positions at ``t + shift`` (at least 20 fixes); the best shift against zero by the F test of
-    :func:`groundfloor.geodetic.significantly_better` on the fewer of the two sets. A robot standing
+    positions at ``t + shift`` (at least 20 fixes). Of the shifts that fit about as well as the best
+    (a track driven round and round fits again a lap later), the one nearest the stamps is taken,
+    and refused where the stamps themselves fit significantly worse (the F test of
+    :func:`groundfloor.geodetic.significantly_better`, on the fewer of the two sets). A robot standing
     still or driving straight cannot tell a shift and passes.
     """
     parts = [(run.poses, fixes[run.name]) for run in campaign.runs if run.name in fixes]
@@ -126,6 +128,12 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
     best = int(np.argmin(residual))
     if not np.isfinite(residual[zero]) or not np.isfinite(residual[best]):
         return
+    # of the shifts that fit about as well as the best (a track driven round and round repeats itself),
+    # the nearest to the stamps, then the best within a second of it
+    near = next(i for i in np.argsort(np.abs(OFFSET_GRID_S), kind="stable") if np.isfinite(residual[i])
+                and not significantly_better(float(residual[i]), float(residual[best]), scores[best][1]))
+    around = np.flatnonzero(np.abs(OFFSET_GRID_S - OFFSET_GRID_S[near]) <= 1.0)
+    best = int(around[np.argmin(residual[around])])
     shift, n = float(OFFSET_GRID_S[best]), min(scores[best][1], scores[zero][1])
     if abs(shift) > MIN_TIME_OFFSET_S and significantly_better(float(residual[zero]), float(residual[best]), n):
         leap = "; GPS time runs 18 s ahead of UTC" if abs(abs(shift) - 18.0) < 1.0 else ""

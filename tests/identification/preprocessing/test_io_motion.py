@@ -6,6 +6,8 @@ know (JointState wheel speeds) ignored."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import yaml
@@ -229,14 +231,21 @@ def test_sensor_messages_whose_header_stamp_was_never_set_take_their_bag_time(tm
     assert counts["unstamped_receive_time"] == 200 and counts["duplicates_dropped"] == 0 and kept.t.size == 300
 
 
+def _drive(t):
+    """Return a drive that does not repeat itself: v and omega as sums of sines of incommensurate periods."""
+    v = 0.5 + 0.2 * np.sin(0.31 * t) + 0.1 * np.sin(1.13 * t + 1.0)
+    om = 0.6 * np.sin(0.47 * t) + 0.4 * np.sin(1.71 * t + 0.3) + 0.2 * np.sin(np.sqrt(5.0) * t)
+    return v, om
+
+
 def _unicycle_poses(rate_hz=20.0):
-    """Return poses of a unicycle at v = 0.5 + 0.3 sin(0.3 t) m/s, omega = sin(0.5 t) rad/s
-    (integrated by hand at 100 Hz), and that v and omega at 50 Hz sample times."""
+    """Return poses of a unicycle on :func:`_drive` (integrated by hand at 100 Hz), and that v and
+    omega at 50 Hz sample times."""
     from groundfloor.types import PoseTrack
 
     dt = 0.01
     t = np.arange(0.0, 60.0, dt)
-    v, om = 0.5 + 0.3 * np.sin(0.3 * t), np.sin(0.5 * t)
+    v, om = _drive(t)
     yaw = np.concatenate([[0.0], np.cumsum(om[:-1] * dt)])
     x = np.concatenate([[0.0], np.cumsum(v[:-1] * np.cos(yaw[:-1]) * dt)])
     y = np.concatenate([[0.0], np.cumsum(v[:-1] * np.sin(yaw[:-1]) * dt)])
@@ -245,7 +254,7 @@ def _unicycle_poses(rate_hz=20.0):
     poses = PoseTrack(t=t[k], x=x[k], y=y[k], yaw=yaw[k], z=nan, pitch=nan, x_std=nan, y_std=nan, z_std=nan,
                       pitch_std=nan, yaw_std=nan)
     ts = np.arange(0.5, 59.5, 0.02)
-    return poses, ts, 0.5 + 0.3 * np.sin(0.3 * ts), np.sin(0.5 * ts)
+    return poses, ts, *_drive(ts)
 
 
 @pytest.mark.parametrize("column, factor, said", [
@@ -270,3 +279,37 @@ def test_a_gyro_or_odometry_against_the_truth_in_sign_or_unit_is_named(column, f
     else:
         with pytest.raises(InputError, match="^x/imu.csv: " + said.replace("(", r"\(")):
             check_against_poses(s, poses, "x/imu.csv")
+
+
+@pytest.mark.parametrize("late_s", [1.0, -2.0, 18.0])
+def test_a_gyro_on_another_time_base_is_named_with_its_offset(late_s):
+    # each sample stamped late_s after the instant it measured (GPS time: 18 s; a clock off by 2 s)
+    from identification.preprocessing.io_motion import MotionSamples, check_against_poses
+
+    poses, ts, _, om = _unicycle_poses()
+    s = MotionSamples(IMU, ts + late_s, {"wz": om})
+    with pytest.raises(InputError, match=r"^x/imu.csv: column wz follows the poses' yaw rate best at its stamps "
+                                         + re.escape(f"{-late_s:+.2f} s (r = 1.00 there")):
+        check_against_poses(s, poses, "x/imu.csv")
+    check_against_poses(MotionSamples(IMU, ts + 0.02, {"wz": om}), poses, "x/imu.csv")  # 20 ms: a latency
+
+
+def test_a_periodic_drive_is_not_mistaken_for_a_time_offset():
+    # a slalom repeats itself every 12.6 s and is inverted half a period away: the gyro as stamped
+    # passes, the gyro negated is a sign, not a clock 6.3 s off
+    from groundfloor.types import PoseTrack
+    from identification.preprocessing.io_motion import MotionSamples, check_against_poses
+
+    dt = 0.01
+    t = np.arange(0.0, 60.0, dt)
+    om = np.sin(0.5 * t)
+    yaw = np.concatenate([[0.0], np.cumsum(om[:-1] * dt)])
+    x = np.concatenate([[0.0], np.cumsum(0.5 * np.cos(yaw[:-1]) * dt)])
+    y = np.concatenate([[0.0], np.cumsum(0.5 * np.sin(yaw[:-1]) * dt)])
+    nan = np.full(t[::5].size, np.nan)
+    poses = PoseTrack(t=t[::5], x=x[::5], y=y[::5], yaw=yaw[::5], z=nan, pitch=nan, x_std=nan, y_std=nan,
+                      z_std=nan, pitch_std=nan, yaw_std=nan)
+    ts = np.arange(0.5, 59.5, 0.02)
+    check_against_poses(MotionSamples(IMU, ts, {"wz": np.sin(0.5 * ts)}), poses, "x/imu.csv")
+    with pytest.raises(InputError, match=r"^x/imu.csv: column wz runs against the poses' yaw rate"):
+        check_against_poses(MotionSamples(IMU, ts, {"wz": -np.sin(0.5 * ts)}), poses, "x/imu.csv")
