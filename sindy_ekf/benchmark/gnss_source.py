@@ -17,9 +17,11 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.stats
 
 from groundfloor.errors import InputError
 from groundfloor.geodetic import (
+    SIGNIFICANCE_P,
     EnuToLocal,
     GeodeticOrigin,
     estimate_enu_to_local,
@@ -46,6 +48,10 @@ ESTIMATE_WINDOW_S = 60.0  # seconds of each run's start the ENU -> local estimat
 #: below which a better fit is a receiver's latency (0.1 to 0.2 s on the simulated receivers), not a time base
 OFFSET_GRID_S = np.round(np.arange(-30.0, 30.0 + 1e-9, 0.25), 2)
 MIN_TIME_OFFSET_S = 1.0
+#: a lever arm the fixes give this far from the declared one is named (below the dgnss profile's 0.3 m noise)
+MIN_LEVER_DIFF_M = 0.1
+#: residuals beyond this many stated stds weigh less in the lever-arm fit (multipath)
+OUTLIER_STDS = 4.0
 
 
 @dataclass(frozen=True)
@@ -142,6 +148,70 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
                          f"{GNSS_CSV} (the NavSatFix header stamp) must be on the poses' time base{leap}")
 
 
+def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Return the horizontal antenna lever arm (body x, y, m) that fits the fixes best, its
+    covariance (m^2) and the number of fixes.
+
+    ``poses_and_fixes``: ``(poses, fixes)`` per run. Least squares over the ENU -> local rotation,
+    translation and the lever arm (the fix ``R e + t`` against the body origin plus the lever arm
+    turned by the heading), started from the Procrustes fit at ``lever``."""
+    from scipy.optimize import least_squares
+
+    e, body, yaw, w = [], [], [], []
+    for poses, f in poses_and_fixes:
+        e.append(geodetic_to_enu(f.lla[:, 0], f.lla[:, 1], f.lla[:, 2], origin)[:, :2])
+        body.append(antenna_local(poses, f.t, np.zeros(3))[:, :2])
+        tp = np.asarray(poses.t, float)
+        yaw.append(np.interp(f.t, tp, np.unwrap(np.asarray(poses.yaw, float))))
+        w.append(2.0 / (f.cov_enu[:, 0, 0] + f.cov_enu[:, 1, 1]))
+    e, body, yaw, w = (np.concatenate(v) for v in (e, body, yaw, w))
+    ok = np.all(np.isfinite(e), 1) & np.all(np.isfinite(body), 1) & np.isfinite(yaw) & np.isfinite(w)
+    e, body, yaw, sw = e[ok], body[ok], yaw[ok], np.sqrt(w[ok])
+    c, s_ = np.cos(yaw), np.sin(yaw)
+
+    def antenna(l):
+        return body + np.column_stack([c * l[0] - s_ * l[1], s_ * l[0] + c * l[1]])
+
+    def residual(x):
+        cr, sr = np.cos(x[0]), np.sin(x[0])
+        fix = e @ np.array([[cr, -sr], [sr, cr]]).T + x[1:3]
+        return ((fix - antenna(x[3:5])) * sw[:, None]).ravel()
+
+    declared = np.asarray(lever, float)[:2]
+    yaw0 = estimate_enu_to_local(np.column_stack([e, np.zeros(len(e))]),
+                                 np.column_stack([antenna(declared), np.zeros(len(e))]), 1.0 / sw).yaw_rad
+    x0 = np.concatenate([[yaw0], np.zeros(2), declared])
+    x0[1:3] = np.mean(antenna(declared) - e @ np.array([[np.cos(yaw0), -np.sin(yaw0)], [np.sin(yaw0), np.cos(yaw0)]]).T, 0)
+    sol = least_squares(residual, x0, loss="soft_l1", f_scale=OUTLIER_STDS)
+    # the lever arm's covariance, its variance factor from the residuals and one independent fix a
+    # second (a receiver's errors are correlated over seconds: its bias wanders)
+    J = sol.jac
+    dof = max(J.shape[0] - J.shape[1], 1)
+    seconds = sum(float(np.ptp(f.t)) for _, f in poses_and_fixes if len(f.t) > 1)
+    inflate = max(len(e) / max(seconds, 1.0), 1.0)
+    cov = np.linalg.pinv(J.T @ J) * (np.sum(sol.fun ** 2) / dof) * inflate
+    return sol.x[3:5], cov[3:5, 3:5], int(len(e))
+
+
+def check_lever_arm(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigin, lever: np.ndarray,
+                    source: str) -> None:
+    """Warn when the fixes give a horizontal antenna lever arm significantly (chi-square at
+    :data:`~groundfloor.geodetic.SIGNIFICANCE_P`) and more than :data:`MIN_LEVER_DIFF_M` away from the declared one (``sensors:`` ``lever_arm_body_m`` in
+    ``campaign.yaml``, zero without), naming the one the data give: an antenna off the body origin
+    moves around it in every turn, which no ENU -> local transform absorbs."""
+    parts = [(run.poses, fixes[run.name]) for run in campaign.runs if run.name in fixes]
+    if sum(len(f.t) for _, f in parts) < 20:
+        return
+    est, cov, _ = fit_lever_arm(parts, origin, lever)
+    d = est - np.asarray(lever, float)[:2]
+    if np.hypot(*d) > MIN_LEVER_DIFF_M and float(d @ np.linalg.pinv(cov) @ d) > scipy.stats.chi2.isf(SIGNIFICANCE_P, 2):
+        sd = np.sqrt(np.diag(cov))
+        log.warning("%s: the fixes put the antenna at (%.2f +- %.2f, %.2f +- %.2f) m in the body frame, not at the declared "
+                    "(%.2f, %.2f) m: declare it as lever_arm_body_m of the gnss sensor in campaign.yaml (an antenna off "
+                    "the body origin swings around it in every turn, which the filters would read as error)", source,
+                    est[0], sd[0], est[1], sd[1], *np.asarray(lever, float)[:2])
+
+
 def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> RecordedGnss:
     """Return the recorded GNSS of a trajectory campaign, the ENU -> local transform given or estimated.
 
@@ -172,6 +242,7 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
                                str(root / "runs" / name / GNSS_CSV)) for name, f in fixes.items()}
     first = fixes[next(iter(fixes))]
     origin = config.origin or GeodeticOrigin(*(float(v) for v in first.lla[0]))
+    check_lever_arm(campaign, fixes, origin, lever, f"{root}: GNSS")
     if config.enu_to_local_yaw_deg is not None:
         transform = EnuToLocal(float(np.radians(config.enu_to_local_yaw_deg)), np.asarray(config.enu_to_local_t_m))
     else:

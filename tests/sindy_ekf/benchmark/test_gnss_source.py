@@ -160,3 +160,28 @@ def test_a_receiver_latency_is_not_called_another_time_base(camp, tmp_path):
     root = shutil.copytree(c.trajectory, tmp_path / "t")
     _shift_gnss_times(root, 0.5)
     load_recorded_gnss(read_trajectory_campaign(root))
+
+
+def test_an_undeclared_antenna_lever_arm_is_named_with_the_one_the_fixes_give(camp, tmp_path, caplog):
+    # the simulated antenna sits at (-0.2, 0.1) m in the body frame (truth/gnss.yaml); preprocess
+    # declares it. Without the declaration the fixes swing around the body origin in every turn.
+    import logging
+    import re
+
+    c, traj, truth = camp
+    with caplog.at_level(logging.WARNING):
+        load_recorded_gnss(traj)
+    assert "lever_arm_body_m" not in caplog.text
+    root = shutil.copytree(c.trajectory, tmp_path / "t")
+    meta = yaml.safe_load((root / "campaign.yaml").read_text())
+    meta.pop("sensors")
+    (root / "campaign.yaml").write_text(yaml.safe_dump(meta))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        load_recorded_gnss(read_trajectory_campaign(root))
+    got = re.search(r"GNSS: the fixes put the antenna at \((\S+) \+- (\S+), (\S+) \+- (\S+)\) m in the body frame, not at "
+                    r"the declared \(0.00, 0.00\) m: declare it as lever_arm_body_m", caplog.text)
+    assert got, caplog.text
+    x, sx, y, sy = (float(v) for v in got.groups())
+    lx, ly = truth["lever_arm_body_m"][:2]
+    assert abs(x - lx) < 3 * sx and abs(y - ly) < 3 * sy and sx < 0.05 and sy < 0.05
