@@ -102,6 +102,21 @@ def antenna_local(poses, t: np.ndarray, lever_arm_body_m: np.ndarray) -> np.ndar
                             np.interp(t, tp, z) + lz])
 
 
+def with_covariance(fixes: GnssFixes, counts: dict, source: str) -> tuple[GnssFixes, dict]:
+    """Return the fixes that state a positive horizontal covariance, the others dropped and counted
+    (``no_covariance_dropped``; a NavSatFix of covariance type UNKNOWN carries zeros), with a warning;
+    an InputError naming ``source`` when none does."""
+    var = np.stack([fixes.cov_enu[:, 0, 0], fixes.cov_enu[:, 1, 1]], axis=1)
+    none = ~np.all(var > 0, axis=1)
+    if none.size and none.all():
+        raise InputError(f"{source}: no fix states its covariance (all zero: a NavSatFix of covariance type UNKNOWN?); "
+                         "the filters weigh each fix by it: give std_e,std_n,std_u (m) in it")
+    counts = {**counts, "no_covariance_dropped": int(none.sum())}
+    if none.any():
+        log.warning("%s: %d of %d fixes state no horizontal covariance (zero); left out", source, none.sum(), len(none))
+    return fixes.select(~none), counts
+
+
 def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigin, lever: np.ndarray,
                     source: str) -> None:
     """Raise a one-line InputError when the fixes fit the ground truth significantly better at
@@ -232,9 +247,10 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
         path = root / "runs" / run.name / GNSS_CSV
         if not path.is_file():
             continue
-        fixes[run.name], counts[run.name] = clean_fixes(read_gnss_csv(path), str(path))
+        fixes[run.name], counts[run.name] = with_covariance(*clean_fixes(read_gnss_csv(path), str(path)), str(path))
     if not any(r.name in fixes for r in campaign.split("test")):
         raise InputError(f"{root}: --gnss recorded needs runs/<run>/{GNSS_CSV} in the test runs (none found)")
+
     # the time base first: fixes stamped on another clock may miss a short run's poses altogether
     check_time_base(campaign, fixes, config.origin or GeodeticOrigin(*(float(v) for v in next(iter(fixes.values())).lla[0])),
                     lever, f"{root}: GNSS")

@@ -185,3 +185,25 @@ def test_an_undeclared_antenna_lever_arm_is_named_with_the_one_the_fixes_give(ca
     x, sx, y, sy = (float(v) for v in got.groups())
     lx, ly = truth["lever_arm_body_m"][:2]
     assert abs(x - lx) < 3 * sx and abs(y - ly) < 3 * sy and sx < 0.05 and sy < 0.05
+
+
+def test_fixes_without_a_stated_covariance_are_dropped_and_counted_and_a_file_of_none_is_named(camp, tmp_path):
+    # a NavSatFix of covariance type UNKNOWN carries zeros: such a fix cannot be weighed
+    c, _, _ = camp
+    root = shutil.copytree(c.trajectory, tmp_path / "t")
+    test = [r.name for r in read_trajectory_campaign(root).split("test")]
+    path = root / "runs" / test[0] / GNSS_CSV
+    head, *rows = path.read_text().splitlines()
+    cols = head.split(",")
+    k = cols.index("cov_ee")
+    zeroed = [",".join("0" if i == k and j < 7 else v for i, v in enumerate(r.split(","))) for j, r in enumerate(rows)]
+    path.write_text("\n".join([head, *zeroed]) + "\n")
+    rec = load_recorded_gnss(read_trajectory_campaign(root))
+    assert rec.counts[test[0]]["no_covariance_dropped"] == 7 and rec.counts[test[1]]["no_covariance_dropped"] == 0
+    assert len(rec.fixes[test[0]].t) == rec.counts[test[0]]["fixes"] - 7 - sum(
+        rec.counts[test[0]][key] for key in ("no_fix_dropped", "nan_dropped", "duplicates_dropped"))
+    allzero = [",".join("0" if i in (cols.index("cov_ee"), cols.index("cov_nn")) else v for i, v in enumerate(r.split(",")))
+               for r in rows]
+    path.write_text("\n".join([head, *allzero]) + "\n")
+    with pytest.raises(InputError, match=rf"^{path}: no fix states its covariance \(all zero"):
+        load_recorded_gnss(read_trajectory_campaign(root))
