@@ -63,6 +63,7 @@ class RecordedGnss:
     lever_arm_body_m: np.ndarray  # (3,)
     fixes: dict[str, GnssFixes]  # run -> cleaned fixes inside its poses' span
     counts: dict[str, dict[str, int]]  # run -> fixes read, NO_FIX / NaN / duplicates dropped
+    lever_arm_fit: dict | None = None  # the horizontal lever arm the fixes give (check_lever_arm), None if too few
 
     def series(self, run: str, outages: np.ndarray) -> GnssSeries:
         """Return the run's fixes in the local frame as the filters take them, none inside ``outages``.
@@ -85,7 +86,8 @@ class RecordedGnss:
     def to_json_dict(self) -> dict:
         """Return the origin, the transform (with its std when estimated) and the counts per run."""
         return {"origin": self.origin.to_yaml(), "enu_to_local": self.transform.to_json_dict(),
-                "lever_arm_body_m": [float(v) for v in self.lever_arm_body_m], "runs": self.counts}
+                "lever_arm_body_m": [float(v) for v in self.lever_arm_body_m], "runs": self.counts,
+                "lever_arm_fit": self.lever_arm_fit}
 
 
 def antenna_local(poses, t: np.ndarray, lever_arm_body_m: np.ndarray) -> np.ndarray:
@@ -209,22 +211,27 @@ def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray) ->
 
 
 def check_lever_arm(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigin, lever: np.ndarray,
-                    source: str) -> None:
+                    source: str) -> dict | None:
     """Warn when the fixes give a horizontal antenna lever arm significantly (chi-square at
     :data:`~groundfloor.geodetic.SIGNIFICANCE_P`) and more than :data:`MIN_LEVER_DIFF_M` away from the declared one (``sensors:`` ``lever_arm_body_m`` in
     ``campaign.yaml``, zero without), naming the one the data give: an antenna off the body origin
-    moves around it in every turn, which no ENU -> local transform absorbs."""
+    moves around it in every turn, which no ENU -> local transform absorbs. Return the fit
+    (``estimated_m``, ``std_m``, ``declared_m``, ``differs``), None with fewer than 20 fixes."""
     parts = [(run.poses, fixes[run.name]) for run in campaign.runs if run.name in fixes]
     if sum(len(f.t) for _, f in parts) < 20:
-        return
+        return None
     est, cov, _ = fit_lever_arm(parts, origin, lever)
     d = est - np.asarray(lever, float)[:2]
-    if np.hypot(*d) > MIN_LEVER_DIFF_M and float(d @ np.linalg.pinv(cov) @ d) > scipy.stats.chi2.isf(SIGNIFICANCE_P, 2):
-        sd = np.sqrt(np.diag(cov))
+    sd = np.sqrt(np.diag(cov))
+    differs = bool(np.hypot(*d) > MIN_LEVER_DIFF_M and float(d @ np.linalg.pinv(cov) @ d)
+                   > scipy.stats.chi2.isf(SIGNIFICANCE_P, 2))
+    if differs:
         log.warning("%s: the fixes put the antenna at (%.2f +- %.2f, %.2f +- %.2f) m in the body frame, not at the declared "
                     "(%.2f, %.2f) m: declare it as lever_arm_body_m of the gnss sensor in campaign.yaml (an antenna off "
                     "the body origin swings around it in every turn, which the filters would read as error)", source,
                     est[0], sd[0], est[1], sd[1], *np.asarray(lever, float)[:2])
+    return {"estimated_m": [float(v) for v in est], "std_m": [float(v) for v in sd],
+            "declared_m": [float(v) for v in np.asarray(lever, float)[:2]], "differs": differs}
 
 
 def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> RecordedGnss:
@@ -258,7 +265,7 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
                                str(root / "runs" / name / GNSS_CSV)) for name, f in fixes.items()}
     first = fixes[next(iter(fixes))]
     origin = config.origin or GeodeticOrigin(*(float(v) for v in first.lla[0]))
-    check_lever_arm(campaign, fixes, origin, lever, f"{root}: GNSS")
+    lever_fit = check_lever_arm(campaign, fixes, origin, lever, f"{root}: GNSS")
     if config.enu_to_local_yaw_deg is not None:
         transform = EnuToLocal(float(np.radians(config.enu_to_local_yaw_deg)), np.asarray(config.enu_to_local_t_m))
     else:
@@ -277,4 +284,4 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
         log.info("ENU -> local estimated from %d fixes: yaw %.3f +- %.3f deg, t (%.3f, %.3f) +- (%.3f, %.3f) m",
                  transform.n_fixes, np.degrees(transform.yaw_rad), np.degrees(sd[0]), *transform.t_local_m[:2],
                  sd[1], sd[2])
-    return RecordedGnss(origin, transform, lever, fixes, counts)
+    return RecordedGnss(origin, transform, lever, fixes, counts, lever_fit)

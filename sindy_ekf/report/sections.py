@@ -307,6 +307,12 @@ def gnss_note(b) -> str:
                f"{tr['yaw_std_deg']:.3f} deg" if tr.get("estimated") else f"given: {tr['enu_to_local_yaw_deg']:.3f} deg")
         text = (f"GNSS: the campaign's own recorded fixes, mapped into the local frame by the ENU -> local rotation "
                 f"{how}; the ground-truth poses of the {len(b.truth)} test runs are the truth")
+        lever = b.recorded_gnss.get("lever_arm_fit") or {}
+        if lever.get("differs"):
+            (x, y), (sx, sy), (dx, dy) = lever["estimated_m"], lever["std_m"], lever["declared_m"]
+            text += (f". The fixes put the antenna at ({x:.2f} +- {sx:.2f}, {y:.2f} +- {sy:.2f}) m in the body frame, "
+                     f"not at the declared ({dx:.2f}, {dy:.2f}) m: the filters took it there, so part of their GNSS "
+                     "error is the antenna swinging around the body origin in turns")
     else:
         prof = PROFILES.get(b.profile)
         what = (f" ({prof.std_m:g} m per axis at {prof.rate_hz:g} Hz, {100 * prof.outlier_prob:g} % of the fixes "

@@ -185,6 +185,10 @@ def test_an_undeclared_antenna_lever_arm_is_named_with_the_one_the_fixes_give(ca
     x, sx, y, sy = (float(v) for v in got.groups())
     lx, ly = truth["lever_arm_body_m"][:2]
     assert abs(x - lx) < 3 * sx and abs(y - ly) < 3 * sy and sx < 0.05 and sy < 0.05
+    fit = load_recorded_gnss(read_trajectory_campaign(root)).to_json_dict()["lever_arm_fit"]
+    assert fit["differs"] is True and fit["declared_m"] == [0.0, 0.0]
+    np.testing.assert_allclose(fit["estimated_m"], [x, y], atol=0.006)
+    assert load_recorded_gnss(traj).to_json_dict()["lever_arm_fit"]["differs"] is False
 
 
 def test_fixes_without_a_stated_covariance_are_dropped_and_counted_and_a_file_of_none_is_named(camp, tmp_path):

@@ -256,3 +256,12 @@ def test_estimation_note_says_which_gnss_and_sensors_were_fused():
     assert note.endswith("; the gyro (imu.csv) fused by sindy_ekf; the wheel odometry (odometry.csv) fused by sindy_ekf")
     b = SimpleNamespace(recorded_gnss=None, truth={"r": None, "s": None}, profile="dgnss", config=None, scores={"cv_ekf": 0})
     assert gnss_note(b).startswith("GNSS profile dgnss (") and "simulated from the ground-truth poses of the 2 test" in gnss_note(b)
+    # an antenna lever arm the fixes give away from the declared one is said beside it
+    rec["lever_arm_fit"] = {"estimated_m": [-0.212, 0.102], "std_m": [0.027, 0.028], "declared_m": [0.0, 0.0],
+                            "differs": True}
+    b = SimpleNamespace(recorded_gnss=rec, truth={"r": None}, profile="recorded", config=None, scores={})
+    assert gnss_note(b).endswith(". The fixes put the antenna at (-0.21 +- 0.03, 0.10 +- 0.03) m in the body frame, not "
+                                 "at the declared (0.00, 0.00) m: the filters took it there, so part of their GNSS error "
+                                 "is the antenna swinging around the body origin in turns")
+    rec["lever_arm_fit"]["differs"] = False
+    assert "antenna" not in gnss_note(b)
