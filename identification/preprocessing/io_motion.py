@@ -293,6 +293,30 @@ def _shift_scores(t: np.ndarray, a: np.ndarray, t_truth: np.ndarray, truth: np.n
     return r, seconds
 
 
+def time_shift(t: np.ndarray, a: np.ndarray, t_truth: np.ndarray, truth: np.ndarray
+               ) -> tuple[float, float, float, bool]:
+    """Return the shift of the stamps ``t`` at which ``a`` follows ``truth`` (at ``t_truth``), the
+    correlation there and at the stamps, and whether that makes another time base.
+
+    Of the shifts of :data:`OFFSET_GRID_S` that correlate about as well as the best in magnitude (a
+    periodic drive, a figure of eight, repeats itself, and half a period away it is inverted), the
+    nearest to the stamps, then the best within a second of it (the band of "about as well" is
+    wide, its edge no estimate); another time base where it is more than :data:`MIN_TIME_OFFSET_S`
+    away and the stamps themselves correlate significantly worse (:func:`_fisher_worse`)."""
+    rs, seconds = _shift_scores(t, a, t_truth, truth)
+    zero = int(np.argmin(np.abs(OFFSET_GRID_S)))
+    if not np.isfinite(rs).any() or not np.isfinite(rs[zero]):
+        return 0.0, float("nan"), float("nan"), False
+    top = int(np.nanargmax(np.abs(rs)))
+    near = next(i for i in np.argsort(np.abs(OFFSET_GRID_S), kind="stable") if np.isfinite(rs[i])
+                and not _fisher_worse(abs(rs[i]), abs(rs[top]), seconds[top]))
+    around = np.flatnonzero((np.abs(OFFSET_GRID_S - OFFSET_GRID_S[near]) <= 1.0) & np.isfinite(rs))
+    near = int(around[np.argmax(np.abs(rs[around]))])
+    shift = float(OFFSET_GRID_S[near])
+    off = abs(shift) > MIN_TIME_OFFSET_S and _fisher_worse(abs(rs[zero]), abs(rs[top]), seconds[top])
+    return shift, float(rs[near]), float(rs[zero]), bool(off)
+
+
 def check_against_poses(s: MotionSamples, poses, source: str) -> None:
     """Raise a one-line InputError naming ``source`` and the column when a gyro or odometry column
     runs against the ground truth's motion (a z-down IMU frame, left and right wheels swapped, a
@@ -317,24 +341,10 @@ def check_against_poses(s: MotionSamples, poses, source: str) -> None:
             continue
         r = float(np.corrcoef(a[ok], m[ok])[0, 1])
         slope = float(np.sum(a[ok] * m[ok]) / np.sum(m[ok] ** 2))
-        # the time base: of the shifts that correlate about as well as the best in magnitude (a
-        # periodic drive, a figure of eight, repeats itself, and half a period away it is inverted),
-        # the nearest to the stamps; refused where it is more than a latency away and the stamps
-        # themselves correlate significantly worse
-        rs, seconds = _shift_scores(s.t, a, mid, truth[motion])
-        zero = int(np.argmin(np.abs(OFFSET_GRID_S)))
-        if np.isfinite(rs).any() and np.isfinite(rs[zero]):
-            top = int(np.nanargmax(np.abs(rs)))
-            near = next(i for i in np.argsort(np.abs(OFFSET_GRID_S), kind="stable") if np.isfinite(rs[i])
-                        and not _fisher_worse(abs(rs[i]), abs(rs[top]), seconds[top]))
-            # the best within a second of it: the band of "about as well" is wide, its edge no estimate
-            around = np.flatnonzero((np.abs(OFFSET_GRID_S - OFFSET_GRID_S[near]) <= 1.0) & np.isfinite(rs))
-            near = int(around[np.argmax(np.abs(rs[around]))])
-            shift = float(OFFSET_GRID_S[near])
-            if abs(shift) > MIN_TIME_OFFSET_S and _fisher_worse(abs(rs[zero]), abs(rs[top]), seconds[top]):
-                raise InputError(f"{source}: column {column} follows {words[motion]} best at its stamps {shift:+.2f} s "
-                                 f"(r = {rs[near]:.2f} there, {rs[zero]:.2f} as stamped): t must be on the poses' "
-                                 "time base")
+        shift, r_there, r_zero, off = time_shift(s.t, a, mid, truth[motion])
+        if off:
+            raise InputError(f"{source}: column {column} follows {words[motion]} best at its stamps {shift:+.2f} s "
+                             f"(r = {r_there:.2f} there, {r_zero:.2f} as stamped): t must be on the poses' time base")
         if r < MIN_SENSOR_CORRELATION:
             why = ("the data contract's gyro z axis is up, counter-clockwise positive (a z-down IMU frame?)"
                    if column == "wz" else "the data contract's v is positive forward and omega counter-clockwise "

@@ -56,6 +56,22 @@ def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -
     return MotionSensors(**gyro, **odo)
 
 
+def check_motion_sensors(campaign, test_runs, kinds: tuple[str, ...]) -> None:
+    """Raise the first InputError of the fused sensors: a test run's file missing (:func:`motion_sensors_of`),
+    or any run's file, train runs included (a time base or an axis is the campaign's, and every run
+    adds evidence), against its ground truth (:func:`identification.preprocessing.io_motion.check_against_poses`)."""
+    for r in test_runs:
+        motion_sensors_of(campaign, r.name, r.t_pose, kinds)
+    tested = {r.name for r in test_runs}
+    for run in campaign.runs:
+        if run.name in tested:
+            continue
+        for kind in kinds:
+            loaded = load_run_motion(campaign.root / "runs" / run.name, kind, run.poses.t)
+            if loaded is not None:
+                check_against_poses(loaded[0], run.poses, str(campaign.root / "runs" / run.name / KINDS[kind][0]))
+
+
 def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: float, lateral, name: str,
                     P0, gnss_of, use_motor: bool = False, gyro_noise: GyroNoise = GyroNoise(),
                     odometry_noise: OdometryNoise = OdometryNoise()) -> list:

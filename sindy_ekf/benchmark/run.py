@@ -55,8 +55,8 @@ from sindy_ekf.benchmark.health import (
     split_short_runs,
 )
 from sindy_ekf.benchmark.motion_source import (
+    check_motion_sensors,
     isam2_motion_tasks,
-    motion_sensors_of,
     run_motion_ekfs,
     run_motion_graphs,
 )
@@ -302,8 +302,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
     # the recorded gyro and odometry the estimators fuse: missing, or against the truth in sign or
     # unit, is one line before any filter runs
     fused = tuple(sorted({k for n in estimators for k in config.estimator(n).motion_sensors}))
-    for r in runs if fused else ():
-        motion_sensors_of(campaign, r.name, r.t_pose, fused)
+    if fused:
+        check_motion_sensors(campaign, runs, fused)
     estimates: dict[str, dict[str, Estimate]] = {}
     # estimator -> run -> its states on the whole grid (None: it stopped early), to start a smoother from
     on_grid: dict[str, dict[str, np.ndarray | None]] = {}

@@ -1,0 +1,208 @@
+"""The margins of the readers' and the benchmark's checks of a campaign against itself (2026-11-28).
+
+Usage: ``.venv/bin/python -m bench.bench_input_checks [--variants 1-10] [--minutes 3]`` from the
+checkout; writes ``bench/results/input_checks.md`` (about five minutes: one simulated campaign per
+variant, with recorded GNSS, gyro and wheel odometry, preprocessed).
+
+Each check compares data with the data's own ground truth; its threshold is named in the code and
+must sit far from what clean data of every kind give, and far from what the fault it is for gives.
+On data no check was written against (simulator variants with their own robot, tracker noise and
+driver; the shared real Warthog runs), this bench measures both sides:
+
+- **input signs** (:func:`identification.preprocessing.trajectory_checks.input_sign_correlations`):
+  ``u1`` against the poses' forward speed, ``u2`` against their yaw rate, pooled over a campaign;
+  refused below -0.3. Fault: the poses mirrored (y and yaw negated, a north-east-down frame).
+- **tracker units** (:func:`identification.preprocessing.io_tracker.check_point_units`): a tracker's
+  median point distance over its network points'; refused beyond 30 or below 1/30. Fault: the
+  LTD800's points in millimetres.
+- **gyro and odometry** (:func:`identification.preprocessing.io_motion.check_against_poses`): the
+  correlation with the poses' rate (refused below -0.3), the slope (refused above 20 for rates, 5
+  for speed), the best time shift (refused beyond 0.25 s when significantly better). Faults: the
+  gyro negated, in degrees per second, stamped 0.5 s late.
+- **GNSS** (:mod:`sindy_ekf.benchmark.gnss_source`): the mirror test, the best time shift of the
+  fixes, the lever arm the fixes give against the simulator's. Faults: the poses mirrored, the fixes
+  stamped 18 s late (GPS time), the lever arm undeclared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from bench.publish import publish
+from groundfloor.errors import InputError
+from identification.preprocessing.io_motion import IMU, ODOMETRY, check_against_poses, load_run_motion, time_shift
+from identification.preprocessing.io_tracker import read_tracker_campaign
+from identification.preprocessing.preprocess import preprocess_campaign
+from identification.preprocessing.trajectory import read_trajectory_campaign
+from identification.preprocessing.trajectory_checks import input_sign_correlations, pose_motion
+from simulation.campaign import simulate_campaign
+from sindy_ekf.benchmark.gnss_source import load_recorded_gnss
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared" / "data"
+
+
+def _variants(spec: str) -> list[int]:
+    out = []
+    for part in spec.split(","):
+        lo, _, hi = part.partition("-")
+        out += list(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def unit_ratios(tracker_dir: Path) -> tuple[float, float]:
+    """Return the smallest and largest median point distance over the network points' (runs x trackers)."""
+    c = read_tracker_campaign(tracker_dir)
+    q = []
+    for tr in ("at960", "ltd800"):
+        net = np.median([np.linalg.norm(np.asarray(v, float)[:3]) for v in getattr(c.survey, f"network_{tr}").values()])
+        q += [float(np.nanmedian(np.linalg.norm(getattr(r, tr).xyz, axis=1)) / net) for r in c.runs]
+    return min(q), max(q)
+
+
+def sensor_figures(traj) -> dict[str, tuple[float, float, float, float]]:
+    """Return per column (wz, v, omega): the smallest correlation, the slope range and the largest
+    |best shift| (the nearest of the near-best, as the check takes it) over the runs."""
+    out: dict[str, list] = {}
+    for run in traj.runs:
+        mid, speed, rate = pose_motion(run.poses)
+        for kind in (IMU, ODOMETRY):
+            got = load_run_motion(traj.root / "runs" / run.name, kind, run.poses.t)
+            if got is None:
+                continue
+            s = got[0]
+            check_against_poses(s, run.poses, run.name)  # clean data must pass
+            for col, truth in ((("wz", rate),) if kind == IMU else (("v", speed), ("omega", rate))):
+                m = np.interp(s.t, mid, truth, left=np.nan, right=np.nan)
+                a = s.columns[col]
+                ok = np.isfinite(a) & np.isfinite(m)
+                r = float(np.corrcoef(a[ok], m[ok])[0, 1])
+                slope = float(np.sum(a[ok] * m[ok]) / np.sum(m[ok] ** 2))
+                shift = time_shift(s.t, a, mid, truth)[0]  # the one the check takes
+                out.setdefault(col, []).append((r, slope, abs(shift)))
+    return {c: (min(v[0] for v in vals), min(v[1] for v in vals), max(v[1] for v in vals), max(v[2] for v in vals))
+            for c, vals in out.items()}
+
+
+def refused(call) -> str:
+    """Return the first words of the InputError ``call`` raises, or ``NOT refused``."""
+    try:
+        call()
+    except InputError as exc:
+        return "refused: " + str(exc).split(": ", 2)[-1][:160]
+    return "NOT refused"
+
+
+def _rewrite(path: Path, column: str, fn) -> None:
+    head, *rows = path.read_text().splitlines()
+    k = head.split(",").index(column)
+    path.write_text("\n".join([head] + [",".join(repr(float(fn(float(v)))) if i == k else v
+                                                 for i, v in enumerate(r.split(","))) for r in rows]) + "\n")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--variants", default="1-10")
+    ap.add_argument("--minutes", type=float, default=3.0)
+    a = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+    tic = time.perf_counter()
+    rows, work = [], Path(tempfile.mkdtemp(prefix="input_checks_"))
+    try:
+        for name in ("warthog-drive-wheels", "warthog-drive-cmd"):
+            r = input_sign_correlations(read_trajectory_campaign(SHARED / name).runs)
+            rows.append(f"| {name} (real) | {r['u1']:+.2f} | {r['u2']:+.2f} | - | - | - | - | - |")
+        last = None
+        for v in _variants(a.variants):
+            tracker, traj_dir = work / f"v{v}", work / f"v{v}_traj"
+            simulate_campaign(tracker, seed=v, minutes=a.minutes, variant=v, gnss="dgnss", imu=True, odometry=True)
+            preprocess_campaign(tracker, traj_dir)
+            traj = read_trajectory_campaign(traj_dir)
+            r = input_sign_correlations(traj.runs)
+            lo, hi = unit_ratios(tracker)
+            f = sensor_figures(traj)
+            rec = load_recorded_gnss(traj)
+            lever = yaml.safe_load((tracker / "truth" / "gnss.yaml").read_text())["lever_arm_body_m"][:2]
+            fit = rec.lever_arm_fit
+            rows.append(f"| variant {v} ({a.minutes:g} min) | {r['u1']:+.2f} | {r['u2']:+.2f} | {lo:.2f} to {hi:.2f} | "
+                        + " / ".join(f"{f[c][0]:.2f}" for c in ("wz", "v", "omega")) + " | "
+                        + " / ".join(f"{f[c][1]:.2f}-{f[c][2]:.2f}" for c in ("wz", "v", "omega")) + " | "
+                        + " / ".join(f"{f[c][3]:.2f}" for c in ("wz", "v", "omega")) + " | "
+                        + f"({fit['estimated_m'][0]:+.2f}, {fit['estimated_m'][1]:+.2f}) against ({lever[0]:+.2f}, "
+                          f"{lever[1]:+.2f}), differs: {fit['differs']} |")
+            last = (tracker, traj_dir)
+        # the faults, on copies of the last variant's campaign
+        tracker, traj_dir = last
+        faults = []
+        mirrored = shutil.copytree(traj_dir, work / "mirrored")
+        for p in mirrored.glob("runs/*/poses.csv"):
+            _rewrite(p, "y", lambda x: -x)
+            _rewrite(p, "yaw", lambda x: -x)
+        r = input_sign_correlations(read_trajectory_campaign(mirrored).runs)
+        faults.append(f"| poses mirrored (y, yaw negated) | input signs | u2 r = {r['u2']:+.2f} (warned below -0.3); GNSS: "
+                      + refused(lambda: load_recorded_gnss(read_trajectory_campaign(mirrored))) + " |")
+        for what, column, fn in (("gyro negated (z-down IMU)", "wz", lambda x: -x),
+                                 ("gyro in degrees per second", "wz", np.degrees),
+                                 ("gyro stamped 0.5 s late", "t", lambda x: x + 0.5)):
+            copy = shutil.copytree(traj_dir, work / what.replace(" ", "_"))
+            for p in copy.glob("runs/*/imu.csv"):
+                _rewrite(p, column, fn)
+            c = read_trajectory_campaign(copy)
+            said = [refused(lambda r=run: check_against_poses(
+                load_run_motion(c.root / "runs" / r.name, IMU, r.poses.t)[0], r.poses, "imu.csv")) for run in c.runs]
+            hit = [x for x in said if x.startswith("refused")]
+            faults.append(f"| {what} | gyro against the poses | refused on {len(hit)} of {len(said)} runs"
+                          + (f"; {hit[0]}" if hit else "") + " |")
+        gps = shutil.copytree(traj_dir, work / "gps")
+        for p in gps.glob("runs/*/gnss.csv"):
+            _rewrite(p, "t", lambda x: x + 18.0)
+        faults.append("| GNSS stamped in GPS time (18 s late) | GNSS time base | "
+                      + refused(lambda: load_recorded_gnss(read_trajectory_campaign(gps))) + " |")
+        mm = shutil.copytree(tracker, work / "mm")
+        from identification.preprocessing.io_tracker import check_point_units
+        from dataclasses import replace
+        from groundfloor.types import PointSeries
+        camp = read_tracker_campaign(mm)
+        run = camp.runs[0]
+        raw = replace(run, ltd800=PointSeries(run.ltd800.t_tracker, run.ltd800.xyz * 1000.0))
+        faults.append("| LTD800 points in millimetres | tracker units | "
+                      + refused(lambda: check_point_units(raw, camp.survey)) + " |")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    lines = ["## The input checks against clean data of several kinds and against the faults they are for",
+             "",
+             f"Command: `.venv/bin/python -m bench.bench_input_checks --variants {a.variants} --minutes {a.minutes:g}` "
+             f"(Python {platform.python_version()}, {time.perf_counter() - tic:.0f} s). Each simulated campaign: "
+             "`simulate_campaign(seed=N, variant=N, gnss='dgnss', imu=True, odometry=True)`, preprocessed.",
+             "",
+             "Clean data (every one must pass):",
+             "",
+             "| campaign | u1 vs speed r | u2 vs yaw rate r | tracker points / network (distance) | gyro, odometry "
+             "v, omega: smallest r | slopes | largest best shift s | GNSS lever arm the fixes give (m) against the true |",
+             "|---|---|---|---|---|---|---|---|",
+             *rows, "",
+             "Thresholds: input signs r below -0.3 (warned); tracker distance ratio beyond 30 or below 1/30; gyro and "
+             "odometry r below -0.3, slope above 20 (wz, omega) or 5 (v), best shift beyond 0.25 s significantly "
+             "better; GNSS lever arm more than 0.1 m off and significant.",
+             "",
+             "Faults (each on a copy of the last variant's campaign):",
+             "",
+             "| fault | check | what it gives (the benchmark checks every test run; one refusal stops it) |",
+             "|---|---|---|",
+             *faults]
+    publish(HERE / "results" / "input_checks.md", lines)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
