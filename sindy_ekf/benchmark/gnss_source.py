@@ -149,8 +149,14 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
     residual = np.array([r for r, _ in scores])
     zero = int(np.argmin(np.abs(OFFSET_GRID_S)))
     best = int(np.argmin(residual))
-    if not np.isfinite(residual[zero]) or not np.isfinite(residual[best]):
+    if not np.isfinite(residual[best]):
         return
+    if not np.isfinite(residual[zero]):  # as stamped, (almost) no fix falls inside a run's poses
+        shift = float(OFFSET_GRID_S[best])
+        raise InputError(f"{source}: as stamped, {scores[zero][1]} fixes fall inside their runs' poses, {scores[best][1]} "
+                         f"at their stamps {shift:+.2f} s (median residual {residual[best]:.3g} stated stds there): t of "
+                         f"{GNSS_CSV} (the NavSatFix header stamp) must be on the poses' time base"
+                         + ("; GPS time runs 18 s ahead of UTC" if abs(abs(shift) - 18.0) < 1.0 else ""))
     # of the shifts that fit about as well as the best (a track driven round and round repeats itself),
     # the nearest to the stamps, then the best within a second of it
     near = next(i for i in np.argsort(np.abs(OFFSET_GRID_S), kind="stable") if np.isfinite(residual[i])

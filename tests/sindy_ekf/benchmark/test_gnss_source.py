@@ -211,3 +211,20 @@ def test_fixes_without_a_stated_covariance_are_dropped_and_counted_and_a_file_of
     path.write_text("\n".join([head, *allzero]) + "\n")
     with pytest.raises(InputError, match=rf"^{path}: no fix states its covariance \(all zero"):
         load_recorded_gnss(read_trajectory_campaign(root))
+
+
+def test_fixes_stamped_beyond_their_runs_are_named_as_another_time_base(camp, tmp_path):
+    # GPS time (18 s late) on the campaign's runs shorter than 16 s: as stamped no fix falls inside its
+    # run's poses (this used to read "no GNSS fix inside the poses' time span")
+    c, traj, _ = camp
+    root = shutil.copytree(c.trajectory, tmp_path / "t")
+    meta = yaml.safe_load((root / "campaign.yaml").read_text())
+    short = {r.name for r in traj.runs if r.poses.t[-1] - r.poses.t[0] < 16.0}
+    meta["runs"] = [r for r in meta["runs"] if r["name"] in short]
+    assert {r["split"] for r in meta["runs"]} == {"train", "test"}
+    (root / "campaign.yaml").write_text(yaml.safe_dump(meta))
+    _shift_gnss_times(root, 18.0)
+    with pytest.raises(InputError, match=r"GNSS: as stamped, \d+ fixes fall inside their runs' poses, \d+ at their stamps "
+                                         r"-18\.\d\d s \(median residual .*must be on the poses' time base; GPS time runs 18 s "
+                                         r"ahead of UTC$"):
+        load_recorded_gnss(read_trajectory_campaign(root))
