@@ -151,7 +151,9 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
     best = int(np.argmin(residual))
     if not np.isfinite(residual[best]):
         return
-    if not np.isfinite(residual[zero]):  # as stamped, (almost) no fix falls inside a run's poses
+    # as stamped, fewer than half as many fixes fall inside their runs' poses as at the best shift
+    if not np.isfinite(residual[zero]) or (scores[zero][1] < 0.5 * scores[best][1]
+                                           and abs(OFFSET_GRID_S[best]) > MIN_TIME_OFFSET_S):
         shift = float(OFFSET_GRID_S[best])
         raise InputError(f"{source}: as stamped, {scores[zero][1]} fixes fall inside their runs' poses, {scores[best][1]} "
                          f"at their stamps {shift:+.2f} s (median residual {residual[best]:.3g} stated stds there): t of "

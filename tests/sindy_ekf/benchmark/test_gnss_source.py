@@ -5,6 +5,7 @@ draws the filters score as with the internal GNSS simulation."""
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import numpy as np
@@ -150,7 +151,9 @@ def test_fixes_on_another_time_base_are_one_line_with_the_offset(camp, tmp_path,
     with pytest.raises(InputError) as err:
         load_recorded_gnss(read_trajectory_campaign(root))
     msg = str(err.value)
-    assert msg.startswith(f"{root}: GNSS: the fixes fit the ground truth best at their stamps {-seconds:+.2f} s (median")
+    # fixes 18 s late fall outside runs of 12 to 38 s more often than not: said so, with the shift
+    assert re.match(re.escape(f"{root}: GNSS: ") + r"(the fixes fit the ground truth best at|as stamped, \d+ fixes fall "
+                    r"inside their runs' poses, \d+ at) their stamps " + re.escape(f"{-seconds:+.2f} s (median"), msg), msg
     assert msg.endswith("must be on the poses' time base" + ("; GPS time runs 18 s ahead of UTC" if leap else ""))
 
 
