@@ -127,7 +127,9 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
 
     Each shift of :data:`OFFSET_GRID_S` is scored by the median residual of the best ENU -> local
     rotation of the fixes whose shifted time lies inside their run against the true antenna
-    positions at ``t + shift`` (at least 20 fixes). Of the shifts that fit about as well as the best
+    positions at ``t + shift`` (at least 20 fixes, and, but for the stamps as they are, at least half
+    as many as at the shift that keeps the most inside; as stamped fewer than 20 with a shift that has
+    enough is another time base by itself). Of the shifts that fit about as well as the best
     (a track driven round and round fits again a lap later), the one nearest the stamps is taken,
     and refused where the stamps themselves fit significantly worse (the F test of
     :func:`groundfloor.geodetic.significantly_better`, on the fewer of the two sets). A robot standing
@@ -146,14 +148,16 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
         local = np.concatenate([antenna_local(p, f.t[k] + shift, lever)[:, :2] for (p, f), k in zip(parts, inside)])
         scores.append((median_residual(np.concatenate([e[k] for e, k in zip(enu, inside)]), local,
                                        np.concatenate([wk[k] for wk, k in zip(w, inside)])), n))
-    residual = np.array([r for r, _ in scores])
+    # shifts that keep fewer than half of the most fixes inside their runs are not compared: a median
+    # over a few fixes at the edge of a run can fall low by chance
+    # (the stamps as they are always are, on their own fixes)
+    counts = np.array([n for _, n in scores])
     zero = int(np.argmin(np.abs(OFFSET_GRID_S)))
+    residual = np.where((counts >= 0.5 * counts.max()) | (np.arange(counts.size) == zero), [r for r, _ in scores], np.inf)
     best = int(np.argmin(residual))
     if not np.isfinite(residual[best]):
         return
-    # as stamped, fewer than half as many fixes fall inside their runs' poses as at the best shift
-    if not np.isfinite(residual[zero]) or (scores[zero][1] < 0.5 * scores[best][1]
-                                           and abs(OFFSET_GRID_S[best]) > MIN_TIME_OFFSET_S):
+    if not np.isfinite(residual[zero]):  # as stamped, fewer than 20 fixes fall inside their runs' poses
         shift = float(OFFSET_GRID_S[best])
         raise InputError(f"{source}: as stamped, {scores[zero][1]} fixes fall inside their runs' poses, {scores[best][1]} "
                          f"at their stamps {shift:+.2f} s (median residual {residual[best]:.3g} stated stds there): t of "
