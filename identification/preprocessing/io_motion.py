@@ -275,35 +275,46 @@ def _fisher_worse(r_low: float, r_high: float, seconds: float) -> bool:
     return seconds > 3 and (z[1] - z[0]) * np.sqrt((seconds - 3) / 2.0) > scipy.stats.norm.isf(SIGNIFICANCE_P)
 
 
-def _shift_scores(t: np.ndarray, a: np.ndarray, t_truth: np.ndarray, truth: np.ndarray
+def _shift_scores(tracks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Return, per shift of :data:`OFFSET_GRID_S`, the correlation of ``a`` (at ``t``) with ``truth``
-    at ``t + shift`` and the seconds it rests on (NaN where less than half of the samples' time span
-    stays inside the truth's: a correlation over a few seconds at the edge of a short run means nothing)."""
-    k = max(t.size // 2000, 1)  # 2000 samples are plenty for a correlation; 1200 shifts of 30000 are not
-    t, a = t[::k], a[::k]
-    span = float(t[-1] - t[0]) if t.size else 0.0
+    """Return, per shift of :data:`OFFSET_GRID_S`, the correlation of a sensor column with its truth
+    at the shifted stamps, pooled over ``tracks`` (per run ``(t, a, t_truth, truth)``), and the seconds
+    it rests on. A run counts at a shift where at least half of its samples' time span stays inside
+    its truth's (a correlation over a few seconds at the edge of a short run means nothing)."""
+    thinned = []
+    for t, a, t_truth, truth in tracks:
+        k = max(t.size // 2000, 1)  # 2000 samples a run are plenty for a correlation; 1200 shifts of 30000 are not
+        thinned.append((t[::k], a[::k], t_truth, truth))
     r, seconds = np.full(OFFSET_GRID_S.size, np.nan), np.zeros(OFFSET_GRID_S.size)
     for i, shift in enumerate(OFFSET_GRID_S):
-        m = np.interp(t + shift, t_truth, truth, left=np.nan, right=np.nan)
-        ok = np.isfinite(a) & np.isfinite(m)
-        if ok.sum() < 20 or np.ptp(t[ok]) < 0.5 * span or np.std(m[ok]) == 0 or np.std(a[ok]) == 0:
+        xs, ys, sec = [], [], 0.0
+        for t, a, t_truth, truth in thinned:
+            m = np.interp(t + shift, t_truth, truth, left=np.nan, right=np.nan)
+            ok = np.isfinite(a) & np.isfinite(m)
+            if ok.sum() < 20 or np.ptp(t[ok]) < 0.5 * np.ptp(t):
+                continue
+            xs.append(a[ok])
+            ys.append(m[ok])
+            sec += float(np.ptp(t[ok]))
+        if not xs:
             continue
-        r[i], seconds[i] = np.corrcoef(a[ok], m[ok])[0, 1], np.ptp(t[ok])
+        x, y = np.concatenate(xs), np.concatenate(ys)
+        if np.std(x) > 0 and np.std(y) > 0:
+            r[i], seconds[i] = np.corrcoef(x, y)[0, 1], sec
     return r, seconds
 
 
-def time_shift(t: np.ndarray, a: np.ndarray, t_truth: np.ndarray, truth: np.ndarray
-               ) -> tuple[float, float, float, bool]:
-    """Return the shift of the stamps ``t`` at which ``a`` follows ``truth`` (at ``t_truth``), the
-    correlation there and at the stamps, and whether that makes another time base.
+def time_shift(tracks) -> tuple[float, float, float, bool]:
+    """Return the shift of the stamps at which a sensor column follows its truth (``tracks`` as
+    :func:`_shift_scores`), the correlation there and at the stamps, and whether that makes another
+    time base.
 
     Of the shifts of :data:`OFFSET_GRID_S` that correlate about as well as the best in magnitude (a
     periodic drive, a figure of eight, repeats itself, and half a period away it is inverted), the
     nearest to the stamps, then the best within a second of it (the band of "about as well" is
     wide, its edge no estimate); another time base where it is more than :data:`MIN_TIME_OFFSET_S`
     away and the stamps themselves correlate significantly worse (:func:`_fisher_worse`)."""
-    rs, seconds = _shift_scores(t, a, t_truth, truth)
+    rs, seconds = _shift_scores(tracks)
     zero = int(np.argmin(np.abs(OFFSET_GRID_S)))
     if not np.isfinite(rs).any() or not np.isfinite(rs[zero]):
         return 0.0, float("nan"), float("nan"), False
@@ -317,31 +328,35 @@ def time_shift(t: np.ndarray, a: np.ndarray, t_truth: np.ndarray, truth: np.ndar
     return shift, float(rs[near]), float(rs[zero]), bool(off)
 
 
-def check_against_poses(s: MotionSamples, poses, source: str) -> None:
+def check_against_poses(runs: list[tuple[MotionSamples, object]], source: str) -> None:
     """Raise a one-line InputError naming ``source`` and the column when a gyro or odometry column
     runs against the ground truth's motion (a z-down IMU frame, left and right wheels swapped, a
     reversed speed), is many times larger than it (degrees per second, rpm), or follows it best
     seconds away from its stamps (another time base: :data:`OFFSET_GRID_S`).
 
-    The truth: the poses' yaw rate and forward speed over about 0.2 s
-    (:func:`identification.preprocessing.trajectory_checks.pose_motion`), at the samples' times.
-    A run whose truth barely moves says nothing and passes.
+    ``runs``: per run its samples (of one kind) and its poses. The evidence is pooled over them: a
+    sensor's axes, unit and clock are the campaign's, and a short run alone cannot tell a clock off
+    by two seconds from an inverted axis. The truth: the poses' yaw rate and forward speed over about
+    0.2 s (:func:`identification.preprocessing.trajectory_checks.pose_motion`), at the samples'
+    times. Runs whose truth barely moves say nothing and pass.
     """
-    mid, speed, rate = pose_motion(poses)
-    if mid.size < 3 or s.t.size < 3:
+    runs = [(s, pose_motion(poses)) for s, poses in runs if s.t.size >= 3]
+    runs = [(s, (mid, {"rate": rate, "speed": speed})) for s, (mid, speed, rate) in runs if mid.size >= 3]
+    if not runs:
         return
-    truth = {"rate": rate, "speed": speed}
-    pairs = {IMU: (("wz", "rate"),), ODOMETRY: (("v", "speed"), ("omega", "rate"))}[s.kind]
+    pairs = {IMU: (("wz", "rate"),), ODOMETRY: (("v", "speed"), ("omega", "rate"))}[runs[0][0].kind]
     words = {"rate": "the poses' yaw rate", "speed": "the poses' forward speed"}
     for column, motion in pairs:
-        m = np.interp(s.t, mid, truth[motion], left=np.nan, right=np.nan)
-        a = s.columns[column]
+        a = np.concatenate([s.columns[column] for s, _ in runs])
+        m = np.concatenate([np.interp(s.t, mid, truth[motion], left=np.nan, right=np.nan) for s, (mid, truth) in runs])
         ok = np.isfinite(a) & np.isfinite(m)
         if ok.sum() < 10 or np.std(m[ok]) < 1e-3 or np.std(a[ok]) == 0:
             continue
         r = float(np.corrcoef(a[ok], m[ok])[0, 1])
         slope = float(np.sum(a[ok] * m[ok]) / np.sum(m[ok] ** 2))
-        shift, r_there, r_zero, off = time_shift(s.t, a, mid, truth[motion])
+        shift, r_there, r_zero, off = time_shift([(s.t, s.columns[column], mid, truth[motion]) for s, (mid, truth) in runs])
+        # against the truth as stamped but with it a shift away: the clock, not the axis
+        off = off or (r < MIN_SENSOR_CORRELATION and abs(shift) > MIN_TIME_OFFSET_S and r_there > -MIN_SENSOR_CORRELATION)
         if off:
             raise InputError(f"{source}: column {column} follows {words[motion]} best at its stamps {shift:+.2f} s "
                              f"(r = {r_there:.2f} there, {r_zero:.2f} as stamped): t must be on the poses' time base")

@@ -33,17 +33,14 @@ def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -
     Raises
     ------
     InputError
-        A wanted file missing (names it), without a sample inside the poses, or a column against
-        the truth's motion in sign or unit (:func:`identification.preprocessing.io_motion.check_against_poses`).
+        A wanted file missing (names it), or without a sample inside the poses.
     """
     run_dir = campaign.root / "runs" / run_name
-    poses = next(r.poses for r in campaign.runs if r.name == run_name)
     got = {}
     for kind in kinds:
         loaded = load_run_motion(run_dir, kind, t_pose)
         if loaded is None:
             raise InputError(f"{run_dir / KINDS[kind][0]}: missing; sensors: [{kind}] needs it")
-        check_against_poses(loaded[0], poses, str(run_dir / KINDS[kind][0]))
         got[kind] = loaded[0]
     im, od = got.get(IMU), got.get(ODOMETRY)
     gyro = {} if im is None else {"t_gyro": im.t, "wz": im.columns["wz"], "wz_std": im.std("wz")}
@@ -58,18 +55,16 @@ def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -
 
 def check_motion_sensors(campaign, test_runs, kinds: tuple[str, ...]) -> None:
     """Raise the first InputError of the fused sensors: a test run's file missing (:func:`motion_sensors_of`),
-    or any run's file, train runs included (a time base or an axis is the campaign's, and every run
-    adds evidence), against its ground truth (:func:`identification.preprocessing.io_motion.check_against_poses`)."""
+    or the campaign's files, pooled over every run that has one (train runs included: a sensor's axes,
+    unit and clock are the campaign's, and every run adds evidence), against their ground truth
+    (:func:`identification.preprocessing.io_motion.check_against_poses`)."""
     for r in test_runs:
         motion_sensors_of(campaign, r.name, r.t_pose, kinds)
-    tested = {r.name for r in test_runs}
-    for run in campaign.runs:
-        if run.name in tested:
-            continue
-        for kind in kinds:
-            loaded = load_run_motion(campaign.root / "runs" / run.name, kind, run.poses.t)
-            if loaded is not None:
-                check_against_poses(loaded[0], run.poses, str(campaign.root / "runs" / run.name / KINDS[kind][0]))
+    for kind in kinds:
+        loaded = [(load_run_motion(campaign.root / "runs" / run.name, kind, run.poses.t), run.poses)
+                  for run in campaign.runs]
+        check_against_poses([(got[0], poses) for got, poses in loaded if got is not None],
+                            str(campaign.root / "runs" / "*" / KINDS[kind][0]))
 
 
 def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: float, lateral, name: str,

@@ -275,10 +275,10 @@ def test_a_gyro_or_odometry_against_the_truth_in_sign_or_unit_is_named(column, f
         s = MotionSamples(ODOMETRY, ts, {"v": (factor if column == "v" else 1.0) * v,
                                          "omega": (factor if column == "omega" else 1.0) * om})
     if said is None:
-        check_against_poses(s, poses, "x/imu.csv")
+        check_against_poses([(s, poses)], "x/imu.csv")
     else:
         with pytest.raises(InputError, match="^x/imu.csv: " + said.replace("(", r"\(")):
-            check_against_poses(s, poses, "x/imu.csv")
+            check_against_poses([(s, poses)], "x/imu.csv")
 
 
 @pytest.mark.parametrize("late_s", [1.0, -2.0, 18.0])
@@ -290,8 +290,8 @@ def test_a_gyro_on_another_time_base_is_named_with_its_offset(late_s):
     s = MotionSamples(IMU, ts + late_s, {"wz": om})
     with pytest.raises(InputError, match=r"^x/imu.csv: column wz follows the poses' yaw rate best at its stamps "
                                          + re.escape(f"{-late_s:+.2f} s (r = 1.00 there")):
-        check_against_poses(s, poses, "x/imu.csv")
-    check_against_poses(MotionSamples(IMU, ts + 0.02, {"wz": om}), poses, "x/imu.csv")  # 20 ms: a latency
+        check_against_poses([(s, poses)], "x/imu.csv")
+    check_against_poses([(MotionSamples(IMU, ts + 0.02, {"wz": om}), poses)], "x/imu.csv")  # 20 ms: a latency
 
 
 def test_a_periodic_drive_is_not_mistaken_for_a_time_offset():
@@ -310,6 +310,24 @@ def test_a_periodic_drive_is_not_mistaken_for_a_time_offset():
     poses = PoseTrack(t=t[::5], x=x[::5], y=y[::5], yaw=yaw[::5], z=nan, pitch=nan, x_std=nan, y_std=nan,
                       z_std=nan, pitch_std=nan, yaw_std=nan)
     ts = np.arange(0.5, 59.5, 0.02)
-    check_against_poses(MotionSamples(IMU, ts, {"wz": np.sin(0.5 * ts)}), poses, "x/imu.csv")
+    check_against_poses([(MotionSamples(IMU, ts, {"wz": np.sin(0.5 * ts)}), poses)], "x/imu.csv")
     with pytest.raises(InputError, match=r"^x/imu.csv: column wz runs against the poses' yaw rate"):
-        check_against_poses(MotionSamples(IMU, ts, {"wz": -np.sin(0.5 * ts)}), poses, "x/imu.csv")
+        check_against_poses([(MotionSamples(IMU, ts, {"wz": -np.sin(0.5 * ts)}), poses)], "x/imu.csv")
+
+
+def test_a_clock_two_seconds_off_on_short_runs_is_a_clock_not_an_axis():
+    # four runs of 15 s, the gyro stamped 2 s late: alone, a run can read as an inverted axis (its
+    # motion 2 s apart anti-correlated); pooled, the runs say the clock
+    from groundfloor.types import PoseTrack
+    from identification.preprocessing.io_motion import MotionSamples, check_against_poses
+
+    poses, ts, _, om = _unicycle_poses()
+    runs = []
+    for k in range(4):
+        cut = (poses.t >= 15 * k) & (poses.t < 15 * (k + 1))
+        part = PoseTrack(**{f: getattr(poses, f)[cut] for f in ("t", "x", "y", "yaw", "z", "pitch", "x_std", "y_std",
+                                                              "z_std", "pitch_std", "yaw_std")})
+        keep = (ts >= 15 * k + 0.5) & (ts < 15 * (k + 1) - 0.5)
+        runs.append((MotionSamples(IMU, ts[keep] + 2.0, {"wz": om[keep]}), part))
+    with pytest.raises(InputError, match=r"^x/\*/imu.csv: column wz follows the poses' yaw rate best at its stamps -2"):
+        check_against_poses(runs, "x/*/imu.csv")
