@@ -33,6 +33,7 @@ import shutil
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,8 +41,9 @@ import yaml
 
 from bench.publish import publish
 from groundfloor.errors import InputError
+from groundfloor.types import PointSeries
 from identification.preprocessing.io_motion import IMU, ODOMETRY, check_against_poses, load_run_motion, time_shift
-from identification.preprocessing.io_tracker import read_tracker_campaign
+from identification.preprocessing.io_tracker import check_point_units, read_tracker_campaign
 from identification.preprocessing.preprocess import preprocess_campaign
 from identification.preprocessing.trajectory import read_trajectory_campaign
 from identification.preprocessing.trajectory_checks import input_sign_correlations, pose_motion
@@ -148,10 +150,6 @@ def fault_results(tracker: Path, traj_dir: Path, work: Path) -> dict[str, str]:
     fit = load_recorded_gnss(read_trajectory_campaign(nolever)).lever_arm_fit
     out["GNSS lever arm undeclared"] = (("refused" if fit["differs"] else "NOT refused")
                                         + f": named ({fit['estimated_m'][0]:+.2f}, {fit['estimated_m'][1]:+.2f}) m")
-    from dataclasses import replace
-
-    from groundfloor.types import PointSeries
-    from identification.preprocessing.io_tracker import check_point_units
     camp = read_tracker_campaign(tracker)
     run = camp.runs[0]
     raw = replace(run, ltd800=PointSeries(run.ltd800.t_tracker, run.ltd800.xyz * 1000.0))

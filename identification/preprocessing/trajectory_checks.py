@@ -31,6 +31,7 @@ INPUT_HOLE_S = 2.0
 #: a correlation of an input with the motion it commands below this is an axis against the contract's
 #: sign (pooled over a campaign's runs; the shared, default and ten variant campaigns: +0.70 to +0.96)
 MIN_SIGN_CORRELATION = -0.3
+_SIGNS_SAID: set = set()  # (campaign.yaml, correlations) whose input signs were judged in this process
 
 def gap_threshold_s(t: np.ndarray) -> float:
     """Return the pose interval (s) above which a hole counts as a gap for stamps ``t``.
@@ -169,6 +170,10 @@ def check_input_signs(runs, source: Path) -> dict[str, float]:
     left-handed frame, and the diagnosis reads the inputs' signs as the contract gives them.
     """
     r = input_sign_correlations(runs)
+    key = (str(source), tuple(round(v, 6) for v in r.values()))
+    if key in _SIGNS_SAID:  # a command that opens the campaign twice (report) says it once
+        return r
+    _SIGNS_SAID.add(key)
     hints = {"u1": ("the forward speed of the poses", "positive forward",
                     "a throttle axis inverted, or a pose yaw 180 degrees off the robot's forward (x) axis?"),
              "u2": ("the yaw rate of the poses", "positive to the left (counter-clockwise, as the yaw)",
