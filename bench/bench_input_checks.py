@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from bench.bench_variants import _indices
 from bench.publish import publish
 from groundfloor.errors import InputError
 from groundfloor.types import PointSeries
@@ -52,14 +53,6 @@ from sindy_ekf.benchmark.gnss_source import load_recorded_gnss
 
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parent.parent / "shared" / "data"
-
-
-def _variants(spec: str) -> list[int]:
-    out = []
-    for part in spec.split(","):
-        lo, _, hi = part.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def unit_ratios(tracker_dir: Path) -> tuple[float, float]:
@@ -170,7 +163,7 @@ def main(argv=None) -> int:
             r = input_sign_correlations(read_trajectory_campaign(SHARED / name).runs)
             rows.append(f"| {name} (real) | {r['u1']:+.2f} | {r['u2']:+.2f} | - | - | - | - | - |")
         faults: list[dict[str, str]] = []
-        for v in _variants(a.variants):
+        for v in _indices(a.variants):
             tracker, traj_dir = work / f"v{v}", work / f"v{v}_traj"
             simulate_campaign(tracker, seed=v, minutes=a.minutes, variant=v, gnss="dgnss", imu=True, odometry=True)
             preprocess_campaign(tracker, traj_dir)

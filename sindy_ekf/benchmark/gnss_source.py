@@ -177,13 +177,15 @@ def check_time_base(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
                          f"{GNSS_CSV} (the NavSatFix header stamp) must be on the poses' time base{leap}")
 
 
-def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray, start: EnuToLocal
+                  ) -> tuple[np.ndarray, np.ndarray, int]:
     """Return the horizontal antenna lever arm (body x, y, m) that fits the fixes best, its
     covariance (m^2) and the number of fixes.
 
     ``poses_and_fixes``: ``(poses, fixes)`` per run. Least squares over the ENU -> local rotation,
     translation and the lever arm (the fix ``R e + t`` against the body origin plus the lever arm
-    turned by the heading), started from the Procrustes fit at ``lever``."""
+    turned by the heading), started from the ENU -> local transform ``start`` (the benchmark's, given or
+    estimated at ``lever``) and ``lever``."""
     from scipy.optimize import least_squares
 
     e, body, yaw, w = [], [], [], []
@@ -206,11 +208,7 @@ def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray) ->
         fix = e @ np.array([[cr, -sr], [sr, cr]]).T + x[1:3]
         return ((fix - antenna(x[3:5])) * sw[:, None]).ravel()
 
-    declared = np.asarray(lever, float)[:2]
-    yaw0 = estimate_enu_to_local(np.column_stack([e, np.zeros(len(e))]),
-                                 np.column_stack([antenna(declared), np.zeros(len(e))]), 1.0 / sw).yaw_rad
-    x0 = np.concatenate([[yaw0], np.zeros(2), declared])
-    x0[1:3] = np.mean(antenna(declared) - e @ np.array([[np.cos(yaw0), -np.sin(yaw0)], [np.sin(yaw0), np.cos(yaw0)]]).T, 0)
+    x0 = np.concatenate([[start.yaw_rad], np.asarray(start.t_local_m, float)[:2], np.asarray(lever, float)[:2]])
     sol = least_squares(residual, x0, loss="soft_l1", f_scale=OUTLIER_STDS)
     # the lever arm's covariance, its variance factor from the residuals and one independent fix a
     # second (a receiver's errors are correlated over seconds: its bias wanders)
@@ -223,7 +221,7 @@ def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray) ->
 
 
 def check_lever_arm(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigin, lever: np.ndarray,
-                    source: str) -> dict | None:
+                    transform: EnuToLocal, source: str) -> dict | None:
     """Warn when the fixes give a horizontal antenna lever arm significantly (chi-square at
     :data:`~groundfloor.geodetic.SIGNIFICANCE_P`) and more than :data:`MIN_LEVER_DIFF_M` away from the declared one (``sensors:`` ``lever_arm_body_m`` in
     ``campaign.yaml``, zero without), naming the one the data give: an antenna off the body origin
@@ -232,7 +230,7 @@ def check_lever_arm(campaign, fixes: dict[str, GnssFixes], origin: GeodeticOrigi
     parts = [(run.poses, fixes[run.name]) for run in campaign.runs if run.name in fixes]
     if sum(len(f.t) for _, f in parts) < 20:
         return None
-    est, cov, _ = fit_lever_arm(parts, origin, lever)
+    est, cov, _ = fit_lever_arm(parts, origin, lever, transform)
     d = est - np.asarray(lever, float)[:2]
     sd = np.sqrt(np.diag(cov))
     differs = bool(np.hypot(*d) > MIN_LEVER_DIFF_M and float(d @ np.linalg.pinv(cov) @ d)
@@ -277,7 +275,6 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
                                str(root / "runs" / name / GNSS_CSV)) for name, f in fixes.items()}
     first = fixes[next(iter(fixes))]
     origin = config.origin or GeodeticOrigin(*(float(v) for v in first.lla[0]))
-    lever_fit = check_lever_arm(campaign, fixes, origin, lever, f"{root}: GNSS")
     if config.enu_to_local_yaw_deg is not None:
         transform = EnuToLocal(float(np.radians(config.enu_to_local_yaw_deg)), np.asarray(config.enu_to_local_t_m))
     else:
@@ -296,4 +293,5 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
         log.info("ENU -> local estimated from %d fixes: yaw %.3f +- %.3f deg, t (%.3f, %.3f) +- (%.3f, %.3f) m",
                  transform.n_fixes, np.degrees(transform.yaw_rad), np.degrees(sd[0]), *transform.t_local_m[:2],
                  sd[1], sd[2])
+    lever_fit = check_lever_arm(campaign, fixes, origin, lever, transform, f"{root}: GNSS")
     return RecordedGnss(origin, transform, lever, fixes, counts, lever_fit)

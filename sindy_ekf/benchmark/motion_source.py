@@ -27,6 +27,11 @@ from sindy_ekf.estimation.ekf_motion import GyroNoise, MotionSensors, OdometryNo
 from sindy_ekf.estimation.graph_motion import smooth_batch_motion, smooth_isam2_motion
 
 
+def _missing(run_dir, kind: str) -> InputError:
+    """Return the one-line error of a test run without the file a fused sensor needs."""
+    return InputError(f"{run_dir / KINDS[kind][0]}: missing; sensors: [{kind}] needs it")
+
+
 def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -> MotionSensors:
     """Return the gyro and/or odometry samples of a test run for the filter.
 
@@ -40,7 +45,7 @@ def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -
     for kind in kinds:
         loaded = load_run_motion(run_dir, kind, t_pose)
         if loaded is None:
-            raise InputError(f"{run_dir / KINDS[kind][0]}: missing; sensors: [{kind}] needs it")
+            raise _missing(run_dir, kind)
         got[kind] = loaded[0]
     im, od = got.get(IMU), got.get(ODOMETRY)
     gyro = {} if im is None else {"t_gyro": im.t, "wz": im.columns["wz"], "wz_std": im.std("wz")}
@@ -54,17 +59,20 @@ def motion_sensors_of(campaign, run_name: str, t_pose, kinds: tuple[str, ...]) -
 
 
 def check_motion_sensors(campaign, test_runs, kinds: tuple[str, ...]) -> None:
-    """Raise the first InputError of the fused sensors: a test run's file missing (:func:`motion_sensors_of`),
+    """Raise the first InputError of the fused sensors, each file read once: a test run's file missing,
     or the campaign's files, pooled over every run that has one (train runs included: a sensor's axes,
     unit and clock are the campaign's, and every run adds evidence), against their ground truth
     (:func:`identification.preprocessing.io_motion.check_against_poses`)."""
-    for r in test_runs:
-        motion_sensors_of(campaign, r.name, r.t_pose, kinds)
+    tested = {r.name for r in test_runs}
     for kind in kinds:
-        loaded = [(load_run_motion(campaign.root / "runs" / run.name, kind, run.poses.t), run.poses)
-                  for run in campaign.runs]
-        check_against_poses([(got[0], poses) for got, poses in loaded if got is not None],
-                            str(campaign.root / "runs" / "*" / KINDS[kind][0]))
+        pooled = []
+        for run in campaign.runs:
+            loaded = load_run_motion(campaign.root / "runs" / run.name, kind, run.poses.t)
+            if loaded is None and run.name in tested:
+                raise _missing(campaign.root / "runs" / run.name, kind)
+            if loaded is not None:
+                pooled.append((loaded[0], run.poses))
+        check_against_poses(pooled, str(campaign.root / "runs" / "*" / KINDS[kind][0]))
 
 
 def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: float, lateral, name: str,
