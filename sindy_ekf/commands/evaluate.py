@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from groundfloor.files import atomic_write_json, check_outputs
-from sindy_ekf.stages.evaluation import LAG, MODEL, Evaluation, evaluate_files
+from sindy_ekf.stages.evaluation import CV_PREDICTION_LEVEL, LAG, MODEL, Evaluation, evaluate_files
 from sindy_ekf.stages.figures import write_evaluation_figures
 
 
@@ -42,10 +42,11 @@ def format_errors(ev: Evaluation) -> str:
         lines.append(f"the identified model beats the lag baseline "
                      f"({ev.model.pos_err_5s_m / ev.results[LAG]['rk4'].pos_err_5s_m:.2f}x its error)")
     if ev.cv is not None:
-        spread = f"+- {100 * ev.cv.spread_m:.2f}" if np.isfinite(ev.cv.spread_m) else "(one fold: no spread)"
+        spread = (f"+- {100 * ev.cv.interval_m:.2f} ({100 * CV_PREDICTION_LEVEL:.0f} % prediction interval of "
+                  f"{ev.cv.n_folds} folds)" if np.isfinite(ev.cv.interval_m) else "(one fold: no spread)")
         lines.append(f"cross-validation estimate ({ev.cv.kind or 'from the model file'}): "
                      f"{100 * ev.cv.cv_pos_err_5s_m:.2f} cm {spread}, test {100 * ev.cv.test_pos_err_5s_m:.2f} cm"
-                     + ("  WARNING: they disagree by more than the spread of the folds" if ev.cv.disagree else ""))
+                     + ("  WARNING: the test score lies outside it" if ev.cv.disagree else ""))
     else:
         lines.append("cross-validation estimate: none in the model file")
     for name in (MODEL, LAG):

@@ -64,12 +64,14 @@ def test_the_cv_estimate_beside_the_test_score_and_a_warning_when_they_disagree(
     test_err = evaluation_stage(campaign, perfect_model()).model.pos_err_5s_m
     near["cv"]["pos_err_5s_m"] = test_err
     ev = evaluation_stage(campaign, replace(perfect_model(), training=near))
+    # two folds 0.04, 0.06: s = 0.01414, t(0.975, 1) = 12.706, sqrt(1 + 1/2): +- 0.2201 by hand
     assert ev.to_json()["cv"] == {"pos_err_5s_m": test_err, "spread_m": pytest.approx(0.01414, rel=1e-3),
-                                  "kind": "leave-one-run-out", "disagrees": False}
+                                  "n_folds": 2, "interval_m": pytest.approx(12.706 * 0.014142 * 1.2247, rel=1e-3),
+                                  "level": 0.95, "kind": "leave-one-run-out", "disagrees": False}
     caplog.clear()
     ev = evaluation_stage(campaign, replace(perfect_model(), training=far))
     assert ev.to_json()["cv"]["disagrees"] is True
-    assert "disagree by more than the spread" in caplog.text
+    assert "outside the 95 % prediction interval" in caplog.text
 
 
 def test_a_model_file_failing_its_checks_is_refused(mini, tmp_path):
