@@ -130,27 +130,101 @@ def median_residual(e: np.ndarray, loc: np.ndarray, w: np.ndarray) -> float:
     return float(np.median(np.hypot(res[:, 0], res[:, 1]) * np.sqrt(w)))
 
 
+def correlation_time(res: np.ndarray, groups: np.ndarray | None = None) -> float:
+    """Return the integrated autocorrelation time of residual vectors ``res (n, d)`` in samples (>= 1):
+    by how much their correlation in time inflates the variance of what is fitted to them.
+
+    ``groups`` (n,) labels the independent stretches (runs), each in time order; none: one stretch.
+    The autocorrelation is pooled over the stretches about zero, not about each stretch's mean
+    (a receiver's bias that stays for a run is exactly the correlated part): ``rho_k`` is the mean
+    of ``r_i . r_(i+k)`` over the pairs ``k`` apart within a stretch over the mean ``|r_i|^2``, and
+    ``tau = 1 + 2 sum rho_k`` up to the first lag where ``rho_k`` is no longer positive (the initial
+    positive sequence). White errors give 1; a bias of correlation time ``T`` sampled every
+    ``dt`` gives about ``2 T / dt``. A fit's covariance from ``n`` such residuals is that of
+    ``n / tau`` independent ones.
+    """
+    res = np.asarray(res, float).reshape(len(res), -1)
+    groups = np.zeros(len(res), int) if groups is None else np.asarray(groups)
+    parts = [res[groups == g] for g in dict.fromkeys(groups.tolist())]
+    den = float(np.sum(res ** 2)) / max(len(res), 1)
+    longest = max((len(p) for p in parts), default=0)
+    tau = 1.0
+    for k in range(1, longest):
+        pairs = [(float(np.sum(p[k:] * p[:-k])), len(p) - k) for p in parts if len(p) > k]
+        rho = sum(a for a, _ in pairs) / sum(n for _, n in pairs) / den if den > 0 else 0.0
+        if not rho > 0.0:
+            break
+        tau += 2.0 * rho
+    return float(tau)
+
+
+def block_covariance(J: np.ndarray, r: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, int]:
+    """Return the cluster-robust covariance of a least-squares estimate, ``H^-1 S H^-1 G / (G - 1)``
+    with ``H = J^T J`` and ``S`` the sum over the ``G`` blocks of the outer products of their score
+    ``J_b^T r_b``, and ``G``.
+
+    ``J (m, p)`` and ``r (m,)`` are the weighted Jacobian and residuals, ``blocks (m,)`` the block of
+    each row. Errors correlated within a block and independent between blocks are then counted as
+    what they are: a bias that stays for a block moves only the parameters its rows' Jacobian
+    projects it on (a constant offset over a run moves a translation, hardly a rotation about the
+    run's centre), where inflating every variance by the correlation time would overstate them all.
+    """
+    H_inv = np.linalg.pinv(J.T @ J)
+    labels, idx = np.unique(blocks, return_inverse=True)
+    score = np.zeros((len(labels), J.shape[1]))
+    np.add.at(score, idx, J * r[:, None])
+    G = len(labels)
+    return H_inv @ (score.T @ score) @ H_inv * (G / max(G - 1, 1)), G
+
+
+def widened(cov: np.ndarray, robust: np.ndarray) -> np.ndarray:
+    """Return ``cov`` with each parameter's variance raised to ``robust``'s where that is larger (its
+    correlations kept: ``D cov D``, ``D`` the diagonal of the ratios' square roots, at least 1). A
+    cluster-robust covariance from a few blocks is noisy; it may widen a stated uncertainty, never
+    narrow the model's."""
+    d = np.sqrt(np.maximum(np.diag(robust) / np.maximum(np.diag(cov), 1e-300), 1.0))
+    return cov * np.outer(d, d)
+
+
+def time_blocks(groups: np.ndarray, length: int) -> np.ndarray:
+    """Return a block label per sample: consecutive samples of each group (run, in time order) cut
+    into blocks of ``length`` samples (the last of a group may be shorter)."""
+    groups = np.asarray(groups)
+    out = np.empty(len(groups), int)
+    start = 0
+    for g in dict.fromkeys(groups.tolist()):
+        where = np.flatnonzero(groups == g)
+        out[where] = start + np.arange(len(where)) // max(int(length), 1)
+        start = int(out[where].max()) + 1 if len(where) else start
+    return out
+
+
 def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndarray,
-                          source: str = "GNSS") -> EnuToLocal:
+                          source: str = "GNSS", groups: np.ndarray | None = None) -> EnuToLocal:
     """Return the ENU -> local transform fitted to fixes and true antenna positions, with its covariance.
 
     Weighted least squares over the horizontal plane (weights from the fixes' stated horizontal
     std), in closed form (2-D Procrustes), refitted without residuals above
     :data:`OUTLIER_SIGMA` stated stds (multipath) until the set kept no longer changes. The vertical offset is the weighted mean of
     ``local z - up``. The covariance of (yaw, t_x, t_y) is the Gauss-Newton one,
-    ``sigma0^2 (J^T W J)^-1`` with the a posteriori variance factor ``sigma0^2``.
+    ``sigma0^2 (J^T W J)^-1`` with the a posteriori variance factor ``sigma0^2``, widened to the
+    cluster-robust one over blocks of each run as long as the residuals' :func:`correlation_time`
+    where that is larger (:func:`block_covariance`, :func:`widened`): a receiver's errors wander (a standalone fix's bias over minutes), and
+    a simulated standalone campaign's yaw came out 3.8 of its Gauss-Newton stds off.
 
     Parameters
     ----------
     p_enu, p_local : (n, 3) the same antenna positions as fixes (ENU) and from the ground truth.
     std_m : (n,) stated horizontal std of each fix.
+    groups : (n,) the run of each fix (fixes of a run in time order); none: one run.
     """
     p_enu, p_local = np.asarray(p_enu, float), np.asarray(p_local, float)
+    groups = np.zeros(len(p_enu), int) if groups is None else np.asarray(groups)
     w = 1.0 / np.asarray(std_m, float) ** 2
     ok = np.all(np.isfinite(p_enu), 1) & np.all(np.isfinite(p_local[:, :2]), 1) & np.isfinite(w) & (w > 0)
     if ok.sum() < 3:
         raise InputError(f"{source}: fewer than 3 fixes beside ground truth to estimate the ENU -> local transform")
-    e, loc, w = p_enu[ok], p_local[ok], w[ok]
+    e, loc, w, groups = p_enu[ok], p_local[ok], w[ok], groups[ok]
     if np.linalg.norm(e[:, :2] - e[:, :2].mean(0), axis=1).max() < 1.0:
         raise InputError(f"{source}: the antenna moved less than 1 m; ENU -> local yaw not observable")
     # a left-handed local frame (north-east-down, or y or yaw negated) is no rotation of ENU: the best
@@ -185,6 +259,9 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     J[:, 0, 1] = J[:, 1, 2] = 1.0
     J = J.reshape(-1, 3)
     cov = sigma0 ** 2 * np.linalg.inv(J.T @ (wk[:, None] * J))
+    rw = res[keep] * np.sqrt(w[keep])[:, None]
+    blocks = np.repeat(time_blocks(groups[keep], int(np.ceil(correlation_time(rw, groups[keep])))), 2)
+    cov = widened(cov, block_covariance(J * np.sqrt(wk)[:, None], rw.ravel(), blocks)[0])
     finite_z = keep & np.isfinite(loc[:, 2]) & np.isfinite(e[:, 2])
     tz = float(np.average(loc[finite_z, 2] - e[finite_z, 2], weights=w[finite_z])) if finite_z.any() else 0.0
     return EnuToLocal(yaw, np.array([t2[0], t2[1], tz]), cov, int(keep.sum()), int((~keep).sum()), sigma0)

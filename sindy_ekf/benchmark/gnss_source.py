@@ -24,10 +24,14 @@ from groundfloor.geodetic import (
     SIGNIFICANCE_P,
     EnuToLocal,
     GeodeticOrigin,
+    block_covariance,
+    correlation_time,
     estimate_enu_to_local,
     geodetic_to_enu,
     median_residual,
     significantly_better,
+    time_blocks,
+    widened,
 )
 from groundfloor.gnss import GnssSeries
 from identification.preprocessing.io_sensors import (
@@ -188,16 +192,17 @@ def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray, st
     estimated at ``lever``) and ``lever``."""
     from scipy.optimize import least_squares
 
-    e, body, yaw, w = [], [], [], []
-    for poses, f in poses_and_fixes:
+    e, body, yaw, w, run = [], [], [], [], []
+    for k, (poses, f) in enumerate(poses_and_fixes):
         e.append(geodetic_to_enu(f.lla[:, 0], f.lla[:, 1], f.lla[:, 2], origin)[:, :2])
         body.append(antenna_local(poses, f.t, np.zeros(3))[:, :2])
         tp = np.asarray(poses.t, float)
         yaw.append(np.interp(f.t, tp, np.unwrap(np.asarray(poses.yaw, float))))
         w.append(2.0 / (f.cov_enu[:, 0, 0] + f.cov_enu[:, 1, 1]))
-    e, body, yaw, w = (np.concatenate(v) for v in (e, body, yaw, w))
+        run.append(np.full(len(f.t), k))
+    e, body, yaw, w, run = (np.concatenate(v) for v in (e, body, yaw, w, run))
     ok = np.all(np.isfinite(e), 1) & np.all(np.isfinite(body), 1) & np.isfinite(yaw) & np.isfinite(w)
-    e, body, yaw, sw = e[ok], body[ok], yaw[ok], np.sqrt(w[ok])
+    e, body, yaw, sw, run = e[ok], body[ok], yaw[ok], np.sqrt(w[ok]), run[ok]
     c, s_ = np.cos(yaw), np.sin(yaw)
 
     def antenna(l):
@@ -210,13 +215,20 @@ def fit_lever_arm(poses_and_fixes, origin: GeodeticOrigin, lever: np.ndarray, st
 
     x0 = np.concatenate([[start.yaw_rad], np.asarray(start.t_local_m, float)[:2], np.asarray(lever, float)[:2]])
     sol = least_squares(residual, x0, loss="soft_l1", f_scale=OUTLIER_STDS)
-    # the lever arm's covariance, its variance factor from the residuals and one independent fix a
-    # second (a receiver's errors are correlated over seconds: its bias wanders)
+    # the lever arm's covariance: Gauss-Newton with its variance factor from the residuals and at most one
+    # independent fix a second (a receiver's errors are correlated over seconds), widened to the
+    # cluster-robust one over blocks of each run at least as long as the residuals' correlation time
+    # (a standalone receiver's bias wanders for minutes and, moving with where the run drives, turns
+    # into a lever arm: a simulated standalone campaign's came out 3 and 6 of its Gauss-Newton stds off)
     J = sol.jac
     dof = max(J.shape[0] - J.shape[1], 1)
     seconds = sum(float(np.ptp(f.t)) for _, f in poses_and_fixes if len(f.t) > 1)
-    inflate = max(len(e) / max(seconds, 1.0), 1.0)
-    cov = np.linalg.pinv(J.T @ J) * (np.sum(sol.fun ** 2) / dof) * inflate
+    per_second = max(len(e) / max(seconds, 1.0), 1.0)
+    cov = np.linalg.pinv(J.T @ J) * (np.sum(sol.fun ** 2) / dof) * per_second
+    r = sol.fun.reshape(-1, 2)
+    r = r * np.minimum(1.0, OUTLIER_STDS / np.maximum(np.hypot(r[:, 0], r[:, 1]), 1e-300))[:, None]  # multipath capped
+    length = int(np.ceil(max(correlation_time(r, run), per_second)))
+    cov = widened(cov, block_covariance(J, r.ravel(), np.repeat(time_blocks(run, length), 2))[0])
     return sol.x[3:5], cov[3:5, 3:5], int(len(e))
 
 
@@ -278,7 +290,7 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
     if config.enu_to_local_yaw_deg is not None:
         transform = EnuToLocal(float(np.radians(config.enu_to_local_yaw_deg)), np.asarray(config.enu_to_local_t_m))
     else:
-        enu, local, std = [], [], []
+        enu, local, std, group = [], [], [], []
         for run in campaign.runs:
             if run.name not in fixes:
                 continue
@@ -287,8 +299,9 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
             enu.append(geodetic_to_enu(f.lla[:, 0], f.lla[:, 1], f.lla[:, 2], origin))
             local.append(antenna_local(run.poses, f.t, lever))
             std.append(np.sqrt(0.5 * (f.cov_enu[:, 0, 0] + f.cov_enu[:, 1, 1])))
+            group.append(np.full(len(f.t), len(group)))
         transform = estimate_enu_to_local(np.concatenate(enu), np.concatenate(local), np.concatenate(std),
-                                          f"{root}: GNSS")
+                                          f"{root}: GNSS", np.concatenate(group))
         sd = np.sqrt(np.diag(transform.cov))
         log.info("ENU -> local estimated from %d fixes: yaw %.3f +- %.3f deg, t (%.3f, %.3f) +- (%.3f, %.3f) m",
                  transform.n_fixes, np.degrees(transform.yaw_rad), np.degrees(sd[0]), *transform.t_local_m[:2],
