@@ -53,6 +53,7 @@ from sindy_ekf.report.figures import (
 )
 from sindy_ekf.report.glossary import terms_html
 from sindy_ekf.stages.chain import ChainResult
+from sindy_ekf.stages.evaluation import CV_PREDICTION_LEVEL, cv_comparison
 
 
 def _vec(v, k: float = 1.0, fmt: str = "{:+.3f}") -> str:
@@ -293,8 +294,30 @@ def section_evaluation(sec: Section, chain: ChainResult) -> None:
                  if model_m < lag_m else
                  f"The identified model does NOT beat the lag baseline (first-order lag per axis with input dead "
                  f"time, fitted on the train runs): {100 * model_m:.2f} cm against {100 * lag_m:.2f} cm.")
+    note = cv_note(chain.model, errors["sindy"].pos_err_5s_m)
+    if note:
+        sec.note(note)
     sec.figures([(lambda: plot_error_curves([sindy]), "SINDy model: per-window errors (grey) and s_p(t), s_h(t)"),
                  (lambda: plot_error_curves(list(ev.values()), stacked=False), "all models: s_p(t), s_h(t)")])
+
+
+def cv_note(model, test_pos_err_5s_m: float) -> str:
+    """Return the model file's cross-validation estimate beside the test score, and whether the score
+    lies inside the prediction interval of one more held-out group (``""`` without an estimate)."""
+    cv = cv_comparison(model, test_pos_err_5s_m) if model is not None else None
+    if cv is None:
+        return ""
+    where = f" ({cv.kind}, {cv.n_folds} folds)" if cv.kind else f" ({cv.n_folds} folds)"
+    head = (f"Cross-validation on the train runs{where} estimated {100 * cv.cv_pos_err_5s_m:.2f} cm at 5 s; the test "
+            f"runs gave {100 * cv.test_pos_err_5s_m:.2f} cm")
+    if not np.isfinite(cv.interval_m):
+        return head + " (one fold: no spread to compare them by)."
+    inside = (f", inside the {100 * CV_PREDICTION_LEVEL:.0f} % prediction interval of one more held-out group "
+              f"(+- {100 * cv.interval_m:.2f} cm)")
+    if not cv.disagree:
+        return head + inside + ": the test runs are like the train groups."
+    return (head + inside.replace(", inside", ", outside") + ": the test runs are NOT like the train groups (another "
+            "day, ground or way of driving), and neither number speaks for the other.")
 
 
 def gnss_note(b) -> str:

@@ -265,3 +265,24 @@ def test_estimation_note_says_which_gnss_and_sensors_were_fused():
                                  "is the antenna swinging around the body origin in turns")
     rec["lever_arm_fit"]["differs"] = False
     assert "antenna" not in gnss_note(b)
+
+
+def test_evaluation_note_puts_the_cv_estimate_beside_the_test_score():
+    # two folds 4 and 6 cm: s = 1.414 cm, t(0.975, 1) sqrt(1.5) s = +- 22.01 cm by hand; five folds of
+    # 1.0 to 1.4 cm: s = 0.158 cm, t(0.975, 4) = 2.776, sqrt(1.2): +- 0.48 cm
+    from types import SimpleNamespace
+    from sindy_ekf.report.sections import cv_note
+    two = SimpleNamespace(training={"cv": {"pos_err_5s_m": 0.05, "fold_pos_err_5s_m": [0.04, 0.06],
+                                           "kind": "leave-one-group-out"}})
+    assert cv_note(two, 0.2) == ("Cross-validation on the train runs (leave-one-group-out, 2 folds) estimated 5.00 cm "
+                                 "at 5 s; the test runs gave 20.00 cm, inside the 95 % prediction interval of one "
+                                 "more held-out group (+- 22.01 cm): the test runs are like the train groups.")
+    five = SimpleNamespace(training={"cv": {"pos_err_5s_m": 0.012, "fold_pos_err_5s_m": [0.010, 0.011, 0.012, 0.013,
+                                                                                           0.014]}})
+    note = cv_note(five, 0.0175)
+    assert "(5 folds) estimated 1.20 cm" in note and "outside the 95 % prediction interval" in note
+    assert "(+- 0.48 cm)" in note and "NOT like the train groups" in note
+    assert "inside" in cv_note(five, 0.0165)
+    assert cv_note(SimpleNamespace(training={}), 0.1) == "" and cv_note(None, 0.1) == ""
+    one = SimpleNamespace(training={"cv": {"pos_err_5s_m": 0.05, "fold_pos_err_5s_m": [0.05]}})
+    assert cv_note(one, 0.5).endswith("(one fold: no spread to compare them by).")
