@@ -185,7 +185,7 @@ def _run_alone_raw(model: ProcessModel, run: EkfRun, gate_prob: float,
         return None, RunStatus("failed", 0.0, _one_line(exc))
 
 
-def _recover(model: ProcessModel, run: EkfRun, res: EkfResult, gate_prob: float,
+def watch_nis(model: ProcessModel, run: EkfRun, res: EkfResult, gate_prob: float,
              lateral: LateralConstraint | None, recover: bool, step_test: bool = True
              ) -> tuple[EkfResult | None, RunStatus]:
     """Return the run's result after NIS monitoring (and re-initialisations), with its status."""
@@ -258,7 +258,7 @@ def guarded_ekf_batch(model: ProcessModel, runs: list[EkfRun], lateral: LateralC
     final = []
     for run, (res, status) in zip(runs, out):
         if res is not None and status.status == "ok" and run.gnss is not None:
-            res, status = _recover(model, run, res, gate_prob, lateral, recover, step_test)
+            res, status = watch_nis(model, run, res, gate_prob, lateral, recover, step_test)
         if status.status != "ok":
             log.warning("%s: %s at t=%.2f s: %s", run.name, status.status, status.t_s, status.reason)
         final.append((res, status))

@@ -11,20 +11,27 @@ factor graph (``sindy_graph``, ``sindy_graph_lateral``) with them runs
 ``sindy_isam2`` runs :func:`sindy_ekf.estimation.graph_motion.smooth_isam2_motion`.
 What the filter and the graph assume of the sensors is the estimator's ``imu`` and ``odometry``
 settings (:class:`~sindy_ekf.estimation.ekf_motion.GyroNoise`, ``OdometryNoise``). The NIS
-monitor's re-initialisation of the six-state EKFs (:mod:`sindy_ekf.benchmark.health`) is not
-applied to this filter.
+monitor of the six-state EKFs (:mod:`sindy_ekf.benchmark.health`) watches this filter too, with its
+step test, but does not re-initialise it: an alarm that is no step of the fixes ends the run as
+``diverged`` there (before, a filter that had lost the fixes and gated 60 % of them was reported
+``ok``: lag_ekf fusing the gyro on a simulated rtk campaign, 0.78 m ATE, NIS mean 112).
 """
 
 from __future__ import annotations
+
+import logging
+from dataclasses import replace
 
 import numpy as np
 
 from groundfloor.errors import InputError
 from identification.preprocessing.io_motion import IMU, KINDS, ODOMETRY, check_against_poses, load_run_motion
-from sindy_ekf.benchmark.health import RunStatus, guarded
+from sindy_ekf.benchmark.health import RunStatus, guarded, watch_nis
 from sindy_ekf.estimation.ekf import EkfRun
 from sindy_ekf.estimation.ekf_motion import GyroNoise, MotionSensors, OdometryNoise, run_ekf_motion
 from sindy_ekf.estimation.graph_motion import smooth_batch_motion, smooth_isam2_motion
+
+log = logging.getLogger(__name__)
 
 
 def _missing(run_dir, kind: str) -> InputError:
@@ -84,9 +91,24 @@ def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: fl
         sensors = motion_sensors_of(campaign, r.name, r.t_pose, kinds)
         u = r.u_motor if use_motor and r.u_motor is not None else r.inputs_for(model.dynamics)
         run = EkfRun(f"{r.name} {name}", r.grid, u, r.x0, P0, gnss_of(r))
-        out.append(guarded(run_ekf_motion, model, run, sensors, gate_prob=gate_prob, lateral=lateral,
-                           gyro_noise=gyro_noise, odometry_noise=odometry_noise))
+        res, status = guarded(run_ekf_motion, model, run, sensors, gate_prob=gate_prob, lateral=lateral,
+                              gyro_noise=gyro_noise, odometry_noise=odometry_noise)
+        out.append(monitored(model, run, res, status, gate_prob, lateral))
     return out
+
+
+def monitored(model, run: EkfRun, res, status: RunStatus, gate_prob: float, lateral):
+    """Return ``(result, status)`` of a seven-state EKF run after the NIS monitor (no re-initialisation):
+    cut at a divergence the innovations show, the gyro bias with it."""
+    if res is None or status.status != "ok" or run.gnss is None:
+        return res, status
+    cut, status = watch_nis(model, run, res, gate_prob, lateral, recover=False)
+    if status.status != "ok":
+        n = len(cut.t)
+        cut = replace(cut, gyro_bias=None if cut.gyro_bias is None else cut.gyro_bias[:n],
+                      gyro_bias_std=None if cut.gyro_bias_std is None else cut.gyro_bias_std[:n])
+        log.warning("%s: %s at t=%.2f s: %s", run.name, status.status, status.t_s, status.reason)
+    return cut, status
 
 
 def run_motion_graphs(model, runs, campaign, kinds: tuple[str, ...], lateral, name: str, P0, gnss_of,

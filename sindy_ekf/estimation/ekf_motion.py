@@ -226,7 +226,7 @@ def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gat
             fixes.setdefault(int(ka), []).append((int(kv), z, np.diag(std ** 2)))
         lever = np.asarray(gnss.lever_arm_body, float)[:2]
     gate_nis = float(chi2.ppf(gate_prob, GATE_DOF)) if gate_prob < 1 else np.inf
-    nis, nis_t, accepted = [], [], []
+    nis, nis_t, accepted, innovation, innovation_cov = [], [], [], [], []
     n_gyro = n_odo = pd_repairs = 0
     Q6_rate = model.Q(1.0)
     for k in range(n):
@@ -264,6 +264,8 @@ def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gat
             value = float(y @ S_inv @ y)
             nis.append(value)
             nis_t.append(t[kv_j])
+            innovation.append(y)
+            innovation_cov.append(S)
             ok = math.isfinite(value) and value <= gate_nis
             accepted.append(ok)
             if not ok:
@@ -286,5 +288,7 @@ def run_ekf_motion(model: ProcessModel, run: EkfRun, sensors: MotionSensors, gat
              len(accepted) - int(np.sum(accepted)), len(accepted))
     return MotionEkfResult(run.name, t, Z[:, :N_X].copy(), P[:, :N_X, :N_X].copy(), np.array(nis),
                            np.array(nis_t), np.array(accepted, bool), gate_nis, pd_repairs, outside,
-                           time.perf_counter() - start, repairs, gyro_bias=Z[:, I_BIAS].copy(),
+                           time.perf_counter() - start, repairs,
+                           innovation=np.array(innovation, float).reshape(-1, 2),
+                           innovation_cov=np.array(innovation_cov, float).reshape(-1, 2, 2), gyro_bias=Z[:, I_BIAS].copy(),
                            gyro_bias_std=np.sqrt(P[:, I_BIAS, I_BIAS]), n_gyro=n_gyro, n_odometry=n_odo)

@@ -24,10 +24,10 @@ from sindy_ekf.benchmark.health import (
     NIS_TOLERANCE,
     NIS_WINDOW,
     RunStatus,
-    _recover,
     guarded,
     reset_state,
     score_partial,
+    watch_nis,
 )
 from sindy_ekf.benchmark.result import Estimate
 from sindy_ekf.estimation.ekf import EkfResult, EkfRun
@@ -52,7 +52,7 @@ def _run_with(monkeypatch, nis, stepped: bool):
     monkeypatch.setattr(health, "fixes_stepped", fake_fixes_stepped)
     run = SimpleNamespace(name="r", t=np.array([100.0]))
     res = _res(nis)
-    out, status = _recover(None, run, res, 0.999, None, recover=False)
+    out, status = watch_nis(None, run, res, 0.999, None, recover=False)
     return res, out, status, calls
 
 
@@ -121,7 +121,7 @@ def test_the_step_test_sees_the_alarm_window_and_the_window_before_it(monkeypatc
 
     monkeypatch.setattr(health, "fixes_stepped", fake_fixes_stepped)
     res = _res(np.full(100, GATE_NIS))
-    _, status = _recover(None, SimpleNamespace(name="r", t=np.array([100.0])), res, 0.999, None, recover=False)
+    _, status = watch_nis(None, SimpleNamespace(name="r", t=np.array([100.0])), res, 0.999, None, recover=False)
     assert calls == [(100.0, 20), (100.0, 40), (104.0, 40), (108.0, 40), (112.0, 40)]
     assert status == RunStatus(fix_steps=5)
 
@@ -151,7 +151,7 @@ def _reset_run(nis: np.ndarray, r_scale: np.ndarray, monkeypatch):
         return None, RunStatus("failed", 0.0, "stub")
 
     monkeypatch.setattr(health, "_run_alone", fake_run_alone)
-    _, status = _recover(None, run, res, 0.999, None, recover=True, step_test=False)
+    _, status = watch_nis(None, run, res, 0.999, None, recover=True, step_test=False)
     return status, tails
 
 
@@ -213,7 +213,7 @@ def test_a_tail_that_diverges_again_dates_its_divergence_on_the_runs_clock(monke
         return tail, RunStatus("diverged", 1.5, "tail lost")
 
     monkeypatch.setattr(health, "_run_alone", fake_run_alone)
-    got, status = _recover(None, run, res, 0.999, None, recover=True, step_test=False)
+    got, status = watch_nis(None, run, res, 0.999, None, recover=True, step_test=False)
     assert status.status == "diverged" and status.reason == "tail lost" and status.recoveries == 1
     assert status.t_s == pytest.approx(1.5 + 0.5, abs=1e-9)  # the tail's 1.5 s from 100 s, the run from 99.5 s
     assert got.t[0] == 100.0 and got.t[-1] == pytest.approx(101.5, abs=1e-9)

@@ -96,6 +96,10 @@ def test_without_gyro_and_odometry_it_is_the_six_state_ekf(oracle):
     np.testing.assert_allclose(seven.x, six.x, atol=1e-8)
     np.testing.assert_allclose(seven.P, six.P, atol=1e-10)
     np.testing.assert_array_equal(seven.accepted, six.accepted)
+    # the innovations the NIS monitor's step test reads, as the six-state EKF records them
+    np.testing.assert_allclose(seven.innovation, six.innovation, atol=1e-8)
+    np.testing.assert_allclose(seven.innovation_cov, six.innovation_cov, atol=1e-10)
+    assert len(seven.innovation) == len(seven.nis) > 100
 
 
 @pytest.mark.parametrize("seed", [11, 12])
