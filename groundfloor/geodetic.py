@@ -66,6 +66,10 @@ class EnuToLocal:
     n_fixes: int = 0  # fixes the estimate rests on
     n_rejected: int = 0  # fixes left out as outliers
     sigma0: float = float("nan")  # a posteriori standard deviation of unit weight
+    # the residuals' correlation time spans half a run or more (:func:`correlated_over_runs`): their
+    # errors likely share a bias across runs too, which no block of the data shows, so ``cov`` may be
+    # too small
+    correlated_over_runs: bool = False
 
     @property
     def R(self) -> np.ndarray:
@@ -92,7 +96,8 @@ class EnuToLocal:
         if self.cov is not None:
             sd = np.sqrt(np.diag(self.cov))
             out.update(yaw_std_deg=float(np.degrees(sd[0])), t_std_m=[float(sd[1]), float(sd[2])],
-                       n_fixes=int(self.n_fixes), n_rejected=int(self.n_rejected), sigma0=float(self.sigma0))
+                       n_fixes=int(self.n_fixes), n_rejected=int(self.n_rejected), sigma0=float(self.sigma0),
+                       errors_correlated_over_runs=bool(self.correlated_over_runs))
         return out
 
 
@@ -156,6 +161,15 @@ def correlation_time(res: np.ndarray, groups: np.ndarray | None = None) -> float
             break
         tau += 2.0 * rho
     return float(tau)
+
+
+def correlated_over_runs(tau: float, groups: np.ndarray) -> bool:
+    """Return whether a correlation time of ``tau`` samples spans half the median run of ``groups``
+    or more: errors that stay correlated over most of every run (a standalone receiver's bias,
+    wandering over minutes) are likely correlated across runs as well, and then the runs are not
+    the independent blocks :func:`block_covariance` takes them for."""
+    sizes = np.unique(np.asarray(groups), return_counts=True)[1]
+    return bool(sizes.size and tau >= 0.5 * float(np.median(sizes)))
 
 
 def block_covariance(J: np.ndarray, r: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, int]:
@@ -260,11 +274,13 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     J = J.reshape(-1, 3)
     cov = sigma0 ** 2 * np.linalg.inv(J.T @ (wk[:, None] * J))
     rw = res[keep] * np.sqrt(w[keep])[:, None]
-    blocks = np.repeat(time_blocks(groups[keep], int(np.ceil(correlation_time(rw, groups[keep])))), 2)
+    tau = correlation_time(rw, groups[keep])
+    blocks = np.repeat(time_blocks(groups[keep], int(np.ceil(tau))), 2)
     cov = widened(cov, block_covariance(J * np.sqrt(wk)[:, None], rw.ravel(), blocks)[0])
     finite_z = keep & np.isfinite(loc[:, 2]) & np.isfinite(e[:, 2])
     tz = float(np.average(loc[finite_z, 2] - e[finite_z, 2], weights=w[finite_z])) if finite_z.any() else 0.0
-    return EnuToLocal(yaw, np.array([t2[0], t2[1], tz]), cov, int(keep.sum()), int((~keep).sum()), sigma0)
+    return EnuToLocal(yaw, np.array([t2[0], t2[1], tz]), cov, int(keep.sum()), int((~keep).sum()), sigma0,
+                      correlated_over_runs(tau, groups[keep]))
 
 
 def significantly_better(worse: float, better: float, n: int, p: float = SIGNIFICANCE_P) -> bool:

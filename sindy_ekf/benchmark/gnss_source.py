@@ -303,6 +303,12 @@ def load_recorded_gnss(campaign, window_s: float = ESTIMATE_WINDOW_S) -> Recorde
         transform = estimate_enu_to_local(np.concatenate(enu), np.concatenate(local), np.concatenate(std),
                                           f"{root}: GNSS", np.concatenate(group))
         sd = np.sqrt(np.diag(transform.cov))
+        if transform.correlated_over_runs:
+            log.warning("%s: GNSS: the fixes' errors stay correlated over most of every run (a receiver bias that "
+                        "wanders for minutes), so they likely share it across runs too: the ENU -> local transform "
+                        "estimated from them (yaw %.2f +- %.2f deg) may be off by more than its stated uncertainty; "
+                        "give enu_to_local_yaw_deg and enu_to_local_t_m in campaign.yaml if they are known",
+                        root, np.degrees(transform.yaw_rad), np.degrees(sd[0]))
         log.info("ENU -> local estimated from %d fixes: yaw %.3f +- %.3f deg, t (%.3f, %.3f) +- (%.3f, %.3f) m",
                  transform.n_fixes, np.degrees(transform.yaw_rad), np.degrees(sd[0]), *transform.t_local_m[:2],
                  sd[1], sd[2])

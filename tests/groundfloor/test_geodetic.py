@@ -10,6 +10,7 @@ from groundfloor.errors import InputError
 from groundfloor.geodetic import (
     EnuToLocal,
     GeodeticOrigin,
+    correlated_over_runs,
     correlation_time,
     enu_to_geodetic,
     estimate_enu_to_local,
@@ -169,3 +170,16 @@ def test_a_receiver_bias_that_stays_for_a_run_widens_the_stated_uncertainty_to_t
     errors, stds = np.array(errors), np.array(stds)
     np.testing.assert_allclose(stds.mean(0), errors.std(0), rtol=0.3)
     assert np.all(np.mean(np.abs(errors) < 2 * stds, axis=0) > 0.8)
+
+
+def test_errors_correlated_over_most_of_every_run_are_said_so():
+    """Runs of 40, 60 and 80 samples (median 60): a correlation time of 30 samples or more spans half
+    a run; white errors (about 1) and a correlation of a few samples do not."""
+    runs = np.repeat([0, 1, 2], [40, 60, 80])
+    assert correlated_over_runs(30.0, runs) and correlated_over_runs(75.0, runs)
+    assert not correlated_over_runs(29.9, runs) and not correlated_over_runs(1.0, runs)
+    rng = np.random.default_rng(3)
+    white = rng.standard_normal((180, 2))
+    biased = white + np.repeat(rng.standard_normal((3, 2)) * 2.0, [40, 60, 80], axis=0)
+    assert not correlated_over_runs(correlation_time(white, runs), runs)
+    assert correlated_over_runs(correlation_time(biased, runs), runs)

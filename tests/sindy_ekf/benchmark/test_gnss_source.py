@@ -35,6 +35,7 @@ def camp(tmp_path_factory):
 def test_transform_estimated_within_its_uncertainty(camp):
     _, traj, truth = camp
     rec = load_recorded_gnss(traj)
+    assert rec.transform.correlated_over_runs is False  # dgnss errors are white: nothing to say of them
     sd = np.sqrt(np.diag(rec.transform.cov))
     err = [rec.transform.yaw_rad - np.radians(truth["enu_to_local_yaw_deg"]),
            *(rec.transform.t_local_m[:2] - truth["enu_to_local_t_m"][:2])]
@@ -245,7 +246,10 @@ def test_a_standalone_receivers_wandering_bias_is_not_called_a_lever_arm(tmp_pat
     simulate_campaign(tmp_path / "c", seed=2323, minutes=12.0, variant=23, gnss="standalone")
     preprocess_campaign(tmp_path / "c", tmp_path / "t")
     truth = yaml.safe_load((tmp_path / "c" / "truth" / "gnss.yaml").read_text())
-    fit = load_recorded_gnss(read_trajectory_campaign(tmp_path / "t")).lever_arm_fit
+    rec = load_recorded_gnss(read_trajectory_campaign(tmp_path / "t"))
+    fit = rec.lever_arm_fit
     assert fit["differs"] is False
+    # the bias spans whole runs: the estimated transform may be off by more than it states, and says so
+    assert rec.transform.correlated_over_runs and rec.transform.to_json_dict()["errors_correlated_over_runs"]
     d = np.asarray(fit["estimated_m"]) - np.asarray(truth["lever_arm_body_m"][:2])
     assert np.all(np.abs(d) < 3 * np.asarray(fit["std_m"]))
