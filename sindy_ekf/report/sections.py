@@ -330,6 +330,9 @@ def gnss_note(b) -> str:
                f"{tr['yaw_std_deg']:.3f} deg" if tr.get("estimated") else f"given: {tr['enu_to_local_yaw_deg']:.3f} deg")
         text = (f"GNSS: the campaign's own recorded fixes, mapped into the local frame by the ENU -> local rotation "
                 f"{how}; the ground-truth poses of the {len(b.truth)} test runs are the truth")
+        if tr.get("errors_correlated_over_runs"):
+            text += (". The fixes' errors stay correlated over most of every run (a receiver bias wandering for "
+                     "minutes), likely across runs too: the estimated rotation may be off by more than its stated std")
         lever = b.recorded_gnss.get("lever_arm_fit") or {}
         if lever.get("differs"):
             (x, y), (sx, sy), (dx, dy) = lever["estimated_m"], lever["std_m"], lever["declared_m"]

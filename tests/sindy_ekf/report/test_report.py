@@ -265,6 +265,12 @@ def test_estimation_note_says_which_gnss_and_sensors_were_fused():
                                  "is the antenna swinging around the body origin in turns")
     rec["lever_arm_fit"]["differs"] = False
     assert "antenna" not in gnss_note(b)
+    assert "correlated" not in gnss_note(b)
+    rec["enu_to_local"]["errors_correlated_over_runs"] = True  # a standalone receiver's wandering bias
+    assert gnss_note(b).endswith("-29.998 +- 0.004 deg; the ground-truth poses of the 1 test runs are the truth. The "
+                                 "fixes' errors stay correlated over most of every run (a receiver bias wandering for "
+                                 "minutes), likely across runs too: the estimated rotation may be off by more than its "
+                                 "stated std")
 
 
 def test_evaluation_note_puts_the_cv_estimate_beside_the_test_score():
