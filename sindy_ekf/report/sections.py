@@ -315,7 +315,9 @@ def cv_note(model, test_pos_err_5s_m: float) -> str:
     inside = (f", inside the {100 * CV_PREDICTION_LEVEL:.0f} % prediction interval of one more held-out group "
               f"(+- {100 * cv.interval_m:.2f} cm)")
     if not cv.disagree:
-        return head + inside + ": the test runs are like the train groups."
+        wide = (f"; with {cv.n_folds} folds the interval is wider than the estimate itself, so the comparison says "
+                "little" if cv.interval_m > cv.cv_pos_err_5s_m else "")
+        return head + inside + ": nothing says the test runs are unlike the train groups" + wide + "."
     return (head + inside.replace(", inside", ", outside") + ": the test runs are NOT like the train groups (another "
             "day, ground or way of driving), and neither number speaks for the other.")
 
