@@ -223,8 +223,10 @@ def estimate_enu_to_local(p_enu: np.ndarray, p_local: np.ndarray, std_m: np.ndar
     ``local z - up``. The covariance of (yaw, t_x, t_y) is the Gauss-Newton one,
     ``sigma0^2 (J^T W J)^-1`` with the a posteriori variance factor ``sigma0^2``, widened to the
     cluster-robust one over blocks of each run as long as the residuals' :func:`correlation_time`
-    where that is larger (:func:`block_covariance`, :func:`widened`): a receiver's errors wander (a standalone fix's bias over minutes), and
-    a simulated standalone campaign's yaw came out 3.8 of its Gauss-Newton stds off.
+    where that is larger (:func:`block_covariance`, :func:`widened`): a receiver's errors wander (a
+    standalone fix's bias over minutes). A bias shared across runs shows in no block (a simulated
+    standalone campaign's yaw stayed 3.8 of its stated stds off): ``correlated_over_runs`` then says
+    that the stated uncertainty may be too small (:func:`correlated_over_runs`).
 
     Parameters
     ----------
