@@ -108,6 +108,16 @@ def _rewrite(path: Path, column: str, fn) -> None:
                                                  for i, v in enumerate(r.split(","))) for r in rows]) + "\n")
 
 
+def undeclared_lever_fit(traj_dir: Path, copy: Path) -> dict:
+    """Return the lever-arm fit of a copy of the campaign at ``copy`` without its ``sensors:`` (the
+    antenna's lever arm undeclared, so zero)."""
+    shutil.copytree(traj_dir, copy)
+    meta = yaml.safe_load((copy / "campaign.yaml").read_text())
+    meta.pop("sensors", None)
+    (copy / "campaign.yaml").write_text(yaml.safe_dump(meta))
+    return load_recorded_gnss(read_trajectory_campaign(copy)).lever_arm_fit
+
+
 def fault_results(tracker: Path, traj_dir: Path, work: Path) -> dict[str, str]:
     """Return, per fault, what the checks say of a copy of the campaign with that fault (``refused: ...``
     or ``NOT refused``; for the gyro, the first refusal over its runs)."""
@@ -137,11 +147,7 @@ def fault_results(tracker: Path, traj_dir: Path, work: Path) -> dict[str, str]:
         for p in gps.glob("runs/*/gnss.csv"):
             _rewrite(p, "t", lambda x, d=seconds: x + d)
         out[what] = refused(lambda: load_recorded_gnss(read_trajectory_campaign(gps)))
-    nolever = shutil.copytree(traj_dir, work / "nolever")
-    meta = yaml.safe_load((nolever / "campaign.yaml").read_text())
-    meta.pop("sensors", None)
-    (nolever / "campaign.yaml").write_text(yaml.safe_dump(meta))
-    fit = load_recorded_gnss(read_trajectory_campaign(nolever)).lever_arm_fit
+    fit = undeclared_lever_fit(traj_dir, work / "nolever")
     out["GNSS lever arm undeclared"] = (("refused" if fit["differs"] else "NOT refused")
                                         + f": named ({fit['estimated_m'][0]:+.2f}, {fit['estimated_m'][1]:+.2f}) m")
     camp = read_tracker_campaign(tracker)
@@ -164,11 +170,7 @@ def gnss_figures(tracker: Path, traj_dir: Path) -> dict:
     fit, lever = rec.lever_arm_fit, np.asarray(truth["lever_arm_body_m"][:2], float)
     d = np.asarray(fit["estimated_m"]) - lever
     yaw_err = float(np.degrees(rec.transform.yaw_rad) - truth["enu_to_local_yaw_deg"])
-    nolever = shutil.copytree(traj_dir, traj_dir.parent / (traj_dir.name + "_nolever"))
-    meta = yaml.safe_load((nolever / "campaign.yaml").read_text())
-    meta.pop("sensors", None)
-    (nolever / "campaign.yaml").write_text(yaml.safe_dump(meta))
-    named = load_recorded_gnss(read_trajectory_campaign(nolever)).lever_arm_fit["differs"]
+    named = undeclared_lever_fit(traj_dir, traj_dir.parent / (traj_dir.name + "_nolever"))["differs"]
     return {"differs": fit["differs"], "named": named, "lever_z": float(np.max(np.abs(d) / np.asarray(fit["std_m"]))),
             "yaw_z": abs(yaw_err) / float(np.degrees(np.sqrt(rec.transform.cov[0, 0]))),
             "correlated": rec.transform.correlated_over_runs}

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import pymap3d
 import scipy.stats
+from scipy.signal import fftconvolve
 
 from groundfloor.errors import InputError
 
@@ -153,14 +154,16 @@ def correlation_time(res: np.ndarray, groups: np.ndarray | None = None) -> float
     parts = [res[groups == g] for g in dict.fromkeys(groups.tolist())]
     den = float(np.sum(res ** 2)) / max(len(res), 1)
     longest = max((len(p) for p in parts), default=0)
-    tau = 1.0
-    for k in range(1, longest):
-        pairs = [(float(np.sum(p[k:] * p[:-k])), len(p) - k) for p in parts if len(p) > k]
-        rho = sum(a for a, _ in pairs) / sum(n for _, n in pairs) / den if den > 0 else 0.0
-        if not rho > 0.0:
-            break
-        tau += 2.0 * rho
-    return float(tau)
+    if longest < 2 or not den > 0:
+        return 1.0
+    products, pairs = np.zeros(longest), np.zeros(longest)  # per lag 0 .. longest - 1, pooled over the runs
+    for p in parts:  # the sums of r_i . r_(i+k) of a run at every lag at once (its autocorrelation by FFT)
+        n = len(p)
+        products[:n] += sum(fftconvolve(p[:, d], p[::-1, d])[n - 1:] for d in range(p.shape[1]))
+        pairs[:n] += np.arange(n, 0, -1)
+    rho = products[1:] / pairs[1:] / den
+    stop = np.flatnonzero(~(rho > 0.0))
+    return float(1.0 + 2.0 * rho[:stop[0] if stop.size else rho.size].sum())
 
 
 def correlated_over_runs(tau: float, groups: np.ndarray) -> bool:

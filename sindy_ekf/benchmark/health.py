@@ -129,14 +129,17 @@ def reset_state(x: np.ndarray, P0: np.ndarray, gnss, t_from: float) -> tuple[np.
 
 
 _PER_FIX = ("innovation", "innovation_cov", "r_scale")  # EkfResult's arrays with one row per fix
+# per grid step beyond the six states, where the result has them (the seven-state EKF's gyro bias)
+_PER_STEP_OPTIONAL = ("gyro_bias", "gyro_bias_std")
 
 
 def _cut(res: EkfResult, t_end: float) -> EkfResult:
     """Return ``res`` up to (excluding) ``t_end`` on its grid."""
     n = int(np.searchsorted(res.t, t_end - GRID_TOL_S))
     keep = res.nis_t < t_end - GRID_TOL_S
+    optional = {f: getattr(res, f)[:n] for f in _PER_STEP_OPTIONAL if getattr(res, f, None) is not None}
     return replace(res, t=res.t[:n], x=res.x[:n], P=res.P[:n], nis=res.nis[keep], nis_t=res.nis_t[keep],
-                   accepted=res.accepted[keep], outside_envelope=res.outside_envelope[:n],
+                   accepted=res.accepted[keep], outside_envelope=res.outside_envelope[:n], **optional,
                    **{f: getattr(res, f)[keep] for f in _PER_FIX if len(getattr(res, f)) == len(keep)})
 
 

@@ -20,7 +20,6 @@ step test, but does not re-initialise it: an alarm that is no step of the fixes 
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
 
 import numpy as np
 
@@ -99,14 +98,11 @@ def run_motion_ekfs(model, runs, campaign, kinds: tuple[str, ...], gate_prob: fl
 
 def monitored(model, run: EkfRun, res, status: RunStatus, gate_prob: float, lateral):
     """Return ``(result, status)`` of a seven-state EKF run after the NIS monitor (no re-initialisation):
-    cut at a divergence the innovations show, the gyro bias with it."""
+    cut at a divergence the innovations show (:func:`~sindy_ekf.benchmark.health.watch_nis`)."""
     if res is None or status.status != "ok" or run.gnss is None:
         return res, status
     cut, status = watch_nis(model, run, res, gate_prob, lateral, recover=False)
     if status.status != "ok":
-        n = len(cut.t)
-        cut = replace(cut, gyro_bias=None if cut.gyro_bias is None else cut.gyro_bias[:n],
-                      gyro_bias_std=None if cut.gyro_bias_std is None else cut.gyro_bias_std[:n])
         log.warning("%s: %s at t=%.2f s: %s", run.name, status.status, status.t_s, status.reason)
     return cut, status
 

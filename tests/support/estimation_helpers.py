@@ -7,10 +7,13 @@ fitted from one-step residuals of a separate training simulation) must be consis
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from groundfloor.dynamics import N_U, N_X, Dynamics
-from sindy_ekf.estimation.process_models import ProcessModel, StateSeries
+from simulation.gnss import PROFILES, simulate_gnss
+from sindy_ekf.estimation.process_models import ProcessModel, StateSeries, fit_process_noise
 
 ACCEL_STD = np.array([0.05, 0.02, 0.05])  # white acceleration noise density of the truth, SI/sqrt(s)
 
@@ -116,6 +119,20 @@ def simulate_truth(process, duration_s: float, rng, **kw) -> StateSeries:
     return simulate_truths(process, duration_s, rng, 1, **kw)[0]
 
 
+def fitted_oracle():
+    """Return the :class:`PolyBody` process model with its process noise fitted on four 30 s truth
+    runs (seed 100): the oracle the estimation and health tests filter with."""
+    model = ProcessModel(PolyBody(), name="oracle")
+    return fit_process_noise(model, simulate_truths(model, 30.0, np.random.default_rng(100), n_runs=4))
+
+
+def clean_dgnss(truth: StateSeries, seed: int, outages: np.ndarray | None = None):
+    """Return dgnss fixes of ``truth`` without multipath outliers (``simulation.gnss``), with ``outages``."""
+    return simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2],
+                         replace(PROFILES["dgnss"], outlier_prob=0.0), seed=seed,
+                         outages=np.empty((0, 2)) if outages is None else outages)
+
+
 def inputs_at(truth: StateSeries, t: np.ndarray) -> np.ndarray:
     """Return the truth's inputs held (zero-order) at the times ``t``."""
     idx = np.searchsorted(truth.t, t, side="right") - 1
@@ -133,17 +150,12 @@ NEES_EPOCHS = (1010.0, 1016.0, 1024.0)  # 6 s apart (errors decorrelated), one i
 def outage_runs(model, P0: np.ndarray, rng, n_runs: int = 24, duration_s: float = 26.0):
     """Return ``(truths, runs)``: truth runs of ``model`` and EKF runs under DGNSS without outliers
     with an outage from 1012 to 1020 s, each started from the truth perturbed by ``P0``."""
-    from dataclasses import replace
-
-    from simulation.gnss import PROFILES, simulate_gnss
     from sindy_ekf.estimation.ekf import EkfRun, estimation_grid
 
-    prof = replace(PROFILES["dgnss"], outlier_prob=0.0)
     truths = simulate_truths(model, duration_s, rng, n_runs=n_runs)
     runs = []
     for i, truth in enumerate(truths):
-        gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2], prof,
-                             seed=i, outages=np.array([[1012.0, 1020.0]]))
+        gnss = clean_dgnss(truth, seed=i, outages=np.array([[1012.0, 1020.0]]))
         t = estimation_grid(truth.t, gnss.t_valid)
         x0 = truth.x6[0] + rng.multivariate_normal(np.zeros(6), P0)
         runs.append(EkfRun(f"run_{i}", t, inputs_at(truth, t), x0, P0, gnss))

@@ -13,11 +13,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from simulation.gnss import PROFILES, simulate_gnss
 from sindy_ekf.benchmark.health import guarded_ekf_batch
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid, run_ekf_batch
-from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
-from tests.support.estimation_helpers import PolyBody, inputs_at, simulate_truth, simulate_truths
+from sindy_ekf.estimation.process_models import ProcessModel
+from tests.support.estimation_helpers import PolyBody, clean_dgnss, fitted_oracle, inputs_at, simulate_truth
 
 P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
 
@@ -35,11 +34,9 @@ class NanEastOf(PolyBody):
 
 
 def test_a_tail_that_diverges_after_a_reset_is_diverged_at_its_time_since_the_run_start():
-    oracle = ProcessModel(PolyBody(), name="oracle")
-    fitted = fit_process_noise(oracle, simulate_truths(oracle, 30.0, np.random.default_rng(100), n_runs=4))
+    fitted = fitted_oracle()
     truth = simulate_truth(fitted, 30.0, np.random.default_rng(7))
-    gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2],
-                         replace(PROFILES["dgnss"], outlier_prob=0.0), seed=1, outages=np.empty((0, 2)))
+    gnss = clean_dgnss(truth, seed=1)
     t_jump = truth.t[0] + 15.0
     p = gnss.p_local.copy()
     p[gnss.t_valid >= t_jump, 0] += 20.0

@@ -13,24 +13,20 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from simulation.gnss import PROFILES, simulate_gnss
 from sindy_ekf.benchmark.health import RunStatus
 from sindy_ekf.benchmark.motion_source import monitored
 from sindy_ekf.estimation.ekf import EkfRun, estimation_grid
 from sindy_ekf.estimation.ekf_motion import MotionSensors, run_ekf_motion
-from sindy_ekf.estimation.process_models import ProcessModel, fit_process_noise
-from tests.support.estimation_helpers import PolyBody, inputs_at, simulate_truth, simulate_truths
+from tests.support.estimation_helpers import clean_dgnss, fitted_oracle, inputs_at, simulate_truth
 
 P0 = np.diag([0.05, 0.05, 0.02, 0.05, 0.02, 0.05]) ** 2
 
 
 @pytest.fixture(scope="module")
 def setting():
-    model = ProcessModel(PolyBody(), name="oracle")
-    model = fit_process_noise(model, simulate_truths(model, 30.0, np.random.default_rng(100), n_runs=4))
+    model = fitted_oracle()
     truth = simulate_truth(model, 90.0, np.random.default_rng(5))
-    gnss = simulate_gnss(truth.t, truth.x6[:, 0], truth.x6[:, 1], truth.x6[:, 2],
-                         replace(PROFILES["dgnss"], outlier_prob=0.0), seed=5, outages=np.empty((0, 2)))
+    gnss = clean_dgnss(truth, seed=5)
     t = estimation_grid(truth.t, gnss.t_valid)
     return model, truth, gnss, t, inputs_at(truth, t)
 
