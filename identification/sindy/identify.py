@@ -60,6 +60,7 @@ from identification.sindy.evaluate import Windows
 from identification.sindy.library import LIBRARY_VARIABLE_NAMES
 from identification.sindy.model import SindyModel
 from identification.sindy.output_error import OE_DT, OE_MAX_WINDOWS, OE_WINDOW_S, OutputErrorFit
+from identification.sindy.regression import check_pose_spacing
 from identification.sindy.reference import (
     Folds,
     Reference,
@@ -300,6 +301,7 @@ def identify(runs: Sequence[TrajectoryRun], grid: SearchGrid = DEFAULT_GRID, n_j
     ``n_jobs`` (a number of local processes or :class:`groundfloor.parallel.Workers`) share the
     screening's grid and the folds of the output-error stage.
     """
+    check_pose_spacing([r.poses.t for r in runs], [r.name for r in runs], "train runs")
     runs, blocked = blocks_of_single_run(runs, grid.n_folds)
     ref = reference(runs)
     folds = cv_folds(ref.groups, ref.run_index, grid.n_folds)

@@ -391,8 +391,13 @@ def fit_output_error(model: ParametricModel, theta0: np.ndarray, windows: Window
 
     # the optimiser sees the (n + 1)-row problem of compressed(): the same cost, gradient and
     # Gauss-Newton matrix at every point, without an SVD of the tall Jacobian per step
-    sol = least_squares(lambda x: evaluate(x)[3], x0, jac=lambda x: evaluate(x)[4], bounds=(lower, upper),
-                        method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-8, ftol=1e-6)
+    # (a parameter the windows barely move, a dead time of an input that hardly changes, has a huge
+    # x_scale="jac" scale: the bounded trust-region step's quadratic for the reflected step then
+    # overflows inside scipy; that only decides how far a reflected step may go, and the step taken
+    # is judged by the cost like every other: a warning on the user's terminal and nothing else)
+    with np.errstate(over="ignore"):
+        sol = least_squares(lambda x: evaluate(x)[3], x0, jac=lambda x: evaluate(x)[4], bounds=(lower, upper),
+                            method="trf", x_scale="jac", max_nfev=max_nfev, xtol=1e-8, ftol=1e-6)
     r, J, bad = evaluate(sol.x)[:3]
     n_w = windows.n_windows
     per = J.shape[0] // n_w

@@ -8,7 +8,8 @@ matrix is built here and plain arrays go to ``pysindy.optimizers.STLSQ``:
   ``[t_j, t_j + tau]`` is one subtraction: ``Theta'_j = C(t_end) - C(t_j)`` (eq. 5.56);
 - targets ``Delta x_j = x(t_end) - x(t_j)`` (eq. 5.55);
 - every sample starts a window; windows that would cross a run's end or a gap in the data
-  longer than ``max_gap_s`` are dropped.
+  longer than ``max_gap_s`` (:data:`MAX_WINDOW_STEP_S`) are dropped, so poses further apart than
+  that in every run leave no window: :func:`check_pose_spacing` says so before the work starts.
 
 The ridge problems of STLSQ only see ``Theta'`` through its Gram matrix, so a thin QR
 factorisation ``Theta' = Q R`` turns the (windows x features) problem into the equivalent
@@ -87,6 +88,25 @@ class IntegralProblem:
         return r, c
 
 
+#: an integral window never spans a step between samples longer than this, s (the trapezoid of a
+#: longer one is no integral of the motion: a turn of a skid-steered robot settles within it)
+MAX_WINDOW_STEP_S = 0.2
+
+
+def check_pose_spacing(times: Sequence[np.ndarray], names: Sequence[str], what: str,
+                       max_step_s: float = MAX_WINDOW_STEP_S) -> None:
+    """Raise a one-line InputError when the sample times ``times`` (one array per run) are more
+    than ``max_step_s`` apart (median over all runs): poses so sparse (GNSS at 2 Hz, say) that
+    almost every integral window would cross a step longer than its integral allows, and nothing
+    would be fitted."""
+    steps = np.concatenate([np.diff(np.asarray(t, dtype=float)) for t in times] or [np.empty(0)])
+    median = float(np.median(steps)) if steps.size else float("nan")
+    if median > max_step_s:
+        raise InputError(f"{what} {', '.join(names)}: poses {1e3 * median:.0f} ms apart (median): the integral "
+                         f"windows never cross a step longer than {1e3 * max_step_s:.0f} ms; give poses at "
+                         f"{1 / max_step_s:.0f} Hz or more")
+
+
 def check_states(states: Sequence[BodyStates], names: Sequence[str], allow_constant: Sequence[str] = ()) -> None:
     """Raise InputError if a run has missing values or the inputs cannot be identified.
 
@@ -113,7 +133,7 @@ def check_states(states: Sequence[BodyStates], names: Sequence[str], allow_const
 
 
 def integral_problem(states: Sequence[BodyStates], library: FeatureLibrary | str = "poly3", tau: float = 3.0,
-                     names: Sequence[str] | None = None, max_gap_s: float = 0.2,
+                     names: Sequence[str] | None = None, max_gap_s: float = MAX_WINDOW_STEP_S,
                      allow_constant: Sequence[str] = ()) -> IntegralProblem:
     """Return the integral regression problem of eqs. 5.55 to 5.57 over several runs.
 

@@ -21,6 +21,7 @@ from groundfloor.errors import InputError
 from groundfloor.input_chain import sees_recorded_inputs
 from groundfloor.types import BodyStates
 from identification.sindy.library import LIBRARY_INPUT_NAMES, LIBRARY_STATE_NAMES
+from identification.sindy.regression import MAX_WINDOW_STEP_S, check_pose_spacing
 from identification.sindy.reference import delayed_inputs
 
 log = logging.getLogger(__name__)
@@ -106,7 +107,7 @@ class Split:
 
 
 def split_from_states(states: Sequence[BodyStates], names: Sequence[str], tau: float, stride_s: float = 0.1,
-                      max_gap_s: float = 0.2, what: str = "runs") -> Split:
+                      max_gap_s: float = MAX_WINDOW_STEP_S, what: str = "runs") -> Split:
     """Return the runs ``states`` stacked as a :class:`Split` with windows of ``tau`` seconds.
 
     Windows that would cross a run's end or a gap longer than ``max_gap_s`` are dropped.
@@ -118,6 +119,7 @@ def split_from_states(states: Sequence[BodyStates], names: Sequence[str], tau: f
     """
     if not len(states):
         raise InputError(f"{what}: no runs")
+    check_pose_spacing([st.t for st in states], names, what, max_gap_s)
     cols = {k: [] for k in ("run", "t", "pose", "v", "u", "dt")}
     starts, ends, offset = [], [], 0
     for i, (st, name) in enumerate(zip(states, names)):
