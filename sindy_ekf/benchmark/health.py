@@ -83,6 +83,7 @@ class RunStatus:
     reason: str = ""  # one line, empty when ok
     recoveries: int = 0
     fix_steps: int = 0  # alarms explained by a step of the fixes (no reset)
+    pd_repairs: int = 0  # covariances repaired after losing positive definiteness (eigenvalues clipped)
 
 
 def nis_alarm(nis: np.ndarray, gate_nis: float, window: int = NIS_WINDOW, dof: int = 2,
@@ -291,13 +292,14 @@ def combined_status(statuses: dict[str, RunStatus]) -> RunStatus:
     worst = max(statuses.items(), key=lambda kv: STATUS_ORDER.index(kv[1].status), default=(None, RunStatus()))
     recoveries = sum(s.recoveries for s in statuses.values())
     steps = sum(s.fix_steps for s in statuses.values())
+    repairs = sum(s.pd_repairs for s in statuses.values())
     run, s = worst
     if s.status == "ok":
-        return RunStatus(recoveries=recoveries, fix_steps=steps)
+        return RunStatus(recoveries=recoveries, fix_steps=steps, pd_repairs=repairs)
     others = sum(1 for v in statuses.values() if v.status != "ok") - 1
     more = f" (and {others} other run(s))" if others > 0 else ""
     reason = s.reason if s.reason.startswith(run) else f"{run}: {s.reason}"
-    return RunStatus(s.status, s.t_s, f"{reason}{more}", recoveries, steps)
+    return RunStatus(s.status, s.t_s, f"{reason}{more}", recoveries, steps, repairs)
 
 
 def empty_score(runtime_s: float) -> Score:
@@ -324,7 +326,7 @@ def score_partial(estimates: dict[str, Estimate], truth: dict[str, np.ndarray], 
     else:
         score, curves = empty_score(runtime_s), {}
     return replace(score, status=status.status, t_s=status.t_s, reason=status.reason,
-                   recoveries=status.recoveries), curves
+                   recoveries=status.recoveries, pd_repairs=status.pd_repairs), curves
 
 
 def split_short_runs(runs, min_s: float = MIN_RUN_S) -> tuple[list, dict[str, str]]:

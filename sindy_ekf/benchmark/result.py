@@ -44,6 +44,7 @@ class Score:
     t_s: float = float("nan")  # s since the run's start where it diverged or failed (NaN when ok)
     reason: str = ""  # one line naming the run, empty when ok
     recoveries: int = 0  # covariance re-initialisations after a NIS alarm, over all runs
+    pd_repairs: int = 0  # covariances repaired after losing positive definiteness, over all runs
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -321,7 +321,8 @@ def benchmark_campaign(campaign, sindy_body, profile: str | None = None, seed: i
                 r.t_pose[:n], res.x[r.at_pose[:n]] if n else np.empty((0, 6)),
                 res.P[r.at_pose[:n]] if n else np.empty((0, 6, 6)),
                 getattr(res, "nis", np.empty(0)) if n else np.empty(0))
-            statuses[name][r.name] = status
+            # a filter's covariance repairs (logged once per filter) are counted with its status
+            statuses[name][r.name] = replace(status, pd_repairs=int(getattr(res, "pd_repairs", 0) or 0))
 
     fitted_vy_std: list[float] = []  # the train runs' v_y std, fitted once when first asked for
 

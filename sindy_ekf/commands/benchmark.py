@@ -60,6 +60,7 @@ def format_scores(result: BenchmarkResult) -> str:
         cells = "".join(_cell(s.outage_pos_err_m.get(d, float("nan")), 11, 3) for d in durations)
         status = s.status + (f" at {s.t_s:.2f} s" if s.status != "ok" else "")
         status += f" ({s.recoveries} re-init)" if s.recoveries else ""
+        status += f" ({s.pd_repairs} covariance repairs)" if s.pd_repairs else ""
         lines.append(f"{name:<20}{_cell(s.ate_pos_m, 8, 3)}{_cell(s.ate_yaw_deg, 9, 2)}{cells}"
                      f"{_cell(s.nees_mean, 8, 2)}{_cell(s.nis_mean, 7, 2)}{s.runtime_s:>11.1f}  {status}")
     return "\n".join(lines)

@@ -147,7 +147,11 @@ class ModelEKF(ExtendedKalmanFilter):
         P, repaired = repair_covariance(P)
         if repaired:
             self.pd_repairs += 1
-            log.warning("%s EKF: %s; eigenvalues clipped (repair %d)", self.model.name, what, self.pd_repairs)
+            # the first of a filter's repairs is worth a line on the terminal; the rest are counted
+            # (EkfResult.pd_repairs; the benchmark's pd_repairs and status column)
+            log.log(logging.WARNING if self.pd_repairs == 1 else logging.DEBUG,
+                    "%s EKF: %s; eigenvalues clipped (repair %d%s)", self.model.name, what, self.pd_repairs,
+                    "; further repairs are counted, not logged" if self.pd_repairs == 1 else "")
         return P
 
     def predict(self, u=np.zeros(2), t: float = 0.0, dt: float = 0.02) -> np.ndarray:
@@ -391,8 +395,10 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
                     if repaired:
                         s = ss[i]
                         s.ekf.pd_repairs += 1
-                        log.warning("%s: predicted covariance lost positive definiteness at t=%.2f s; "
-                                    "eigenvalues clipped (repair %d)", s.name, t_rel[k + 1, i], s.ekf.pd_repairs)
+                        log.log(logging.WARNING if s.ekf.pd_repairs == 1 else logging.DEBUG,
+                                "%s: predicted covariance lost positive definiteness at t=%.2f s; eigenvalues "
+                                "clipped (repair %d%s)", s.name, t_rel[k + 1, i], s.ekf.pd_repairs,
+                                "; further repairs are counted, not logged" if s.ekf.pd_repairs == 1 else "")
         X[k + 1, :a], P[k + 1, :a], M[k, :a] = x_next, P_next, F
         for i in fixes_at.get(k + 1, ()):
             ss[i].apply_fixes(k + 1)
