@@ -109,6 +109,14 @@ def inverse_2x2(S: np.ndarray) -> np.ndarray:
     return np.array([[d / det, -b / det], [-c / det, a / det]])
 
 
+def log_repair(count: int, what: str) -> None:
+    """Log a filter's ``count``-th covariance repair (``what`` happened): the first as a warning, the
+    rest at debug level (they are counted: ``EkfResult.pd_repairs``, the benchmark's ``pd_repairs``)."""
+    first = count == 1
+    log.log(logging.WARNING if first else logging.DEBUG, "%s; eigenvalues clipped (repair %d%s)", what, count,
+            "; further repairs are counted, not logged" if first else "")
+
+
 def repair_covariance(P: np.ndarray, min_eig: float = 1e-12) -> tuple[np.ndarray, bool]:
     """Return ``P`` symmetrised and, if not positive definite, with eigenvalues clipped; and
     whether a repair was needed."""
@@ -147,11 +155,7 @@ class ModelEKF(ExtendedKalmanFilter):
         P, repaired = repair_covariance(P)
         if repaired:
             self.pd_repairs += 1
-            # the first of a filter's repairs is worth a line on the terminal; the rest are counted
-            # (EkfResult.pd_repairs; the benchmark's pd_repairs and status column)
-            log.log(logging.WARNING if self.pd_repairs == 1 else logging.DEBUG,
-                    "%s EKF: %s; eigenvalues clipped (repair %d%s)", self.model.name, what, self.pd_repairs,
-                    "; further repairs are counted, not logged" if self.pd_repairs == 1 else "")
+            log_repair(self.pd_repairs, f"{self.model.name} EKF: {what}")
         return P
 
     def predict(self, u=np.zeros(2), t: float = 0.0, dt: float = 0.02) -> np.ndarray:
@@ -395,10 +399,8 @@ def run_ekf_batch(model: ProcessModel, runs: list[EkfRun], gate_prob: float = GA
                     if repaired:
                         s = ss[i]
                         s.ekf.pd_repairs += 1
-                        log.log(logging.WARNING if s.ekf.pd_repairs == 1 else logging.DEBUG,
-                                "%s: predicted covariance lost positive definiteness at t=%.2f s; eigenvalues "
-                                "clipped (repair %d%s)", s.name, t_rel[k + 1, i], s.ekf.pd_repairs,
-                                "; further repairs are counted, not logged" if s.ekf.pd_repairs == 1 else "")
+                        log_repair(s.ekf.pd_repairs, f"{s.name}: predicted covariance lost positive "
+                                                     f"definiteness at t={t_rel[k + 1, i]:.2f} s")
         X[k + 1, :a], P[k + 1, :a], M[k, :a] = x_next, P_next, F
         for i in fixes_at.get(k + 1, ()):
             ss[i].apply_fixes(k + 1)
