@@ -93,7 +93,9 @@ def plot_error_bands(result: BenchmarkResult, run: str | None = None,
     the fixes' errors (moved to the body origin), outages shaded.
     """
     run = run or next(iter(result.truth))
-    names = [n for n in estimators if n in result.estimates] or list(result.estimates)[:1]
+    # an estimator that diverged at once has no estimate to draw: the first that has one stands in
+    reached = [n for n, runs in result.estimates.items() if run in runs and len(runs[run].t) > 1]
+    names = [n for n in estimators if n in reached] or reached[:1] or list(result.estimates)[:1]
     tr = result.truth[run]
     t0, gap_s = tr[0, 0], gap_threshold_s(tr[:, 0])
     colors = _colors(result)

@@ -46,6 +46,13 @@ class Score:
     recoveries: int = 0  # covariance re-initialisations after a NIS alarm, over all runs
     pd_repairs: int = 0  # covariances repaired after losing positive definiteness, over all runs
 
+    def status_text(self) -> str:
+        """Return how the estimator ended in a few words: ``ok``, ``diverged at 12.30 s``, with its
+        re-initialisations and covariance repairs when it had any (the reason is :attr:`reason`)."""
+        text = self.status + (f" at {self.t_s:.2f} s" if self.status != "ok" else "")
+        text += f" ({self.recoveries} re-init)" if self.recoveries else ""
+        return text + (f" ({self.pd_repairs} covariance repairs)" if self.pd_repairs else "")
+
 
 @dataclass(frozen=True)
 class BenchmarkResult:

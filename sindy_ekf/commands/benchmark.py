@@ -58,11 +58,8 @@ def format_scores(result: BenchmarkResult) -> str:
              f"alignment {result.alignment}", head + f"{'NEES':>8}{'NIS':>7}{'runtime s':>11}  status"]
     for name, s in result.scores.items():
         cells = "".join(_cell(s.outage_pos_err_m.get(d, float("nan")), 11, 3) for d in durations)
-        status = s.status + (f" at {s.t_s:.2f} s" if s.status != "ok" else "")
-        status += f" ({s.recoveries} re-init)" if s.recoveries else ""
-        status += f" ({s.pd_repairs} covariance repairs)" if s.pd_repairs else ""
         lines.append(f"{name:<20}{_cell(s.ate_pos_m, 8, 3)}{_cell(s.ate_yaw_deg, 9, 2)}{cells}"
-                     f"{_cell(s.nees_mean, 8, 2)}{_cell(s.nis_mean, 7, 2)}{s.runtime_s:>11.1f}  {status}")
+                     f"{_cell(s.nees_mean, 8, 2)}{_cell(s.nis_mean, 7, 2)}{s.runtime_s:>11.1f}  {s.status_text()}")
     return "\n".join(lines)
 
 

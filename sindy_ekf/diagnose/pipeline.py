@@ -300,6 +300,14 @@ def confirm_on_train(model, ranked: list[RankedCause], tr, weights, train, train
     return sorted(out, key=order_key), extended
 
 
+class ModelDiverges(InputError):
+    """The model's every 5 s prediction of the test runs diverges (:func:`diagnose_states`)."""
+
+    def __init__(self, detail: str):
+        super().__init__(f"the model: {detail}")
+        self.detail = detail
+
+
 def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequence[BodyStates],
                     train_names: Sequence[str], test_names: Sequence[str], families: Sequence[str] = FAMILIES,
                     ekf: bool = False, tau: float | None = None, thresholds: dict | None = None,
@@ -317,12 +325,22 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     Raises
     ------
     InputError
-        Model trained on other variables, no or too short test runs, no train runs.
+        Model trained on other variables, no or too short test runs, no train runs, a model whose
+        every 5 s prediction of the test runs diverges.
     """
     check_model_inputs(model)
     check_scorable(test, test_names)
     if not len(train):
         raise InputError("campaign: no runs marked train, nothing to fit a mechanism on")
+    # what the model gets wrong is measured against what it predicts: with every prediction diverged
+    # there is no error to explain, and every family's gain would be judged on no window at all
+    t0 = time.perf_counter()
+    res_before, windows = multistep_errors_by_window(model, test, test_names)  # end states kept for the structure
+    if len(windows.t0) and n_diverged(res_before) == len(windows.t0):
+        raise ModelDiverges(f"its 5 s prediction diverges in every window of the test runs ({len(windows.t0)} of "
+                            f"{len(windows.t0)}): nothing to diagnose; a model identify selects passes the "
+                            "well-posedness checks that rule this out")
+    predicted_s = time.perf_counter() - t0
     seconds = {}
     t0 = time.perf_counter()
     tau = float(tau or model.hyperparameters.get("tau") or 2.0)
@@ -339,7 +357,6 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
     name = verdict(ranked)
     seconds["cause"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res_before, windows = multistep_errors_by_window(model, test, test_names)  # end states kept for the structure
     extended, res_after = None, res_before
     if name != "none":
         null_model = with_input_gains(model, gains)  # the input-side families' null, as scored
@@ -380,7 +397,7 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
                    else ExtendedModel.added(model, c.name, c.score.theta, c.score.beta, dict(c.score.estimate),
                                             c.score.uniform))
             others[c.name] = errors_5s(res_before, multistep(ext, test, test_names))[1]
-    seconds["multistep"] = time.perf_counter() - t0
+    seconds["multistep"] = predicted_s + time.perf_counter() - t0
     t0 = time.perf_counter()
     structure = residual_structure(model, te)
     lag = lag_profile(model, te)
@@ -426,5 +443,8 @@ def diagnose_campaign(campaign, model_path, ekf: bool = True, families: Sequence
                          "(give --train CAMPAIGN, e.g. the campaign the model was identified on)")
     train, train_names, _ = states_of_runs(train_runs, s)
     test, test_names, _ = states_of_runs(test_runs, s)
-    d = diagnose_states(model, train, test, train_names, test_names, families=families, ekf=ekf, workers=workers)
+    try:
+        d = diagnose_states(model, train, test, train_names, test_names, families=families, ekf=ekf, workers=workers)
+    except ModelDiverges as exc:  # name the file
+        raise InputError(f"{model_path}: {exc.detail}") from None
     return dataclasses.replace(d, measurement=tuple(measurement_findings(camp.root)))

@@ -81,8 +81,8 @@ def binned_effect(residual: np.ndarray, regressor: np.ndarray, name: str, n_bins
     r, x = residual[ok], regressor[ok]
     if circular:
         edges = np.linspace(-np.pi, np.pi, n_bins + 1)
-    else:
-        edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1)))
+    else:  # (no finite residual at all, every prediction of a diverging model: no bins)
+        edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1))) if len(x) else np.empty(0)
     if len(edges) < 2:  # a constant regressor (a model without a lateral law: vy = 0) explains nothing
         edges = np.array([x.min(), x.min() + 1.0]) if len(x) else np.array([0.0, 1.0])
     idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)

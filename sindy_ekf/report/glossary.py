@@ -68,6 +68,10 @@ TERMS = {
             "covariance, chi2(3) for a consistent estimator (mean 3)",
     "NIS": "normalised innovation squared of the accepted fixes, chi2(2) for a consistent filter",
     "x real time": "seconds of data processed per second of computing",
+    "status": "how the estimator ended: ok, diverged (its innovations stayed beyond their chi-square bound, or its "
+              "state became non-finite) or failed (it raised an error), at the time given; it is scored up to there. "
+              "re-init counts re-initialisations from the next fix after an NIS alarm, covariance repairs the "
+              "covariances that lost positive definiteness and had their eigenvalues clipped",
     # diagnosis
     "test gain": "how much the family, fitted on the train runs, lowers the weighted residual sum of squares of the "
                  "test runs; a family counts only above its threshold",

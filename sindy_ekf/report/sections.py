@@ -371,10 +371,13 @@ def section_estimation(sec: Section, chain: ChainResult) -> None:
     rows = [[n, f"{sc.ate_pos_m:.3f}", f"{sc.ate_yaw_deg:.2f}",
              *[f"{sc.outage_pos_err_m[d]:.3f}" if d in sc.outage_pos_err_m else "-" for d in durations],
              f"{sc.nees_mean:.2f}", f"{100 * sc.nees_inside_95:.0f}", f"{sc.runtime_s:.2f}",
-             f"{sc.realtime_factor:.0f}"] for n, sc in b.scores.items()]
+             f"{sc.realtime_factor:.0f}", sc.status_text()] for n, sc in b.scores.items()]
     sec.add(table_html(["estimator", "ATE pos m", "ATE yaw deg", *[f"end of {d} s outage m" for d in durations],
-                        "NEES mean", "NEES in 95 % %", "runtime s", "x real time"], rows))
-    sec.add(terms_html([*b.scores, "ATE", "end of outage", "NEES", "x real time"]))
+                        "NEES mean", "NEES in 95 % %", "runtime s", "x real time", "status"], rows))
+    for n, sc in b.scores.items():  # a row not ok is scored up to its end: say why it ended
+        if sc.status != "ok":
+            sec.note(f"{n} {sc.status} at {sc.t_s:.2f} s: {sc.reason}; its scores cover the time before.")
+    sec.add(terms_html([*b.scores, "ATE", "end of outage", "NEES", "x real time", "status"]))
     first = next(iter(b.truth))
     sec.figures([(lambda: plot_trajectories(b), "trajectories of the test runs with the GNSS fixes, outages marked"),
                  (lambda: plot_error_bands(b), f"run {first}: errors against the truth with each estimator's "
