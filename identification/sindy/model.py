@@ -334,7 +334,13 @@ class SindyModel(Dynamics):
         if version == 1:
             log.warning("%s: a model of format 1 (no dead time, no well-posedness checks, polynomial "
                         "extrapolation); re-identify it with this version for the checks", source)
-        lib_name = (d.get("library") or {}).get("name")
+        for key, expected in (("state_names", LIBRARY_STATE_NAMES), ("input_names", LIBRARY_INPUT_NAMES)):
+            got = d.get(key)  # a model of other variables cannot run on a campaign's states and inputs
+            if got is not None and (not isinstance(got, list) or got != list(expected)):
+                raise InputError(f"{source}: model trained on {key.split('_')[0]}s {got!r}, but a campaign provides "
+                                 f"{list(expected)}")
+        lib = d.get("library")
+        lib_name = lib.get("name") if isinstance(lib, dict) else lib  # the name alone, as a user may write it
         try:
             library = make_library(lib_name)
         except InputError:
@@ -360,10 +366,13 @@ class SindyModel(Dynamics):
             input_lag = tuple(float(v) for v in d.get("input_lag_s") or (0.0, 0.0))
         except (TypeError, ValueError):
             raise InputError(f"{source}: key input_lag_s is malformed ({d.get('input_lag_s')!r})") from None
-        return cls(library=library, coef=coef, hyperparameters=dict(d.get("hyperparameters") or {}),
-                   envelope=dict(d.get("envelope") or {}), training=dict(d.get("training") or {}),
-                   version=str(d.get("package_version", "")), dead_time_s=dead_time, input_lag_s=input_lag,
-                   extrapolation=str(d.get("extrapolation") or "polynomial"), checks=dict(d.get("checks") or {}))
+        try:
+            return cls(library=library, coef=coef, hyperparameters=dict(d.get("hyperparameters") or {}),
+                       envelope=dict(d.get("envelope") or {}), training=dict(d.get("training") or {}),
+                       version=str(d.get("package_version", "")), dead_time_s=dead_time, input_lag_s=input_lag,
+                       extrapolation=str(d.get("extrapolation") or "polynomial"), checks=dict(d.get("checks") or {}))
+        except InputError as exc:  # the model's own checks (dead times, lags): name the file
+            raise InputError(f"{source}: {exc}") from None
 
     @classmethod
     def load(cls, path: str | Path) -> "SindyModel":

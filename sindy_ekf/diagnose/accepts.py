@@ -26,15 +26,7 @@ def check_model_inputs(model, source: str = "model") -> None:
 def load_model(path) -> SindyModel:
     """Return the SINDy model in ``path``, checking first that it was trained on inputs ``u1, u2``."""
     path = Path(path)
-    d = read_model_json(path)
-    if isinstance(d, dict):
-        ins, sts = d.get("input_names"), d.get("state_names")
-        if ins is not None and list(ins) != list(LIBRARY_INPUT_NAMES):
-            raise InputError(f"{path}: model trained on inputs {list(ins)}, but a campaign provides "
-                             f"{list(LIBRARY_INPUT_NAMES)}")
-        if sts is not None and list(sts) != list(LIBRARY_STATE_NAMES):
-            raise InputError(f"{path}: model trained on states {list(sts)}, expected {list(LIBRARY_STATE_NAMES)}")
-    model = SindyModel.from_dict(d, source=str(path))
+    model = SindyModel.from_dict(read_model_json(path), source=str(path))  # its state and input names checked there
     check_model_inputs(model, str(path))
     return model
 

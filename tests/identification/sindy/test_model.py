@@ -133,6 +133,30 @@ def test_load_rejects_feature_names_of_another_library(tmp_path):
         SindyModel.load(_write(tmp_path, d))
 
 
+@pytest.mark.parametrize("key, value, message", [
+    ("input_names", ["throttle", "steer"], r"bad\.json: model trained on inputs \['throttle', 'steer'\], but a "
+                                           r"campaign provides \['u1', 'u2'\]"),
+    ("state_names", ["vx", "vy", "yaw_rate"], r"bad\.json: model trained on states \['vx', 'vy', 'yaw_rate'\]"),
+    ("input_names", "u1,u2", r"bad\.json: model trained on inputs 'u1,u2'"),
+    ("library", "fourier7", r"bad\.json: library 'fourier7' is unknown"),  # the name alone, not a dict
+    ("dead_time_s", [-0.1, 0.0], r"bad\.json: model dead_time_s \(-0\.1, 0\.0\): expected two finite values >= 0"),
+])
+def test_load_names_the_file_and_the_key_of_a_hand_edited_model(tmp_path, key, value, message):
+    # evaluate, benchmark and report read models here: a model of other variables ran there silently,
+    # a library given by name alone ended in an AttributeError, a negative dead time named no file
+    d = random_model("poly2").to_dict()
+    d[key] = value
+    with pytest.raises(InputError, match=message):
+        SindyModel.load(_write(tmp_path, d))
+
+
+def test_a_library_given_by_its_name_alone_loads():
+    d = random_model("poly2").to_dict()
+    d["library"] = "poly2"
+    m = SindyModel.from_dict(d)
+    np.testing.assert_array_equal(m.coef, random_model("poly2").coef)
+
+
 def test_load_names_a_missing_file(tmp_path):
     with pytest.raises(InputError, match="nothere.json"):
         SindyModel.load(tmp_path / "nothere.json")
