@@ -1,7 +1,7 @@
 """False alarms of the diagnosis on clean real data, beyond the two shipped splits (issue 15, must-show 1).
 
 Usage: ``.venv/bin/python -m bench.bench_real_clean [--jobs 2]`` from the checkout; writes
-``bench/results/real_clean.md`` (and ``real_clean.json``; about ten minutes).
+``bench/results/real_clean.md`` (and ``real_clean.json``; about five minutes).
 
 ``bench.bench_inject_real`` diagnoses each shared Warthog campaign once clean, with the train/test
 split it ships with, and the thresholds were calibrated with those clean runs among the effect-free
@@ -29,15 +29,15 @@ import shutil
 import sys
 import tempfile
 import time
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-import yaml
 
 from bench.publish import publish
 from groundfloor.files import atomic_write_json
 from identification.preprocessing.campaigns import open_campaign
+from identification.preprocessing.trajectory import write_trajectory_campaign
 from identification.sindy.reference import run_group
 
 HERE = Path(__file__).resolve().parent
@@ -45,29 +45,28 @@ SHARED = HERE.parent.parent / "shared" / "data"
 CAMPAIGNS = ("warthog-drive-cmd", "warthog-drive-wheels")
 
 
-def _write(src: Path, out: Path, runs: list[tuple[str, str, str, float, float]]) -> Path:
-    """Write a trajectory campaign at ``out`` from ``src``'s runs: ``(new name, source run, split, t_from,
-    t_to)`` keeps the source run's poses and inputs with ``t_from <= t - t0 < t_to`` (``t0`` its first pose)."""
-    meta = yaml.safe_load((src / "campaign.yaml").read_text())
-    meta["runs"] = []
+def _take(track, keep: np.ndarray):
+    """Return a pose track or input series with the samples where ``keep``."""
+    return type(track)(**{f.name: np.asarray(getattr(track, f.name))[keep] for f in fields(track)})
+
+
+def _write(camp, out: Path, runs: list[tuple[str, str, str, float, float]]) -> Path:
+    """Write a trajectory campaign at ``out`` (``write_trajectory_campaign``) from the runs of ``camp``:
+    ``(new name, source run, split, t_from, t_to)`` keeps the source run's poses and inputs with
+    ``t_from <= t - t0 < t_to`` (``t0`` its first pose)."""
+    by_name = {r.name: r for r in camp.runs}
+    made = []
     for name, source, split, lo, hi in runs:
-        poses = pd.read_csv(src / "runs" / source / "poses.csv")
-        inputs = pd.read_csv(src / "runs" / source / "inputs.csv")
-        t0 = float(poses.t.iloc[0])
-        keep_p = (poses.t - t0 >= lo) & (poses.t - t0 < hi)
-        keep_u = (inputs.t - t0 >= lo) & (inputs.t - t0 < hi)
-        d = out / "runs" / name
-        d.mkdir(parents=True)
-        poses[keep_p].to_csv(d / "poses.csv", index=False)
-        inputs[keep_u].to_csv(d / "inputs.csv", index=False)
-        meta["runs"].append({"name": name, "split": split})
-    (out / "campaign.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
-    return out
+        r = by_name[source]
+        t0 = float(r.poses.t[0])
+        poses = _take(r.poses, (r.poses.t - t0 >= lo) & (r.poses.t - t0 < hi))
+        inputs = _take(r.inputs, (r.inputs.t - t0 >= lo) & (r.inputs.t - t0 < hi))
+        made.append((replace(r, name=name, split=split, poses=poses, inputs=inputs, repairs={}), None))
+    return write_trajectory_campaign(out, camp.name, made)
 
 
-def splits(src: Path) -> dict[str, list[tuple[str, str, str, float, float]]]:
-    """Return every clean configuration of the module docstring for campaign ``src``."""
-    camp = open_campaign(src)
+def splits(camp) -> dict[str, list[tuple[str, str, str, float, float]]]:
+    """Return every clean configuration of the module docstring for the opened campaign ``camp``."""
     inf = float("inf")
     out = {"shipped": [(r.name, r.name, r.split, -inf, inf) for r in camp.runs]}
     days = list(dict.fromkeys(run_group(r) for r in camp.runs))
@@ -88,15 +87,15 @@ def splits(src: Path) -> dict[str, list[tuple[str, str, str, float, float]]]:
     return out
 
 
-def one(src: Path, label: str, runs, work: Path, jobs: int) -> dict:
+def one(camp, label: str, runs, work: Path, jobs: int) -> dict:
     """Identify and diagnose one clean configuration; return its record (the error, when a step fails)."""
     from sindy_ekf import cli
     from sindy_ekf.diagnose.pipeline import diagnose_campaign
 
-    root = _write(src, work / "campaign", runs)
+    root = _write(camp, work / "campaign", runs)
     model = work / "model.json"
     t0 = time.perf_counter()
-    rec = {"campaign": src.name, "split": label, "n_train": sum(s == "train" for _, _, s, _, _ in runs),
+    rec = {"campaign": camp.root.name, "split": label, "n_train": sum(s == "train" for _, _, s, _, _ in runs),
            "n_test": sum(s == "test" for _, _, s, _, _ in runs)}
     with contextlib.redirect_stdout(io.StringIO()):  # identify's summary: not this bench's output
         code = cli.main(["identify", str(root), "--out", str(model), "--jobs", str(jobs), "--quiet"])
@@ -159,11 +158,12 @@ def main(argv=None) -> int:
     rows = []
     with tempfile.TemporaryDirectory(prefix="real_clean_") as tmp:
         for name in CAMPAIGNS:
-            for label, runs in splits(SHARED / name).items():
+            camp = open_campaign(SHARED / name)
+            for label, runs in splits(camp).items():
                 work = Path(tmp) / f"{name}_{len(rows)}"
                 work.mkdir()
                 try:
-                    rows.append(one(SHARED / name, label, runs, work, a.jobs))
+                    rows.append(one(camp, label, runs, work, a.jobs))
                 except Exception as exc:  # noqa: BLE001 - one configuration failing must not stop the others
                     rows.append({"campaign": name, "split": label, "n_train": 0, "n_test": 0,
                                  "error": f"{type(exc).__name__}: {exc}".splitlines()[0]})
