@@ -262,8 +262,29 @@ def family_gains(model, train, test, train_names, test_names) -> dict:
             "lateral_law": scores["lateral_slip"].estimate.get("model_has_lateral_law") is not False}
 
 
+def own_terms_gains(model, train, test, train_names, test_names) -> dict:
+    """Return the own-terms statistic of one campaign (``own_terms.own_terms_statistic``: the model's own
+    terms re-identified on the train runs, their 5 s gain on the test runs and the median 5 s error on the
+    train runs before and after), computed as ``diagnose`` computes it."""
+    from sindy_ekf.diagnose.data import model_split
+    from sindy_ekf.diagnose.design import equation_weights
+    from sindy_ekf.diagnose.own_terms import own_terms_statistic
+
+    tau = float(model.hyperparameters.get("tau") or 2.0)
+    tr = model_split(model, train, train_names, tau, what="train runs")
+    stat = own_terms_statistic(model, tr, equation_weights(model, tr), train, train_names, test, test_names,
+                               checks=True)[1]
+    return {"own_terms_gain_5s": round(stat["gain_5s"], 5), "n_windows": stat["n_windows"],
+            "train_median_5s_m": [round(v, 5) for v in stat["train_median_5s_m"]],
+            "refit_well_posed": stat["refit_well_posed"]}
+
+
+STATISTICS = {"families": family_gains, "own_terms": own_terms_gains}
+
+
 def _family_sim(task) -> dict:
     model, (seed, flow, *rest) = task
+    statistic = STATISTICS[rest.pop()] if rest and isinstance(rest[-1], str) else family_gains
     variant = rest[0] if rest else None
     train, test, a, b = simulate_states_campaign(seed, None, run_s=RUN_S, rate_hz=RATE_HZ, variant=variant)
     if flow == "same":
@@ -273,10 +294,11 @@ def _family_sim(task) -> dict:
     where = f"variant {variant} " if variant else ""
     return {"campaign": f"simulated {where}seed {seed} ({flow} model)",
             "kind": "short simulator variant" if variant else "short simulated", "null": True,
-            **family_gains(model, train, test, a, b)}
+            **statistic(model, train, test, a, b)}
 
 
-def calibrate_families(model, models: dict, n_sim: int, workers, variants=tuple(range(1, 11))) -> dict:
+def calibrate_families(model, models: dict, n_sim: int, workers, variants=tuple(range(1, 11)),
+                       statistic: str = "families") -> dict:
     """Return every family's gain on effect-free campaigns of several kinds and the largest per family.
 
     ``models`` maps a campaign path to its model file (identified on its own clean train runs);
@@ -284,7 +306,8 @@ def calibrate_families(model, models: dict, n_sim: int, workers, variants=tuple(
     The short simulated campaigns are ``n_sim`` of :func:`calibrate`'s kind (one third same flow), and
     two per simulator variant of ``variants`` (the variant's own lab model, and a model of the campaign).
     lateral_slip's largest gain is over the campaigns whose model has a lateral law: without one
-    the family is reported, never named (``rank.rank_families``).
+    the family is reported, never named (``rank.rank_families``). ``statistic`` "own_terms": the same
+    campaigns, the own-terms statistic of the cause step instead (:func:`own_terms_gains`).
     """
     from identification.preprocessing.campaigns import open_campaign
     from identification.sindy.data import states_of_runs
@@ -301,7 +324,8 @@ def calibrate_families(model, models: dict, n_sim: int, workers, variants=tuple(
         kind = ("real, injected" if role == "report" else "real" if "shared/data" in str(camp)
                 else "simulator variant" if "variant" in str(camp) else "other")
         rows.append({"campaign": str(camp), "model": path, "kind": kind, "null": role != "report",
-                     "structure": m.hyperparameters.get("structure", "grid"), **family_gains(m, train, test, a, b)})
+                     "structure": m.hyperparameters.get("structure", "grid"),
+                     **STATISTICS[statistic](m, train, test, a, b)})
         print(rows[-1], flush=True)
     rng = np.random.default_rng([MASTER_SEED, 1])
     jobs = [(int(sd), "reference" if i % 3 else "same") for i, sd in enumerate(rng.integers(2**31, size=n_sim))]
@@ -309,9 +333,18 @@ def calibrate_families(model, models: dict, n_sim: int, workers, variants=tuple(
     # campaign diagnosed against the variant's own lab model and one against a model of its own runs
     vrng = np.random.default_rng([MASTER_SEED, 4])
     jobs += [(int(vrng.integers(2**31)), flow, v) for v in variants for flow in ("reference", "same")]
-    rows += parallel_map(_family_sim, [(model, j) for j in jobs], workers, desc="effect-free campaigns",
-                         names=[f"family null seed {j[0]} {j[1]}" + (f" variant {j[2]}" if len(j) > 2 else "")
-                                for j in jobs])
+    names = [f"family null seed {j[0]} {j[1]}" + (f" variant {j[2]}" if len(j) > 2 else "") for j in jobs]
+    if statistic != "families":
+        jobs = [j + (statistic,) if len(j) > 2 else j + (None, statistic) for j in jobs]
+    rows += parallel_map(_family_sim, [(model, j) for j in jobs], workers, desc="effect-free campaigns", names=names)
+    if statistic == "own_terms":
+        null = [r for r in rows if r["null"]]
+        # the decision's null: the gain where the train runs confirm the refit and it is well posed
+        # (own_terms.own_terms_off)
+        confirmed = [r["own_terms_gain_5s"] for r in null if confirms(r)]
+        return {"rows": rows, "max": {"own_terms_gain_5s": max(confirmed, default=0.0)},
+                "n_sim": n_sim, "variants": list(variants),
+                "command": "python -m bench.bench_diagnose " + " ".join(sys.argv[1:])}
     return {"rows": rows, "max": family_maxima(rows), "n_sim": n_sim, "variants": list(variants),
             "command": "python -m bench.bench_diagnose " + " ".join(sys.argv[1:])}
 
@@ -579,12 +612,53 @@ def summarise(suite, ladder, timing, calib, cause_calib=None, family_calib=None)
 
 
 FAMILY_SECTION = "## Family thresholds on effect-free data"
+OWN_TERMS_SECTION = "## The own-terms statistic on effect-free data"
+
+
+def write_section(path: Path, heading: str, lines: list[str]) -> None:
+    """Replace (or append) the section of ``path`` that starts with ``heading`` by ``lines``, keeping the others."""
+    text = path.read_text() if path.exists() else ""
+    head, _, rest = text.partition(heading)
+    tail = rest[rest.find("\n## "):] if rest and "\n## " in rest else ""
+    path.write_text(head.rstrip("\n") + "\n\n" + "\n".join(lines) + tail)
+
+
 def write_family_section(path: Path, fc) -> None:
     """Replace (or append) the family calibration section of ``path``, keeping the other sections."""
-    text = path.read_text() if path.exists() else ""
-    head, _, rest = text.partition(FAMILY_SECTION)
-    tail = rest[rest.find("\n## "):] if rest and "\n## " in rest else ""
-    path.write_text(head.rstrip("\n") + "\n\n" + "\n".join(family_lines(fc)) + tail)
+    write_section(path, FAMILY_SECTION, family_lines(fc))
+
+
+def confirms(row) -> bool:
+    """Return whether a calibration row's refit passes the conditions of ``own_terms.own_terms_off`` besides
+    its gain: better over 5 s on the train runs (median) and failing no well-posedness check the model passes."""
+    return row["train_median_5s_m"][1] < row["train_median_5s_m"][0] and row["refit_well_posed"]
+
+
+def own_terms_lines(oc) -> list[str]:
+    """Return the markdown section of the own-terms null (issue 15, items 2 and 5)."""
+    null = [r for r in oc["rows"] if r["null"]]
+    kinds = sorted({r.get("kind", "real") for r in null})
+    lines = [OWN_TERMS_SECTION, "",
+             f"Command: `.venv/bin/python -m bench.bench_diagnose --jobs 2 --calibrate-own-terms` (the campaigns of "
+             "`--calibrate-families`: the shared real Warthog campaigns with models identified on their clean train "
+             f"runs, {oc['n_sim']} short simulated campaigns and two per simulator variant "
+             f"{', '.join(map(str, oc['variants']))}). The statistic (`sindy_ekf/diagnose/own_terms.py`, "
+             "`own_terms_statistic`): the model's own terms re-identified on the train runs, the relative drop of "
+             "the squared 5 s position errors on the test runs (windows where neither prediction diverged); "
+             "`unexplained` needs it above 2 x the largest here where the refit also predicts the train runs "
+             "better over 5 s (median) and fails no well-posedness check that the model passes, the conditions of "
+             "`own_terms_off`.", "",
+             "| kind | campaigns | refit better on the train runs and well posed | largest 5 s gain there | "
+             "largest 5 s gain, all | median, all |", "|---|---|---|---|---|---|"]
+    for k in kinds:
+        rows = [r for r in null if r.get("kind", "real") == k]
+        g = [r["own_terms_gain_5s"] for r in rows]
+        conf = [r["own_terms_gain_5s"] for r in rows if confirms(r)]
+        lines.append(f"| {k} | {len(rows)} | {len(conf)} | {max(conf, default=float('nan')):+.4f} | "
+                     f"{max(g):+.4f} | {np.median(g):+.4f} |")
+    lines += ["", f"Largest over the null where the train runs confirm the refit: **{oc['max']['own_terms_gain_5s']:.4f}** "
+              "(`NULL_MAX[\"own_terms_gain\"]` in `sindy_ekf/diagnose/cause.py`).", ""]
+    return lines
 
 
 def main() -> int:
@@ -595,6 +669,8 @@ def main() -> int:
     ap.add_argument("--calibrate-families", nargs="*", metavar="CAMPAIGN=MODEL", default=None,
                     help="family thresholds: gains on effect-free campaigns (none given: the shared real ones, "
                          "models identified here), 24 short simulated ones and two per simulator variant 1 to 10")
+    ap.add_argument("--calibrate-own-terms", nargs="*", metavar="CAMPAIGN=MODEL", default=None,
+                    help="null of the cause step's own-terms statistic on the campaigns of --calibrate-families")
     ap.add_argument("--forms", action="store_true",
                     help="the forms suite on simulator variants -> diagnose_forms.md (issue 15, item 4)")
     ap.add_argument("--run-s", type=float, default=RUN_S, metavar="S",
@@ -654,8 +730,9 @@ def main() -> int:
         print(json.dumps(raw["calibration"], indent=1))
         raw_path.write_text(json.dumps(raw, indent=1))
         return 0
-    if args.calibrate_families is not None:
-        models = dict(kv.split("=", 1) for kv in args.calibrate_families)
+    if args.calibrate_families is not None or args.calibrate_own_terms is not None:
+        own = args.calibrate_own_terms is not None
+        models = dict(kv.split("=", 1) for kv in (args.calibrate_own_terms if own else args.calibrate_families))
         work = None
         if not models:  # the shared real campaigns, models identified here on their clean train runs
             import tempfile
@@ -664,6 +741,12 @@ def main() -> int:
 
             work = tempfile.TemporaryDirectory(prefix="calibrate_families_")
             models = {str(SHARED / f"warthog-drive-{n}"): str(identify(n, Path(work.name))) for n in ("wheels", "cmd")}
+        if own:
+            raw["own_terms_calibration"] = calibrate_families(model, models, 24, workers, statistic="own_terms")
+            print(json.dumps(raw["own_terms_calibration"]["max"]))
+            raw_path.write_text(json.dumps(raw, indent=1))
+            write_section(out_dir / "diagnose.md", OWN_TERMS_SECTION, own_terms_lines(raw["own_terms_calibration"]))
+            return 0
         raw["family_calibration"] = calibrate_families(model, models, 24, workers)
         print(json.dumps(raw["family_calibration"]["max"]))
         raw_path.write_text(json.dumps(raw, indent=1))

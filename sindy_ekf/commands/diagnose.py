@@ -28,7 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-ekf", action="store_true", help="skip the EKF dead-reckoning through 10 s GNSS outages")
     p.add_argument("--extended-model", type=Path, default=None, metavar="PATH",
                    help="write the extended model (JSON) when a cause is found; diagnose scores it "
-                        "itself, evaluate and benchmark take the model files of identify")
+                        "itself, evaluate and benchmark take the model files of identify (an unexplained verdict's "
+                        "refit of the model's own terms is one)")
     add_worker_arguments(p, 1, "families")
 
 
@@ -47,6 +48,7 @@ def format_diagnosis(d: Diagnosis, model: Path, campaign: Path) -> str:
             lines.append(f"{'':20} gain over time since the run start (monotone fit): " + ", ".join(
                 f"{t:.0f} s {g / e['gain_profile_monotone'][0]:.3f}"
                 for t, g in zip(e["gain_profile_t_s"], e["gain_profile_monotone"])))
+    lines += d.unexplained_notes()
     b, a = d.before, d.after
     lines.append(f"5 s error on the test runs ({b.n_windows} windows): position {100 * b.pos_err_5s_m:.2f} -> "
                  f"{100 * a.pos_err_5s_m:.2f} cm, heading {b.yaw_err_5s_deg:.2f} -> {a.yaw_err_5s_deg:.2f} deg")

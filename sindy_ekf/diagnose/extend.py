@@ -277,15 +277,32 @@ def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,
     u_m = spec.motor_inputs(train.t_run, train.u, train.runs_slices(), theta[None])[0]
     theta_feat = model.library.transform(np.concatenate([train.v_body, u_m], axis=-1))
     th_int = train.integrate(theta_feat)  # (p, k)
-    support = model.coef != 0  # (3, k)
     m = spec.n_columns
     X_mech = np.zeros((train.n_windows, 3, m))
     if m:
         cols = spec.columns(train.x6, train.u, train.t_run, theta[None])[0]
         X_mech = train.integrate(cols.reshape(len(cols), 3 * m)).reshape(-1, 3, m)
+    coef, mech = refit_support(model.coef != 0, th_int, X_mech, train.delta_v, weights)
+    # the equations the mechanism does not enter refit alike with and without it: they keep the
+    # model's coefficients, as the diagnosis scores and admits the refit (fitting.refit_grid)
+    entered = mechanism_rows(spec, model, train.x6, train.u, train.t_run, theta)
+    coef[~entered] = model.coef[~entered]
+    # the model's input chain (dead time, input lag) and extrapolation stay: ``train`` holds the
+    # inputs as the model sees them (diagnose.data.model_split), so the refit is on those
+    base = replace(model.with_coefficients(coef), checks={},
+                   training={**model.training, "reidentified_with": family, "n_windows": int(train.n_windows),
+                             "runs": list(train.names)})
+    return ExtendedModel(base, family, theta, mech, dict(estimate or {}))
+
+
+def refit_support(support: np.ndarray, th_int: np.ndarray, X_mech: np.ndarray, delta_v: np.ndarray,
+                  weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(coef (3, k), beta (m,))``: the integral regression (eqs. 5.55 to 5.57) of the window
+    velocity changes ``delta_v (p, 3)`` on the integrated features ``th_int (p, k)`` of each equation's
+    ``support (3, k)`` plus the mechanism's integrated columns ``X_mech (p, 3, m)``, shared by the
+    equations, solved jointly by least squares with the equations weighted by ``weights (3,)``."""
     idx = [np.flatnonzero(support[e]) for e in range(3)]
-    n_xi = sum(len(i) for i in idx)
-    p = train.n_windows
+    n_xi, m, p = sum(len(i) for i in idx), X_mech.shape[2], len(delta_v)
     A = np.zeros((3, p, n_xi + m))
     col = 0
     for e in range(3):
@@ -294,25 +311,16 @@ def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,
         A[e, :, n_xi:] = X_mech[:, e, :]
     sw = np.sqrt(weights)[:, None, None]
     A_w = (A * sw).reshape(3 * p, -1)
-    y_w = (train.delta_v.T[:, :, None] * sw).reshape(3 * p)
+    y_w = (delta_v.T[:, :, None] * sw).reshape(3 * p)
     # a whisper of ridge: duplicated columns (a mechanism term the model already has) stay solvable
     gram = A_w.T @ A_w
     sol = np.linalg.solve(gram + 1e-10 * np.trace(gram) / len(gram) * np.eye(len(gram)), A_w.T @ y_w)
-    coef = np.zeros_like(model.coef)
+    coef = np.zeros(support.shape)
     col = 0
     for e in range(3):
         coef[e, idx[e]] = sol[col:col + len(idx[e])]
         col += len(idx[e])
-    # the equations the mechanism does not enter refit alike with and without it: they keep the
-    # model's coefficients, as the diagnosis scores and admits the refit (fitting.refit_grid)
-    entered = mechanism_rows(spec, model, train.x6, train.u, train.t_run, theta)
-    coef[~entered] = model.coef[~entered]
-    # the model's input chain (dead time, input lag) and extrapolation stay: ``train`` holds the
-    # inputs as the model sees them (diagnose.data.model_split), so the refit is on those
-    base = replace(model.with_coefficients(coef), checks={},
-                   training={**model.training, "reidentified_with": family, "n_windows": int(p),
-                             "runs": list(train.names)})
-    return ExtendedModel(base, family, theta, sol[n_xi:], dict(estimate or {}))
+    return coef, sol[n_xi:]
 
 
 def check_extended(ext: ExtendedModel, model: SindyModel, train: Split) -> float:
@@ -416,3 +424,14 @@ def outage_errors(models: dict, train: Sequence[BodyStates], test: Sequence[Body
             errs.append(float(np.hypot(res.x[j, 0] - x_end, res.x[j, 1] - y_end)))
         errors[name] = np.array(errs)
     return OutageResult(outage_s, errors)
+
+
+def common_windows(before: EvaluationResult, after: EvaluationResult) -> np.ndarray:
+    """Return the mask of the windows in which neither prediction diverged (what both are compared on)."""
+    return ~diverged(before.eps_p[:, -1]) & ~diverged(after.eps_p[:, -1])
+
+
+def median_5s(res) -> float:
+    """Return the median 5 s position error of an evaluation (a diverged window counts as infinite)."""
+    e = np.asarray(res.eps_p[:, -1], float)
+    return float(np.median(np.where(np.isfinite(e), e, np.inf)))

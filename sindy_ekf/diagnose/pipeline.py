@@ -40,10 +40,12 @@ from sindy_ekf.diagnose.cause import (
     unexplained_structure,
 )
 from sindy_ekf.diagnose.data import in_envelope, model_split
-from sindy_ekf.diagnose.extend import (
+from sindy_ekf.diagnose.extend import (  # noqa: F401  (median_5s, common_windows: callers import them from here too)
     DIVERGED_5S_M,
     ExtendedModel,
+    common_windows,
     diverged,
+    median_5s,
     multistep,
     outage_errors,
     reidentify,
@@ -52,6 +54,7 @@ from sindy_ekf.diagnose.design import with_input_gains
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.gain_profile import with_gain_profile
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
+from sindy_ekf.diagnose.own_terms import own_terms_off, unexplained_notes
 from sindy_ekf.diagnose.per_input import with_per_input, with_response_lag_per_input
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
@@ -135,6 +138,10 @@ class Diagnosis:
                         f"the other families are judged against a model that misses it")
         return None
 
+    def unexplained_notes(self) -> list[str]:
+        """Return what an ``unexplained`` verdict found, one line each (:func:`own_terms.unexplained_notes`)."""
+        return unexplained_notes(self.verdict, self.evidence, self.extended)
+
     def extension_warning(self) -> str | None:
         """Return one line saying that the extended model predicts the test runs worse, or None."""
         e = self.extension_on_test
@@ -168,11 +175,12 @@ class Diagnosis:
                                                  "outage_s": self.outage["outage_s"], "n": self.outage["n"]}
             causes.append(entry)
         if self.verdict in ("none", "unexplained"):
+            # the model's own terms re-identified are the extension of an unexplained verdict they explain
             est = self.evidence.get("unexplained", {}) if self.verdict == "unexplained" else {}
             causes.insert(0, {"name": self.verdict, "estimate": est,
-                              "pos_err_5s_m": {"before": self.before.pos_err_5s_m, "after": self.before.pos_err_5s_m},
+                              "pos_err_5s_m": {"before": self.before.pos_err_5s_m, "after": self.after.pos_err_5s_m},
                               "yaw_err_5s_deg": {"before": self.before.yaw_err_5s_deg,
-                                                 "after": self.before.yaw_err_5s_deg}})
+                                                 "after": self.after.yaw_err_5s_deg}})
         structure = {eq: {k: {"eta2": be.eta2, "p_value": be.p_value} for k, be in d.items()}
                      for eq, d in self.structure.items()}
         ms = {e: {k: {"eta2": be.eta2, "p_value": be.p_value} for k, be in d.items()}
@@ -203,20 +211,9 @@ def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[Predic
         n_windows=int(ok.sum())) for r in (before, after))
 
 
-def common_windows(before: EvaluationResult, after: EvaluationResult) -> np.ndarray:
-    """Return the mask of the windows in which neither prediction diverged (what both are compared on)."""
-    return ~diverged(before.eps_p[:, -1]) & ~diverged(after.eps_p[:, -1])
-
-
 def n_diverged(evaluation: EvaluationResult) -> int:
     """Return the number of windows in which a prediction diverged (non-finite or beyond 1 km after 5 s)."""
     return int(np.count_nonzero(diverged(evaluation.eps_p[:, -1])))
-
-
-def median_5s(res) -> float:
-    """Return the median 5 s position error of an evaluation (a diverged window counts as infinite)."""
-    e = np.asarray(res.eps_p[:, -1], float)
-    return float(np.median(np.where(np.isfinite(e), e, np.inf)))
 
 
 def choose_extension(model, name, best, tr, weights, train, train_names) -> ExtendedModel:
@@ -378,10 +375,9 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         name = verdict(ranked)
         if extended is not None:
             res_after = multistep(extended, test, test_names)
-    before, after = errors_5s(res_before, res_after)
     evidence = {"input_gains": dict(zip(LIBRARY_INPUT_NAMES, map(float, gains))),
                 "response_lag": {k: v.to_dict() for k, v in lags.items()},
-                "thresholds": {"delay_s": threshold("delay_s"), "eta2": threshold("eta2")},
+                "thresholds": {k: threshold(k) for k in ("delay_s", "eta2", "own_terms_gain")},
                 "provenance": NULL_PROVENANCE}
     eta2, equation, regressor = unexplained_structure(model, tr, te)
     evidence["residual_structure"] = {"eta2": eta2, "equation": equation, "regressor": regressor}
@@ -389,6 +385,10 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         # structure that holds out of sample and that no family explains: not "nothing to change"
         name = "unexplained"
         evidence["unexplained"] = {"equation": equation, "regressor": regressor, "eta2": eta2}
+    if name == "none":
+        name, extended, res_after = own_terms_off(model, tr, te, weights, gains, train, train_names, test,
+                                                  test_names, evidence, res_after)
+    before, after = errors_5s(res_before, res_after)
     others = {}
     for c in ranked[1:]:
         if c.significant:  # what each other significant mechanism alone would buy

@@ -90,7 +90,9 @@ FAMILIES = {
     "lateral_slip": "lateral slip the model's vy equation lacks",
     "none": "no family passes its threshold and the residuals hold no structure: nothing is worth a model change",
     "unexplained": "no family passes its threshold, but the residuals hold structure out of sample against one "
-                   "regressor (eta2 above its calibrated threshold): a mechanism the diagnosis does not know",
+                   "regressor (eta2 above its calibrated threshold): a mechanism the diagnosis does not know; or the "
+                   "model's own terms, re-identified on the train runs, predict far better: its coefficients do not "
+                   "hold on this campaign (another ground, another robot state)",
 }
 
 GLOSSARIES = (MODELS, ESTIMATORS, TERMS, FAMILIES)

@@ -392,6 +392,8 @@ def section_diagnosis(sec: Section, chain: ChainResult) -> None:
     d = chain.diagnosis
     sec.note(f"Most likely cause: {d.verdict}. 5 s position error on the test runs {100 * d.before.pos_err_5s_m:.2f} "
              f"cm before, {100 * d.after.pos_err_5s_m:.2f} cm with the extended model.")
+    for line in d.unexplained_notes():
+        sec.note(line[0].upper() + line[1:] + ".")
     if d.extension_warning():
         sec.note(f"Warning: {d.extension_warning()}.")
     if d.missing_law_warning():
