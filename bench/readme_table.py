@@ -292,6 +292,14 @@ def _real_clean(r: Source) -> str:
             "the model lacks; a delay not told from zero)")
 
 
+def _new_ground(r: Source) -> str:
+    named = r.find(r"other grounds named \(verdict not none\): (\d+)/(\d+)")
+    lowers = r.find(r"the extension lowers the 5 s error in (\d+)/(\d+)")
+    false = r.find(r"false alarms on the base ground: (\d+)/(\d+)")
+    return (f"{named.group(1)}/{named.group(2)} other grounds named, the extension better in {lowers.group(1)}/"
+            f"{lowers.group(2)}; {false.group(1)}/{false.group(2)} false alarms on the model's own ground")
+
+
 def _against_unicycle(r: Source, header: str) -> str:
     """Return the SINDy rows of a 5 s error table as ``cmd ... m = ...x (target ...x); wheels ...``: the
     position error in column 2, the ratio in the column headed ``x README unicycle``, the target after it."""
@@ -408,6 +416,8 @@ ROWS = (
         "decay at 0.5, 1, 2 x moderate)", _inject_real, "-"),
     Row("real_clean", "diagnosis of clean real Warthog data split by day and by halves of every run (10 splits "
         "nothing was calibrated on; `identify` with its own search)", _real_clean, "-"),
+    Row("new_ground", "diagnosis of a model taken to other grounds (turning resistance, track friction) of a "
+        "two-track skid-steer generator of another construction (`bench/bench_new_ground.py`)", _new_ground, "-"),
     Row("real_cli", "real Warthog data, `sindy-ekf identify` on the train runs then `evaluate`: 5 s position error "
         "on the test runs, against the data README's unicycle", _real_cli_evaluate, "-"),
     Row("real", "real Warthog data, the integral-regression grid search alone (`examples/real_warthog.py`, no "
