@@ -62,7 +62,8 @@ def refit_own_terms(model: SindyModel, train: Split, weights: np.ndarray) -> Sin
 
 
 def own_terms_statistic(model, tr, weights, train, train_names, test, test_names,
-                        checks: bool = False) -> tuple[SindyModel, dict, EvaluationResult]:
+                        checks: bool = False,
+                        before: EvaluationResult | None = None) -> tuple[SindyModel, dict, EvaluationResult]:
     """Return ``(refit, statistic, evaluation)`` of the model's own terms re-identified on the train runs
     (:func:`refit_own_terms`); what :func:`own_terms_off` decides on and its null is calibrated on.
 
@@ -72,10 +73,11 @@ def own_terms_statistic(model, tr, weights, train, train_names, test, test_names
     of 1 on an effect-free variant campaign), and ``test_rms_5s_m`` there, model and refit;
     ``train_median_5s_m``, the median 5 s position error of the model and of the refit on the train runs;
     with ``checks`` ``refit_well_posed`` (:func:`well_posed_refit`). ``evaluation`` is the refit's 5 s
-    prediction of the test runs.
+    prediction of the test runs; ``before``, the model's own, when the caller has it already.
     """
     refit = refit_own_terms(model, tr, weights)
-    before, after = multistep(model, test, test_names), multistep(refit, test, test_names)
+    before = multistep(model, test, test_names) if before is None else before
+    after = multistep(refit, test, test_names)
     ok = common_windows(before, after)
     sse = [float(np.sum(r.eps_p[ok, -1] ** 2)) for r in (before, after)]
     stat = {"gain_5s": 1.0 - sse[1] / sse[0] if sse[0] > 0 else float("nan"), "n_windows": int(ok.sum()),
@@ -107,7 +109,8 @@ def own_terms_off(model, tr, te, weights, gains, train, train_names, test, test_
     are goes into ``evidence["unexplained"]``; the statistic and each condition into
     ``evidence["own_terms"]`` either way.
     """
-    refit, stat, res_refit = own_terms_statistic(model, tr, weights, train, train_names, test, test_names)
+    refit, stat, res_refit = own_terms_statistic(model, tr, weights, train, train_names, test, test_names,
+                                                 before=res_before)
     own = evidence["own_terms"] = {**stat, "threshold": threshold("own_terms_gain")}
     e = np.asarray(res_before.eps_p[:, -1], float)
     cv = cv_comparison(model, float(np.sqrt(np.mean(e[~diverged(e)] ** 2))) if (~diverged(e)).any() else np.nan)
