@@ -152,21 +152,35 @@ def normal_equations(y: np.ndarray, X: np.ndarray, weights: np.ndarray, window_r
     """Return the weighted normal equations per candidate and per run (sums over windows of a run).
 
     One batched matrix product per run: a three-operand einsum with a one-hot run matrix cost
-    minutes on an 8-minute campaign with a dense model (100 columns; measured in the demo).
+    minutes on an 8-minute campaign with a dense model (100 columns; measured in the demo). A run's
+    windows are a slice where the windows come in run order (:func:`run_groups`), so ``X`` is not
+    copied per run; targets ``y`` shared by every candidate (a broadcast view, an additive family's)
+    are summed once, not once per candidate (the floor patch's thousands of candidates: 15x faster on
+    the real wheels campaign, the same sums to the last bit: ``bench/bench_diagnose_kernels.py``).
     """
     C, m = y.shape[0], X.shape[-1]
-    wy = y * weights
     G, b, yy = np.zeros((C, n_runs, m, m)), np.zeros((C, n_runs, m)), np.zeros((C, n_runs))
+    shared = C > 1 and y.strides[0] == 0
+    y1 = y[:1] if shared else y
+    wy = y1 * weights
     wX = X * weights[:, None] if m else X
-    for r in range(n_runs):
-        sel = window_run == r
-        y_r, wy_r = y[:, sel].reshape(C, -1), wy[:, sel].reshape(C, -1)
+    for r, sel in enumerate(run_groups(window_run, n_runs)):
+        # copies, as a boolean selection made them: the reduction's rounding does not depend on where a slice starts
+        y_r, wy_r = y1[:, sel].reshape(len(y1), -1).copy(), wy[:, sel].reshape(len(y1), -1).copy()
         yy[:, r] = np.einsum("ck,ck->c", wy_r, y_r)
         if m:
             wX_r, X_r = wX[:, sel].reshape(C, -1, m), X[:, sel].reshape(C, -1, m)
             G[:, r] = np.swapaxes(wX_r, 1, 2) @ X_r
-            b[:, r] = np.einsum("ckm,ck->cm", wX_r, y_r)
+            b[:, r] = np.einsum("ckm,ck->cm", wX_r, np.broadcast_to(y_r, (C, y_r.shape[1])) if shared else y_r)
     return Design(G, b, yy)
+
+
+def run_groups(window_run: np.ndarray, n_runs: int) -> list:
+    """Return each run's windows: a slice where ``window_run (p,)`` is in run order, else a boolean mask."""
+    if np.all(np.diff(window_run) >= 0):
+        edges = np.searchsorted(window_run, np.arange(n_runs + 1))
+        return [slice(int(a), int(c)) for a, c in zip(edges[:-1], edges[1:])]
+    return [window_run == r for r in range(n_runs)]
 
 
 def concat_designs(parts, axis: int = 0) -> Design:
