@@ -48,9 +48,10 @@ demo: $(STAMP)
 	$(BIN)/sindy-ekf demo
 
 # SINDY_EKF_NO_SKIPS=1: a skipped test fails the run (tests/conftest.py); -n auto: one pytest
-# worker per core (pytest-xdist), skips still counted by the controller
+# worker per core (pytest-xdist), skips still counted by the controller; --dist loadfile: each test file
+# runs on one worker, so its module fixtures (a model, a diagnosis) are made once, not per worker
 test: $(STAMP) browser
-	SINDY_EKF_NO_SKIPS=1 $(BIN)/python -m pytest -q -n auto
+	SINDY_EKF_NO_SKIPS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run_all

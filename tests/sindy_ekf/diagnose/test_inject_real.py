@@ -42,8 +42,14 @@ def model_file(wheels, tmp_path_factory) -> Path:
     return path
 
 
-def test_clean_real_campaign_is_none(wheels, model_file):
-    assert diagnose_campaign(wheels, model_file, ekf=False).verdict == "none"
+@pytest.fixture(scope="module")
+def clean(wheels, model_file):
+    """The clean campaign's diagnosis: the verdict to keep, and the response lags an injected delay adds to."""
+    return diagnose_campaign(wheels, model_file, ekf=False)
+
+
+def test_clean_real_campaign_is_none(clean):
+    assert clean.verdict == "none"
 
 
 def test_injected_deadband_named_with_its_threshold(wheels, model_file, tmp_path):
@@ -93,7 +99,7 @@ def test_injected_gain_decay_named_with_its_rate(wheels, model_file, tmp_path):
     assert "gain over time since the run start (monotone fit)" in text and "gain_profile=" not in text
 
 
-def test_injected_delay_named_from_the_response_lag(wheels, model_file, tmp_path):
+def test_injected_delay_named_from_the_response_lag(wheels, model_file, clean, tmp_path):
     # the model-fixed family sees only 0.075 s (the clean model already wants its inputs earlier,
     # bench/results/inject.md); the response lag, measured against the model's own response, reads
     # the delay itself
@@ -107,10 +113,10 @@ def test_injected_delay_named_from_the_response_lag(wheels, model_file, tmp_path
     # inputs (jackknife standard deviation 0); the values come from each input's response lag, and
     # less the clean runs' own response lag of that input they are the injected delay
     est = d.ranked[0].score.estimate
-    clean = diagnose_campaign(wheels, model_file, ekf=False).evidence["response_lag"]["train"]["per_input"]
+    own = clean.evidence["response_lag"]["train"]["per_input"]
     assert est["per_input_from"] == "response_lag"
     for u in ("u1", "u2"):
-        assert est["per_input"][u] - clean[u] == pytest.approx(0.15, rel=0.25), (u, est["per_input"], clean)
+        assert est["per_input"][u] - own[u] == pytest.approx(0.15, rel=0.25), (u, est["per_input"], own)
     assert est["mechanism"] == "" and d.extended.theta[0] == pytest.approx(est["delay_s"])  # the pooled delay
 
 
