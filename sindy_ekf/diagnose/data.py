@@ -94,6 +94,29 @@ class Split:
         np.cumsum(inc, axis=-2, out=inc)
         return cum[..., self.end, :] - cum[..., self.start, :]
 
+    def integrate_sparse(self, values: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """Return :meth:`integrate` of per-sample values that are zero but at the samples ``idx`` (sorted),
+        from ``values (..., len(idx), m)`` there: the cumulative sum runs over the increments that touch
+        them alone. The same window integrals to the last bit: the increments left out are zero, and
+        adding zero leaves a running sum as it is."""
+        n, lead, m = len(self.run), values.shape[:-2], values.shape[-1]
+        if not len(idx):
+            return np.zeros(lead + (self.n_windows, m))
+        j = np.union1d(idx, idx - 1)
+        j = j[(j >= 0) & (j < n - 1)]  # increments i -> i + 1 with a sample of idx at either end
+        inc, at_next = np.zeros(lead + (len(j), m)), np.zeros(lead + (len(j), m))  # the values at j and j + 1
+        for out, k in ((inc, j), (at_next, j + 1)):
+            pos = np.minimum(np.searchsorted(idx, k), len(idx) - 1)
+            given = idx[pos] == k
+            out[..., given, :] = values[..., pos[given], :]
+        np.add(inc, at_next, out=inc)
+        inc *= 0.5  # as in integrate, to the last bit
+        inc *= self.dt_next[j, None]
+        cum = np.zeros(lead + (len(j) + 1, m))
+        np.cumsum(inc, axis=-2, out=cum[..., 1:, :])
+        # the running sum before sample k: over the increments j < k
+        return cum[..., np.searchsorted(j, self.end), :] - cum[..., np.searchsorted(j, self.start), :]
+
     def select_windows(self, keep: np.ndarray) -> "Split":
         """Return the same samples with only the windows where ``keep (p,)`` is true."""
         return replace(self, start=self.start[keep], end=self.end[keep])

@@ -57,8 +57,10 @@ DEMAND_REF_M_S2, SPEED_REF_M_S = 0.4, 1.0
 
 
 # -- additive mechanisms -----------------------------------------------------------------------
-def patch_indicator(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Return the smooth disc ``s`` and ``ds/dx``, ``ds/dy`` for patches ``theta (C, 3) = [cx, cy, r]``.
+def patch_indicator(x: np.ndarray, y: np.ndarray, theta: np.ndarray,
+                    derivatives: bool = True) -> tuple[np.ndarray, ...]:
+    """Return the smooth disc ``s`` and ``ds/dx``, ``ds/dy`` for patches ``theta (C, 3) = [cx, cy, r]``
+    (``s`` alone, in a tuple, without ``derivatives``).
 
     Logistic edge rising from 10 % to 90 % over :data:`PATCH_EDGE_M`; shapes ``(C, N)``.
     """
@@ -69,6 +71,8 @@ def patch_indicator(x: np.ndarray, y: np.ndarray, theta: np.ndarray) -> tuple[np
     d = np.sqrt(dx * dx + dy * dy + 1e-12)
     th = np.tanh((theta[:, 2:3] - d) / h)
     s = 0.5 * (1.0 + th)
+    if not derivatives:
+        return (s,)
     ds_dd = -0.5 * (1.0 - th * th) / h
     return s, ds_dd * dx / d, ds_dd * dy / d
 
@@ -181,10 +185,11 @@ class Family:
                     jac[:, :, e, sl, 0], jac[:, :, e, sl, 1] = dB_x * v[None, :, None], dB_y * v[None, :, None]
                     jac[:, :, e, sl, j] = B
         elif self.name == "position_dependence":
-            s, ds_x, ds_y = patch_indicator(x6[:, 0], x6[:, 1], theta)
+            s, *ds = patch_indicator(x6[:, 0], x6[:, 1], theta, derivatives=with_jacobian)
             cols[:, :, 0, 0] = s * vx
             cols[:, :, 2, 1] = s * om
             if with_jacobian:
+                ds_x, ds_y = ds
                 jac[:, :, 0, 0, 0], jac[:, :, 0, 0, 1], jac[:, :, 0, 0, 3] = ds_x * vx, ds_y * vx, s
                 jac[:, :, 2, 1, 0], jac[:, :, 2, 1, 1], jac[:, :, 2, 1, 5] = ds_x * om, ds_y * om, s
         elif self.mechanism == "track_friction":

@@ -13,8 +13,12 @@ import pytest
 from scipy.integrate import trapezoid
 
 from groundfloor.types import BodyStates
+from identification.sindy.model import model_from_terms
+from sindy_ekf.diagnose import columns
+from sindy_ekf.diagnose.columns import PATCH_ZERO_M, patch_support, residual_and_columns
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.design import normal_equations, run_groups
+from sindy_ekf.diagnose.families import FAMILY_SPECS, PATCH_EDGE_M
 
 
 def _split(rng, lengths=(57, 80, 43), tau=0.4):
@@ -39,6 +43,52 @@ def test_window_integrals_are_the_trapezoid_rule_over_each_window():
         want = trapezoid(values[:, a:e + 1], t[a:e + 1], axis=1)
         np.testing.assert_allclose(got[:, j], want, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(sp.integrate(values[0]), got[0], rtol=0, atol=0)  # no candidate axis
+
+
+@pytest.mark.parametrize("where", ["inside", "at both ends", "none"])
+def test_values_zero_but_at_some_samples_integrate_as_the_dense_ones_to_the_last_bit(where):
+    rng = np.random.default_rng(12)
+    sp = _split(rng)
+    n = len(sp.run)
+    idx = {"inside": np.sort(rng.choice(np.arange(1, n - 1), size=40, replace=False)),
+           "at both ends": np.r_[0, 1, 56, 57, 58, n - 2, n - 1],  # a run's last sample, the next one's first
+           "none": np.zeros(0, int)}[where]
+    sparse = rng.normal(size=(3, len(idx), 2))
+    dense = np.zeros((3, n, 2))
+    dense[:, idx] = sparse
+    np.testing.assert_array_equal(sp.integrate_sparse(sparse, idx), sp.integrate(dense))
+
+
+def test_a_floor_patch_is_exactly_zero_beyond_its_support():
+    # the support is a box around the patches' centres; the dense columns outside it must be 0 to the last
+    # bit (the logistic edge's tanh is -1 there), or the sparse integrals would differ from the dense ones
+    assert PATCH_ZERO_M >= 19.1 * PATCH_EDGE_M / (2 * np.log(9))
+    rng = np.random.default_rng(4)
+    fam = FAMILY_SPECS["position_dependence"]
+    x6 = np.column_stack([rng.uniform(-20, 20, size=(5000, 2)), rng.normal(size=(5000, 4))])
+    theta = np.column_stack([rng.uniform(-2, 2, size=(30, 2)), rng.choice([0.5, 0.8, 1.2, 1.8], size=30)])
+    idx = patch_support(fam, x6[:, :3], theta)
+    assert idx is not None and 0 < len(idx) < 1000
+    cols = fam.columns(x6, np.zeros((5000, 2)), np.arange(5000.0), theta)
+    outside = np.setdiff1d(np.arange(5000), idx)
+    assert np.all(cols[:, outside] == 0.0) and np.any(cols[:, idx] != 0.0)
+
+
+def test_patch_columns_on_their_support_are_the_dense_ones(monkeypatch):
+    rng = np.random.default_rng(8)
+    sp = _split(rng, lengths=(300, 250), tau=0.5)
+    sp = type(sp)(**{**sp.__dict__, "pose_local": np.column_stack([np.cumsum(rng.normal(0, 0.8, size=(550, 2)), 0),
+                                                                   sp.pose_local[:, 2]])})
+    fam = FAMILY_SPECS["position_dependence"]
+    grid = fam.grid(sp)
+    theta = grid[grid[:, 0] <= grid[0, 0] + 0.5]  # the patches of the first two columns of centres
+    idx = patch_support(fam, sp.pose_local, theta)
+    assert idx is not None and 0 < len(idx) < 0.5 * len(sp.run)  # the sparse path is the one compared
+    model = model_from_terms({"vx": {"vx": -1.0, "u1": 1.0}, "omega": {"omega": -2.0, "u2": 2.0}}, "poly1")
+    y, X = residual_and_columns(fam, model, sp, theta, base_pred=np.zeros((sp.n_windows, 3)))
+    monkeypatch.setattr(columns, "patch_support", lambda *a: None)
+    y0, X0 = residual_and_columns(fam, model, sp, theta, base_pred=np.zeros((sp.n_windows, 3)))
+    np.testing.assert_array_equal(X, X0)
 
 
 def _by_definition(y, X, w, run, R):
