@@ -49,9 +49,10 @@ demo: $(STAMP)
 
 # SINDY_EKF_NO_SKIPS=1: a skipped test fails the run (tests/conftest.py); -n auto: one pytest
 # worker per core (pytest-xdist), skips still counted by the controller; --dist loadfile: each test file
-# runs on one worker, so its module fixtures (a model, a diagnosis) are made once, not per worker
+# runs on one worker, so its module fixtures (a model, a diagnosis) are made once, not per worker;
+# --no-loadscope-reorder: files in the order tests/conftest.py sorts them (the longest first)
 test: $(STAMP) browser
-	SINDY_EKF_NO_SKIPS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
+	SINDY_EKF_NO_SKIPS=1 $(BIN)/python -m pytest -q -n auto --dist loadfile --no-loadscope-reorder
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run_all

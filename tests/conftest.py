@@ -19,15 +19,18 @@ import pytest
 from tests.support import SHARED
 
 
-#: modules holding the suite's longest tests (each over a minute in ``pytest --durations`` on 2 cores,
-#: 2026-11-27): collected first, so that pytest-xdist hands them out at the start and no worker is left
-#: waiting on one of them at the end of the run
-LONG_MODULES = ("test_simulate_cli.py", "test_inject_real.py", "test_scaleout.py", "test_real_warthog.py")
+#: modules holding the suite's longest tests, longest first (over a minute each in ``pytest --durations`` on
+#: 2 cores, 2026-11-29): collected first and in this order, so that pytest-xdist (``--dist loadfile
+#: --no-loadscope-reorder``, make test) hands them out at the start and no worker is left running one of
+#: them at the end while the other waits
+LONG_MODULES = ("test_inject_real.py", "test_scaleout.py", "test_real_warthog.py", "test_simulate_cli.py",
+                "test_gain_profile.py", "test_report.py", "test_field_bags.py", "test_search.py")
 
 
 def pytest_collection_modifyitems(config, items):
-    """Put the tests of :data:`LONG_MODULES` first (a stable sort: every other order is kept)."""
-    items.sort(key=lambda item: item.path.name not in LONG_MODULES)
+    """Put the tests of :data:`LONG_MODULES` first, in its order (a stable sort: every other order is kept)."""
+    rank = {name: i for i, name in enumerate(LONG_MODULES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_MODULES)))
 
 
 @pytest.fixture(scope="session")

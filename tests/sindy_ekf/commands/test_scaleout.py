@@ -25,11 +25,14 @@ def test_tasks_on_the_cluster_equal_the_serial_map(cluster):
 
 
 def test_identify_on_a_local_cluster_equals_the_local_run(cluster, small_trajectory, tmp_path):
-    """The identify end-to-end test's campaign and quick grid, through jobs=1, jobs=2 and the cluster."""
+    """The identify end-to-end test's campaign and quick grid, through jobs=1, jobs=2 and the cluster. The
+    linear library only: the same tasks, folds and candidates reach the workers as with poly3, in 24 s
+    a run instead of 53 s (the search's arithmetic does not depend on the library's degree)."""
     models = {}
     for label, flags in (("jobs1", ["--jobs", "1"]), ("jobs2", ["--jobs", "2"]), ("dask", ["--dask", cluster])):
         out = tmp_path / f"{label}.json"
-        assert main(["identify", str(small_trajectory), "--out", str(out), "--quick", "--quiet", *flags]) == 0
+        assert main(["identify", str(small_trajectory), "--out", str(out), "--quick", "--library", "poly1", "--quiet",
+                     *flags]) == 0
         models[label] = json.loads(out.read_text())
     local = models.pop("jobs1")
     assert any(any(row) for row in local["coefficients"].values())
