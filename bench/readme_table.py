@@ -243,6 +243,12 @@ def _diagnose(r: Source) -> str:
             f"diagnosed in {took:.0f} s")
 
 
+def _diagnose_kernels(r: Source) -> str:
+    rows = r.table("campaign")
+    same = "yes" if all(c[5] == "yes" for c in rows) else "NO"
+    return "; ".join(f"{c[0]} {c[2]} -> {c[3]} s" for c in rows) + f"; the same JSON: {same}"
+
+
 def _diagnose_forms(r: Source) -> str:
     named = r.find(r"named correctly: (\d+)/(\d+)")
     false = r.find(r"false alarms on effect-free variant campaigns: (\d+)/(\d+)")
@@ -398,6 +404,8 @@ ROWS = (
     Row("ekf_speed", "SINDy EKF speed, default campaign (45 min, 9 runs in lockstep), full-grid model", _ekf_speed,
         "-"),
     Row("diagnose", _diagnose_q, _diagnose, "outlook only"),
+    Row("diagnose_kernels", "`diagnose --no-ekf` wall time before -> after its memory-lean kernels (2 cores)",
+        _diagnose_kernels, "-"),
     Row("diagnose_forms", "diagnosis, mechanism forms the families were not written from, on simulator variants "
         "1 to 10", _diagnose_forms, "-"),
     Row("diagnose_forms_120s", "the same on runs of 120 s instead of 45 s (a slow effect needs time to show)",
