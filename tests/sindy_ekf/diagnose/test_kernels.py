@@ -8,6 +8,8 @@ broadcast view an additive family passes), besides the shuffled runs of ``test_d
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.integrate import trapezoid
@@ -77,8 +79,8 @@ def test_a_floor_patch_is_exactly_zero_beyond_its_support():
 def test_patch_columns_on_their_support_are_the_dense_ones(monkeypatch):
     rng = np.random.default_rng(8)
     sp = _split(rng, lengths=(300, 250), tau=0.5)
-    sp = type(sp)(**{**sp.__dict__, "pose_local": np.column_stack([np.cumsum(rng.normal(0, 0.8, size=(550, 2)), 0),
-                                                                   sp.pose_local[:, 2]])})
+    walk = np.cumsum(rng.normal(0, 0.8, size=(550, 2)), 0)  # a track over some 30 m, as outdoors
+    sp = replace(sp, pose_local=np.column_stack([walk, sp.pose_local[:, 2]]))
     fam = FAMILY_SPECS["position_dependence"]
     grid = fam.grid(sp)
     theta = grid[grid[:, 0] <= grid[0, 0] + 0.5]  # the patches of the first two columns of centres
