@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 
 from bench.publish import publish
+from bench.revisions import export_revision
 
 ROOT = Path(__file__).resolve().parents[1]
 WHEELS = ROOT.parent / "shared" / "data" / "warthog-drive-wheels"
@@ -67,10 +68,7 @@ def main(argv=None) -> int:
     rows, same_all = [], True
     with tempfile.TemporaryDirectory(prefix="diagnose_kernels_") as tmp:
         tmp = Path(tmp)
-        old = tmp / "before"
-        old.mkdir()
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.base], check=True, capture_output=True)
-        subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
+        old = export_revision(ROOT, args.base, tmp / "before")
         cli(["identify", str(WHEELS), "--out", str(tmp / "wheels.json"), *WHEELS_GRID], ROOT)
         cli(["inject", str(WHEELS), str(tmp / "wheels-deadband"), "--effect", "deadband=0.1"], ROOT)
         cli(["simulate", str(tmp / "sim-raw"), "--minutes", "4", "--seed", "1"], ROOT)

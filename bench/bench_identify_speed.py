@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.publish import publish
+from bench.revisions import export_revision
 from identification.sindy.model import SindyModel
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,10 +99,7 @@ def main(argv=None) -> int:
     load = [os.getloadavg()[0]]
     with tempfile.TemporaryDirectory(prefix="identify_speed_") as tmp:
         tmp = Path(tmp)
-        old = tmp / "before"
-        old.mkdir()
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", args.base], check=True, capture_output=True)
-        subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
+        old = export_revision(ROOT, args.base, tmp / "before")
         run(["simulate", str(tmp / "sim8"), "--minutes", "8", "--seed", "0"], ROOT)
         run(["preprocess", str(tmp / "sim8"), "--out", str(tmp / "traj8"), "--jobs", "1"], ROOT)
         subprocess.run([PY, "-c", WARM_UP], cwd=ROOT, check=True)  # numba compiles here, not in the timings
