@@ -340,7 +340,7 @@ def calibrate_families(model, models: dict, n_sim: int, workers, variants=tuple(
     if statistic == "own_terms":
         null = [r for r in rows if r["null"]]
         # the decision's null: the gain where the train runs confirm the refit and it is well posed
-        # (own_terms.own_terms_off)
+        # (own_terms.own_terms_case)
         confirmed = [r["own_terms_gain_5s"] for r in null if confirms(r)]
         return {"rows": rows, "max": {"own_terms_gain_5s": max(confirmed, default=0.0)},
                 "n_sim": n_sim, "variants": list(variants),
@@ -629,7 +629,7 @@ def write_family_section(path: Path, fc) -> None:
 
 
 def confirms(row) -> bool:
-    """Return whether a calibration row's refit passes the conditions of ``own_terms.own_terms_off`` besides
+    """Return whether a calibration row's refit passes the conditions of ``own_terms.own_terms_case`` besides
     its gain: better over 5 s on the train runs (median) and failing no well-posedness check the model passes."""
     return row["train_median_5s_m"][1] < row["train_median_5s_m"][0] and row["refit_well_posed"]
 

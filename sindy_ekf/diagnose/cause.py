@@ -53,7 +53,7 @@ PAIRS = (("vx", 0, 0), ("omega", 2, 1))  # (equation, velocity column, input col
 # (the margin of the families' gain thresholds, sindy_ekf.diagnose.rank).
 # own_terms_gain (the 5 s gain of the model's own terms re-identified on the train runs, where the train runs
 # confirm the refit and it fails no well-posedness check the model passes: the conditions of
-# sindy_ekf.diagnose.own_terms.own_terms_off besides the model's cross-validation, which the lab models of
+# sindy_ekf.diagnose.own_terms.own_terms_case besides the model's cross-validation, which the lab models of
 # the calibration do not carry) over the 46 effect-free campaigns of the
 # family calibration (`bench.bench_diagnose --calibrate-own-terms`, rows in bench/results/diagnose_raw.json
 # under "own_terms_calibration", table in bench/results/diagnose.md): 0.307 on variant 6 against its lab

@@ -8,7 +8,7 @@ refit of the model's own terms (:func:`sindy_ekf.diagnose.cause.unexplained_stru
 construction, small. So such a campaign read ``none`` while the model was wrong by a factor of ten
 (an independent generator's skid-steered robot with its turning resistance doubled: 95 cm at 5 s).
 
-:func:`own_terms_off` asks it directly, when nothing else is named: the model's own terms re-identified
+:func:`own_terms_question` asks it directly, when nothing else is named: the model's own terms re-identified
 on the train runs (:func:`refit_own_terms`), scored by the 5 s prediction of the test runs
 (:func:`own_terms_statistic`) against a null calibrated on effect-free campaigns
 (``bench/bench_diagnose.py --calibrate-own-terms``), and judged against what the model's own
@@ -17,6 +17,11 @@ identification measured for itself: its cross-validation estimate in the model f
 which the model does worse than that promise disagrees with the model; a model without the record (built
 by hand, or a lab model) may simply be a poor model, which a refit on any data improves (a simulator
 variant's lab model on an effect-free campaign of the variant: 6.3 -> 2.1 cm).
+
+Where a family is named it asks again, since a mechanism can mimic another ground: with less track
+friction the robot answers its inputs more slowly, and an input delay buys part of that (an independent
+generator's two-track robot, 5 s error 60.3 -> 21.8 cm with the delay, 6.0 cm with the own terms refitted).
+The refit, fitted on the same train runs, then replaces the family only when it predicts the test runs better.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ def refit_own_terms(model: SindyModel, train: Split, weights: np.ndarray) -> Sin
     The input chain (dead times, input lags) and the extrapolation stay; ``train`` holds the inputs as
     the model sees them (:func:`sindy_ekf.diagnose.data.model_split`). The diagnosis asks with it whether
     the campaign disagrees with the model in what its coefficients already express (another ground,
-    another robot state) rather than through a mechanism it lacks (:func:`own_terms_off`).
+    another robot state) rather than through a mechanism it lacks (:func:`own_terms_question`).
     """
     th_int = train.integrate(model.library.transform(np.concatenate([train.v_body, train.u], axis=-1)))
     coef, _ = refit_support(model.coef != 0, th_int, np.zeros((train.n_windows, 3, 0)), train.delta_v, weights)
@@ -65,7 +70,7 @@ def own_terms_statistic(model, tr, weights, train, train_names, test, test_names
                         checks: bool = False,
                         before: EvaluationResult | None = None) -> tuple[SindyModel, dict, EvaluationResult]:
     """Return ``(refit, statistic, evaluation)`` of the model's own terms re-identified on the train runs
-    (:func:`refit_own_terms`); what :func:`own_terms_off` decides on and its null is calibrated on.
+    (:func:`refit_own_terms`); what :func:`own_terms_case` decides on and its null is calibrated on.
 
     ``statistic``: ``gain_5s``, the relative drop of the squared 5 s position errors on the test runs over
     the ``n_windows`` windows where neither prediction diverged (a given model that runs away in one window
@@ -96,18 +101,17 @@ def well_posed_refit(model, refit, train) -> tuple[SindyModel, bool]:
     return refit, set(failed_checks(refit.checks)) <= set(failed_checks(run_checks(model, train)))
 
 
-def own_terms_off(model, tr, te, weights, gains, train, train_names, test, test_names, evidence, res_before):
-    """Return ``(verdict, extension, evaluation)``: ``unexplained`` with the refit of the model's own terms
-    as the extension when the campaign disagrees with what the model's coefficients express, else
-    ``none``, no extension and ``res_before``.
+def own_terms_case(model, tr, te, weights, gains, train, train_names, test, test_names, evidence, res_before):
+    """Return ``(refit, evaluation)`` when the campaign disagrees with what the model's coefficients
+    express, else ``(None, None)``; the statistic and each condition go into ``evidence["own_terms"]``
+    either way, and on a disagreement the strongest structure of the residuals as they are into
+    ``evidence["unexplained"]``.
 
     All of: the refit's 5 s gain on the test runs above its calibrated null
     (:data:`sindy_ekf.diagnose.cause.NULL_MAX`); the model's 5 s error on the test runs above the
     prediction interval of its own cross-validation estimate (the model file's, as ``evaluate`` compares
     them; no verdict without one); the refit better over 5 s on the train runs (median); the refit failing
-    none of the well-posedness checks the model passes. The strongest structure of the residuals as they
-    are goes into ``evidence["unexplained"]``; the statistic and each condition into
-    ``evidence["own_terms"]`` either way.
+    none of the well-posedness checks the model passes.
     """
     refit, stat, res_refit = own_terms_statistic(model, tr, weights, train, train_names, test, test_names,
                                                  before=res_before)
@@ -119,14 +123,62 @@ def own_terms_off(model, tr, te, weights, gains, train, train_names, test, test_
                             and cv.test_pos_err_5s_m > cv.cv_pos_err_5s_m + cv.interval_m)
     before, after = stat["train_median_5s_m"]
     if not (stat["gain_5s"] > own["threshold"] and own["beyond_cv"] and after < before):
-        return "none", None, res_before
+        return None, None
     refit, own["refit_well_posed"] = well_posed_refit(model, refit, train)
     if not own["refit_well_posed"]:
-        return "none", None, res_before
+        return None, None
     eta2, equation, regressor = unexplained_structure(model, tr, te, own_terms=False)
     evidence["unexplained"] = {
         "equation": equation, "regressor": regressor, "eta2": eta2, "explained_by": "own_terms",
         "own_terms_gain_5s": stat["gain_5s"], "input_gains": dict(zip(LIBRARY_INPUT_NAMES, map(float, gains)))}
+    return refit, res_refit
+
+
+def own_terms_question(name, extended, res_after, model, tr, te, weights, gains, train, train_names, test,
+                       test_names, evidence, res_before):
+    """Return ``(verdict, extension, evaluation)`` after asking whether the model's own coefficients hold.
+
+    - Nothing named (``none``): ``unexplained`` with the refit of the model's own terms as the extension
+      when the campaign disagrees with what they express (:func:`own_terms_case`), else as it was.
+    - A family named: the refit is a second explanation of the same campaign, fitted on the same train
+      runs. It replaces the family (verdict ``unexplained``, explained by the own terms; the family and
+      both errors in ``evidence["own_terms"]["against_family"]``) when the campaign disagrees with the
+      model's coefficients and the refit predicts the test runs better over 5 s (RMS over the windows
+      where none of the three predictions diverged), the score every candidate is judged by. Both were
+      fitted on the train runs, where the more flexible one fits better by construction: their 5 s
+      medians there are recorded, not compared (the delay below: 2.77 against 2.85 cm). A robot on
+      ground with less track friction answers its inputs more slowly, which an input delay partly
+      mimics (bench_new_ground: 60.3 -> 21.8 cm with the delay, 6.0 cm refitted); its delay is no
+      finding. A real delay, deadband or coupling is what the refit cannot express, and it loses there.
+    - ``unexplained`` from the residual structure: as it was.
+    """
+    if name not in ("none", "unexplained") and extended is not None:
+        return _against_family(name, extended, res_after, model, tr, te, weights, gains, train, train_names,
+                               test, test_names, evidence, res_before)
+    if name != "none":
+        return name, extended, res_after
+    refit, res_refit = own_terms_case(model, tr, te, weights, gains, train, train_names, test, test_names,
+                                      evidence, res_before)
+    return ("none", None, res_before) if refit is None else ("unexplained", refit, res_refit)
+
+
+def _against_family(name, extended, res_after, model, tr, te, weights, gains, train, train_names, test,
+                    test_names, evidence, res_before):
+    """Return :func:`own_terms_question`'s answer where the family ``name`` is named with ``extended``."""
+    mine = {}
+    refit, res_refit = own_terms_case(model, tr, te, weights, gains, train, train_names, test, test_names, mine,
+                                      res_before)
+    evidence["own_terms"] = own = mine["own_terms"]
+    if refit is None:
+        return name, extended, res_after
+    ok = common_windows(res_before, res_after) & common_windows(res_before, res_refit)
+    test_rms = [float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else np.nan for r in (res_after, res_refit)]
+    train_median = [median_5s(multistep(extended, train, train_names)), own["train_median_5s_m"][1]]
+    own["against_family"] = {"family": name, "test_rms_5s_m": test_rms, "train_median_5s_m": train_median,
+                             "n_windows": int(np.count_nonzero(ok))}
+    if not test_rms[1] < test_rms[0]:
+        return name, extended, res_after
+    evidence["unexplained"] = {**mine["unexplained"], "instead_of": name}
     return "unexplained", refit, res_refit
 
 
@@ -137,7 +189,15 @@ def unexplained_notes(verdict: str, evidence: dict, extended) -> list[str]:
     if not u:
         return []
     lines = [f"unexplained: {u['equation']} residuals vs {u['regressor']} eta2={u['eta2']:.2f}, out of sample; "
-             f"no family explains it"]
+             f"no family explains it" + (f" better than the model's own terms refitted" if u.get("instead_of") else "")]
+    if u.get("instead_of"):
+        a = evidence["own_terms"]["against_family"]
+        lines.append(
+            f"{u['instead_of']} is significant (its extension: {100 * a['test_rms_5s_m'][0]:.2f} cm over 5 s on the test "
+            f"runs), but the model's own terms re-identified predict them better: {100 * a['test_rms_5s_m'][1]:.2f} cm "
+            f"(train runs, median: {100 * a['train_median_5s_m'][0]:.2f} "
+            f"against {100 * a['train_median_5s_m'][1]:.2f} cm): the {u['instead_of']} it finds is what another ground looks "
+            f"like to the model, not a finding of its own")
     if u.get("explained_by") == "own_terms":
         g, own = u["input_gains"], evidence["own_terms"]
         lines.append(

@@ -54,7 +54,7 @@ from sindy_ekf.diagnose.design import with_input_gains
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.gain_profile import with_gain_profile
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
-from sindy_ekf.diagnose.own_terms import own_terms_off, unexplained_notes
+from sindy_ekf.diagnose.own_terms import own_terms_question, unexplained_notes
 from sindy_ekf.diagnose.per_input import with_per_input, with_response_lag_per_input
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
@@ -385,11 +385,11 @@ def diagnose_states(model: SindyModel, train: Sequence[BodyStates], test: Sequen
         # structure that holds out of sample and that no family explains: not "nothing to change"
         name = "unexplained"
         evidence["unexplained"] = {"equation": equation, "regressor": regressor, "eta2": eta2}
-    if name == "none":
-        name, extended, res_after = own_terms_off(model, tr, te, weights, gains, train, train_names, test,
-                                                  test_names, evidence, res_after)
+    named, named_after = name, errors_5s(res_before, res_after)[1]  # the family's own, should the refit replace it
+    name, extended, res_after = own_terms_question(name, extended, res_after, model, tr, te, weights, gains, train,
+                                                   train_names, test, test_names, evidence, res_before)
     before, after = errors_5s(res_before, res_after)
-    others = {}
+    others = {named: named_after} if name != named and named not in ("none", "unexplained") else {}
     for c in ranked[1:]:
         if c.significant:  # what each other significant mechanism alone would buy
             ext = (reidentify(model, c.name, c.score.theta, tr, weights, dict(c.score.estimate))

@@ -18,19 +18,27 @@ from scipy.integrate import solve_ivp
 from groundfloor.types import BodyStates
 from identification.sindy.model import model_from_terms
 from sindy_ekf.diagnose.cause import threshold
+from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.extend import multistep
+from sindy_ekf.diagnose.own_terms import own_terms_question, unexplained_notes
 from sindy_ekf.diagnose.pipeline import diagnose_states
+from sindy_ekf.diagnose.scoring import equation_weights
 
 A, B = np.array([4.0, 3.0]), np.array([2.0, 1.5])  # the ground the model knows: v' = -a v + b u, per axis
 SOFT = np.array([4.0, 4.5]), np.array([2.0, 0.9])  # another ground: omega damped 1.5 x, steering gain 0.6 x
+
+
+def plant(a, b):
+    """Return the plant ``v' = -a v + b u`` per axis as a SINDy model (a stiff ``vy`` at rest)."""
+    return model_from_terms({"vx": {"vx": -a[0], "u1": b[0]}, "vy": {"vy": -10.0},
+                             "omega": {"omega": -a[1], "u2": b[1]}}, "poly1")
 
 
 def plant_model(cv: bool = True):
     """The plant on the known ground as a SINDy model (no lateral motion); with ``cv`` its model file's
     cross-validation record as ``identify`` writes it: the 5 s error of held-out runs of its own ground,
     here predicted by the model itself (:func:`sindy_ekf.diagnose.extend.multistep`), one fold per run."""
-    model = model_from_terms({"vx": {"vx": -A[0], "u1": B[0]}, "vy": {"vy": -10.0},
-                              "omega": {"omega": -A[1], "u2": B[1]}}, "poly1")
+    model = plant(A, B)
     if not cv:
         return model
     own = runs(A, B, 3, n_runs=4)
@@ -39,9 +47,9 @@ def plant_model(cv: bool = True):
                                            "pos_err_5s_m": float(np.sqrt(np.mean(np.square(folds))))}})
 
 
-def runs(a, b, seed, n_runs=3, run_s=60.0, rate_hz=25.0):
-    """Return ``n_runs`` BodyStates of the plant ``v' = -a v + b u`` with its poses, inputs held 0.5-3 s
-    and ramped over 0.2 s (solve_ivp), velocities and poses with noise."""
+def runs(a, b, seed, n_runs=3, run_s=60.0, rate_hz=25.0, dead_time_s=0.0):
+    """Return ``n_runs`` BodyStates of the plant ``v' = -a v + b u(t - dead_time_s)`` with its poses, inputs
+    held 0.5-3 s and ramped over 0.2 s (solve_ivp), velocities and poses with noise."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n_runs):
@@ -54,7 +62,7 @@ def runs(a, b, seed, n_runs=3, run_s=60.0, rate_hz=25.0):
 
         def rhs(s, y):
             vx, w, _, _, yaw = y
-            un = np.array([np.interp(s, t, u[:, j]) for j in range(2)])
+            un = np.array([np.interp(s - dead_time_s, t, u[:, j], left=0.0) for j in range(2)])
             dv = -a * np.array([vx, w]) + b * un
             return [dv[0], dv[1], vx * np.cos(yaw), vx * np.sin(yaw), w]
 
@@ -118,3 +126,49 @@ def test_without_the_models_own_cross_validation_there_is_nothing_to_disagree_wi
     assert d.verdict == "none" and d.extended is None
     own = d.evidence["own_terms"]
     assert own["cv"] is None and not own["beyond_cv"] and own["gain_5s"] > threshold("own_terms_gain")
+
+
+# A family named on a campaign of another ground: the refit of the model's own terms is a second explanation,
+# fitted on the same train runs, and the one that predicts the test runs better stands. The extensions here
+# come from the plant itself, not from a family's code: what a delay would buy, and the whole truth.
+DEAD_S = 0.25  # a dead time the model's own terms cannot express
+
+
+def question(a, b, extension, dead_time_s=0.0):
+    """Return ``own_terms_question``'s answer with ``input_delay`` named and ``extension`` its extended model,
+    and the evidence, on a campaign of the plant ``(a, b)`` with its inputs ``dead_time_s`` late."""
+    model = plant_model()
+    train, test = runs(a, b, 1, dead_time_s=dead_time_s), runs(a, b, 2, n_runs=2, dead_time_s=dead_time_s)
+    tr, te = (model_split(model, st, names, 2.0) for st, names in ((train, "abc"), (test, "de")))
+    before, after = multistep(model, test, "de"), multistep(extension, test, "de")
+    evidence = {}
+    answer = own_terms_question("input_delay", extension, after, model, tr, te, equation_weights(model, tr),
+                                np.ones(2), train, list("abc"), test, list("de"), evidence, before)
+    return answer, evidence
+
+
+def test_a_delay_that_another_ground_mimics_gives_way_to_the_models_own_terms_refitted():
+    # the other ground's slower turning, offered a dead time as a delay family would: it helps, but the
+    # model's own coefficients refitted (the ground's true form) predict the test runs far better
+    delayed = plant_model().with_coefficients(plant_model().coef, dead_time_s=(0.0, 0.15))
+    (verdict, extended, res), evidence = question(*SOFT, delayed)
+    assert verdict == "unexplained" and evidence["unexplained"]["instead_of"] == "input_delay"
+    a = evidence["own_terms"]["against_family"]
+    assert a["family"] == "input_delay" and a["test_rms_5s_m"][1] < 0.5 * a["test_rms_5s_m"][0], a
+    assert extended.active_terms()["omega"]["u2"] == pytest.approx(SOFT[1][1], rel=0.1)  # the ground's, not the model's
+    assert res.pos_err_5s_m == pytest.approx(a["test_rms_5s_m"][1], rel=1e-9)
+    notes = unexplained_notes("unexplained", evidence, extended)
+    assert "input_delay is significant" in notes[1] and "re-identify the model" in notes[2]
+
+
+def test_a_true_dead_time_on_another_ground_keeps_its_family():
+    # the same other ground with a real dead time: the refit still disagrees with the model, but the plant
+    # with its dead time (the truth, as a delay family's extension at its best) predicts the test runs better
+    truth = plant(*SOFT).with_coefficients(plant(*SOFT).coef, dead_time_s=(DEAD_S, DEAD_S))
+    (verdict, extended, _), evidence = question(*SOFT, truth, dead_time_s=DEAD_S)
+    assert verdict == "input_delay" and extended is truth
+    own = evidence["own_terms"]
+    assert own["beyond_cv"] and own["gain_5s"] > threshold("own_terms_gain")  # the refit alone would be named
+    a = own["against_family"]
+    assert a["test_rms_5s_m"][0] < a["test_rms_5s_m"][1], a
+    assert "unexplained" not in evidence
