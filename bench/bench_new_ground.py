@@ -201,7 +201,8 @@ def main(argv=None) -> int:
         vs = "-" if not vs else (f"{vs['family']}: {100 * vs['test_rms_5s_m'][0]:.2f} / "
                                  f"{100 * vs['test_rms_5s_m'][1]:.2f}")
         lines.append(f"| {r['campaign']} | {verdict} | {r['top']}: {r['top_gain']:.4f} / {r['top_threshold']:.4f} | "
-                     f"{own} | {vs} | {g['u1']:.3f}, {g['u2']:.3f} | {100 * r['before_m']:.2f} -> {100 * r['after_m']:.2f} |")
+                     f"{own} | {vs} | {g['u1']:.3f}, {g['u2']:.3f} | "
+                     f"{100 * r['before_m']:.2f} -> {100 * r['after_m']:.2f} |")
     atomic_write_json(HERE / "results" / "new_ground.json", {"model_cv_m": cv, "rows": rows})
     publish(HERE / "results" / "new_ground.md", lines)
     return 0

@@ -189,15 +189,15 @@ def unexplained_notes(verdict: str, evidence: dict, extended) -> list[str]:
     if not u:
         return []
     lines = [f"unexplained: {u['equation']} residuals vs {u['regressor']} eta2={u['eta2']:.2f}, out of sample; "
-             f"no family explains it" + (f" better than the model's own terms refitted" if u.get("instead_of") else "")]
+             "no family explains it" + (" better than the model's own terms refitted" if u.get("instead_of") else "")]
     if u.get("instead_of"):
-        a = evidence["own_terms"]["against_family"]
+        fam, a = u["instead_of"], evidence["own_terms"]["against_family"]
+        test_cm, train_cm = (100 * np.asarray(a[k]) for k in ("test_rms_5s_m", "train_median_5s_m"))
         lines.append(
-            f"{u['instead_of']} is significant (its extension: {100 * a['test_rms_5s_m'][0]:.2f} cm over 5 s on the test "
-            f"runs), but the model's own terms re-identified predict them better: {100 * a['test_rms_5s_m'][1]:.2f} cm "
-            f"(train runs, median: {100 * a['train_median_5s_m'][0]:.2f} "
-            f"against {100 * a['train_median_5s_m'][1]:.2f} cm): the {u['instead_of']} it finds is what another ground looks "
-            f"like to the model, not a finding of its own")
+            f"{fam} is significant (its extension: {test_cm[0]:.2f} cm over 5 s on the test runs), but the model's "
+            f"own terms re-identified predict them better: {test_cm[1]:.2f} cm (train runs, median: {train_cm[0]:.2f} "
+            f"against {train_cm[1]:.2f} cm): the {fam} it finds is what another ground looks like to the model, "
+            "not a finding of its own")
     if u.get("explained_by") == "own_terms":
         g, own = u["input_gains"], evidence["own_terms"]
         lines.append(
