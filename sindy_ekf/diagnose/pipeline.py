@@ -54,6 +54,7 @@ from sindy_ekf.diagnose.design import with_input_gains
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.gain_profile import with_gain_profile
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
+from sindy_ekf.diagnose.on_test import extension_on_test, extension_warning
 from sindy_ekf.diagnose.own_terms import own_terms_question, unexplained_notes
 from sindy_ekf.diagnose.per_input import with_per_input, with_response_lag_per_input
 from sindy_ekf.diagnose.rank import (
@@ -106,21 +107,11 @@ class Diagnosis:
 
     @property
     def extension_on_test(self) -> dict | None:
-        """Return how the extended model does on the test runs' 5 s windows against the given one,
-        or None without an extension: ``{"lowers": bool, "windows_better": k, "n_windows": n}``
-        (the RMS position error falls; in how many of the common windows the 5 s error is smaller).
-
-        The extension is fitted and confirmed on the train runs; the test runs can still disagree
-        (another day, another ground, a robot that answers its inputs faster there), and then the
-        user should hear it rather than read it off two numbers.
-        """
+        """Return how the extended model does on the test runs' 5 s windows against the given one, or None
+        without an extension (:func:`sindy_ekf.diagnose.on_test.extension_on_test`)."""
         if self.extended is None or "after" not in self.evaluations:
             return None
-        b, a = self.evaluations["before"], self.evaluations["after"]
-        ok = common_windows(b, a)
-        return {"lowers": bool(self.after.pos_err_5s_m < self.before.pos_err_5s_m),
-                "windows_better": int(np.count_nonzero(a.eps_p[ok, -1] < b.eps_p[ok, -1])),
-                "n_windows": int(ok.sum())}
+        return extension_on_test(self.evaluations["before"], self.evaluations["after"])
 
     def missing_law_warning(self) -> str | None:
         """Return one line when the model has no lateral law and adding one clears its threshold,
@@ -143,15 +134,9 @@ class Diagnosis:
         return unexplained_notes(self.verdict, self.evidence, self.extended)
 
     def extension_warning(self) -> str | None:
-        """Return one line saying that the extended model predicts the test runs worse, or None."""
-        e = self.extension_on_test
-        if e is None or e["lowers"]:
-            return None
-        return (f"the extended model predicts the test runs worse (5 s position error "
-                f"{100 * self.before.pos_err_5s_m:.2f} -> {100 * self.after.pos_err_5s_m:.2f} cm, better in "
-                f"{e['windows_better']} of {e['n_windows']} windows): the {self.verdict} the train runs show does "
-                f"not hold on the test runs as fitted; check that both were recorded under the same conditions "
-                f"(day, ground, robot) before using the extended model")
+        """Return one line when the extended model predicts the test runs worse, or None (:mod:`.on_test`)."""
+        return extension_warning(self.extension_on_test, self.verdict, self.before.pos_err_5s_m,
+                                 self.after.pos_err_5s_m)
 
     def to_json(self) -> dict:
         """Return the ``diagnose --json`` dict (INTERFACES.md keys first, then details)."""
