@@ -55,7 +55,7 @@ from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.gain_profile import with_gain_profile
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
 from sindy_ekf.diagnose.on_test import extension_on_test, extension_warning
-from sindy_ekf.diagnose.own_terms import own_terms_question, unexplained_notes
+from sindy_ekf.diagnose.own_terms import alternative_note, own_terms_question, unexplained_notes
 from sindy_ekf.diagnose.per_input import with_per_input, with_response_lag_per_input
 from sindy_ekf.diagnose.rank import (
     THRESHOLD_PROVENANCE,
@@ -130,8 +130,10 @@ class Diagnosis:
         return None
 
     def unexplained_notes(self) -> list[str]:
-        """Return what an ``unexplained`` verdict found, one line each (:func:`own_terms.unexplained_notes`)."""
-        return unexplained_notes(self.verdict, self.evidence, self.extended)
+        """Return what an ``unexplained`` verdict found, one line each (:func:`own_terms.unexplained_notes`), or
+        for a named family that the model's own terms refitted explain as well, that (:func:`alternative_note`)."""
+        alternative = alternative_note(self.verdict, self.evidence)
+        return unexplained_notes(self.verdict, self.evidence, self.extended) + ([alternative] if alternative else [])
 
     def extension_warning(self) -> str | None:
         """Return one line when the extended model predicts the test runs worse, or None (:mod:`.on_test`)."""

@@ -91,9 +91,9 @@ FAMILIES = {
     "none": "no family passes its threshold and the residuals hold no structure: nothing is worth a model change",
     "unexplained": "no family passes its threshold, but the residuals hold structure out of sample against one "
                    "regressor (eta2 above its calibrated threshold): a mechanism the diagnosis does not know; or the "
-                   "model's own terms, re-identified on the train runs, predict far better (and better than the "
-                   "extension of any family that passes): its coefficients do not hold on this campaign (another "
-                   "ground, another robot state)",
+                   "model's own terms, re-identified on the train runs, predict far better (and better beyond chance "
+                   "than the extension of a family that passes): its coefficients do not hold on this campaign "
+                   "(another ground, another robot state)",
 }
 
 GLOSSARIES = (MODELS, ESTIMATORS, TERMS, FAMILIES)

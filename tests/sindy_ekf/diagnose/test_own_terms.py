@@ -20,7 +20,13 @@ from identification.sindy.model import model_from_terms
 from sindy_ekf.diagnose.cause import threshold
 from sindy_ekf.diagnose.data import model_split
 from sindy_ekf.diagnose.extend import multistep
-from sindy_ekf.diagnose.own_terms import own_terms_question, unexplained_notes
+from sindy_ekf.diagnose.own_terms import (
+    T_BETTER,
+    alternative_note,
+    own_terms_question,
+    paired_t,
+    unexplained_notes,
+)
 from sindy_ekf.diagnose.pipeline import diagnose_states
 from sindy_ekf.diagnose.scoring import equation_weights
 
@@ -170,5 +176,29 @@ def test_a_true_dead_time_on_another_ground_keeps_its_family():
     own = evidence["own_terms"]
     assert own["beyond_cv"] and own["gain_5s"] > threshold("own_terms_gain")  # the refit alone would be named
     a = own["against_family"]
-    assert a["test_rms_5s_m"][0] < a["test_rms_5s_m"][1], a
+    assert a["test_rms_5s_m"][0] < a["test_rms_5s_m"][1] and a["t_refit_better"] < -T_BETTER, a
     assert "unexplained" not in evidence
+    assert alternative_note("input_delay", evidence) is None  # the family is clearly the better explanation
+
+
+def test_where_neither_explanation_is_better_beyond_chance_the_user_hears_both():
+    # the track friction case of bench_new_ground in numbers: the refit far better in RMS, through two windows
+    # where the lag's extension runs far, and no better in the median
+    evidence = {"own_terms": {"cv": {"pos_err_5s_m": 0.0316}, "against_family": {
+        "family": "input_delay", "test_rms_5s_m": [0.2183, 0.0595], "test_median_5s_m": [0.0285, 0.0304],
+        "train_median_5s_m": [0.0277, 0.0285], "n_windows": 140, "t_refit_better": 1.0}}}
+    line = alternative_note("input_delay", evidence)
+    assert line.startswith("the model's own terms re-identified on the train runs explain the test runs too: 5 s "
+                           "error 5.95 cm against the input_delay extension's 21.83 cm (median 3.04 against 2.85 cm; "
+                           "paired t of the log error ratio 1.0, within +-2)") and "promised 3.16 cm" in line
+    for t in (-2.5, 2.5):  # beyond chance either way: the better one stands (or replaced the family) alone
+        evidence["own_terms"]["against_family"]["t_refit_better"] = t
+        assert alternative_note("input_delay", evidence) is None
+    assert alternative_note("deadband", {"own_terms": {"gain_5s": 0.9}}) is None  # the refit not asked against it
+
+
+def test_the_paired_t_is_taken_over_pairs_of_half_overlapping_windows():
+    # hand computation: differences 1, 3, 2, 2, 4, 6 -> pair means 2, 2, 5 -> mean 3, sd sqrt(3), t = 3 / 1 = 3
+    assert paired_t(np.array([1.0, 3.0, 2.0, 2.0, 4.0, 6.0])) == pytest.approx(3.0)
+    assert paired_t(np.array([1.0, 3.0, 2.0, 2.0, 4.0, 6.0, 100.0])) == pytest.approx(3.0)  # odd last one left out
+    assert np.isnan(paired_t(np.array([1.0, 2.0, 3.0]))) and np.isnan(paired_t(np.ones(6)))
