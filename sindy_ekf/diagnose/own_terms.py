@@ -172,7 +172,7 @@ def own_terms_question(name, extended, res_after, model, tr, te, weights, gains,
 # means of consecutive pairs.
 T_BETTER = 2.0
 WINDOWS_PER_BLOCK = 2
-TINY_M2 = 1e-18  # a squared error of 1 nm: below it a window counts as exact
+TINY_M = 1e-9  # below an error of 1 nm a window counts as exact
 
 
 def paired_t(d: np.ndarray, block: int = WINDOWS_PER_BLOCK) -> float:
@@ -196,12 +196,12 @@ def _against_family(name, extended, res_after, model, tr, te, weights, gains, tr
     if refit is None:
         return name, extended, res_after
     ok = common_windows(res_before, res_after) & common_windows(res_before, res_refit)
-    sq = [r.eps_p[ok, -1] ** 2 for r in (res_after, res_refit)]
-    test_rms = [float(np.sqrt(np.mean(v))) if ok.any() else np.nan for v in sq]
+    e = [r.eps_p[ok, -1] for r in (res_after, res_refit)]
+    test_rms = [float(np.sqrt(np.mean(v ** 2))) if ok.any() else np.nan for v in e]
     train_median = [median_5s(multistep(extended, train, train_names)), own["train_median_5s_m"][1]]
-    t = paired_t(np.log(np.maximum(sq[0], TINY_M2)) / 2 - np.log(np.maximum(sq[1], TINY_M2)) / 2)
+    t = paired_t(np.log(np.maximum(e[0], TINY_M)) - np.log(np.maximum(e[1], TINY_M)))
     own["against_family"] = {"family": name, "test_rms_5s_m": test_rms, "train_median_5s_m": train_median,
-                             "test_median_5s_m": [float(np.sqrt(np.median(v))) if ok.any() else np.nan for v in sq],
+                             "test_median_5s_m": [float(np.median(v)) if ok.any() else np.nan for v in e],
                              "n_windows": int(np.count_nonzero(ok)), "t_refit_better": t}
     if not t > T_BETTER:
         return name, extended, res_after
@@ -236,11 +236,12 @@ def unexplained_notes(verdict: str, evidence: dict, extended) -> list[str]:
              "no family explains it" + (" better than the model's own terms refitted" if u.get("instead_of") else "")]
     if u.get("instead_of"):
         fam, a = u["instead_of"], evidence["own_terms"]["against_family"]
-        test_cm, train_cm = (100 * np.asarray(a[k]) for k in ("test_rms_5s_m", "train_median_5s_m"))
+        test_cm, med_cm = (100 * np.asarray(a[k]) for k in ("test_rms_5s_m", "test_median_5s_m"))
         lines.append(
-            f"{fam} is significant (its extension: {test_cm[0]:.2f} cm over 5 s on the test runs), but the model's "
-            f"own terms re-identified predict them better: {test_cm[1]:.2f} cm (train runs, median: {train_cm[0]:.2f} "
-            f"against {train_cm[1]:.2f} cm): the {fam} it finds is what another ground looks like to the model, "
+            f"{fam} is significant (its extension: {test_cm[0]:.2f} cm over 5 s on the test runs, median "
+            f"{med_cm[0]:.2f} cm), but the model's own terms re-identified predict them better beyond chance: "
+            f"{test_cm[1]:.2f} cm, median {med_cm[1]:.2f} cm (paired t of the log error ratio "
+            f"{a['t_refit_better']:.1f}): the {fam} it finds is what another ground looks like to the model, "
             "not a finding of its own")
     if u.get("explained_by") == "own_terms":
         g, own = u["input_gains"], evidence["own_terms"]
