@@ -48,7 +48,7 @@ def test_an_extension_better_in_most_windows_whose_rms_one_window_carries_says_s
 
 
 def test_no_line_where_the_extension_lowers_the_rms_and_diverged_windows_are_left_out():
-    before, after = evaluation([0.2, 0.2, np.inf]), evaluation([0.1, 0.25, 0.1])
+    before, after = evaluation([0.2, 0.2, 5e3]), evaluation([0.1, 0.25, 0.1])  # 5 km: diverged (beyond 1 km)
     e = extension_on_test(before, after)
     assert e["n_windows"] == 2 and e["lowers"] and e["windows_better"] == 1  # RMS 0.2 -> 0.1904 over the two finite windows
     assert extension_warning(e, "deadband", 0.2, 0.1904) is None
