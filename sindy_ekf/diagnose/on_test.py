@@ -14,8 +14,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from groundfloor.results import PredictionError
 from identification.sindy.evaluate import EvaluationResult
 from sindy_ekf.diagnose.extend import common_windows
+
+
+def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[PredictionError, PredictionError]:
+    """Return the 5 s RMS errors of two evaluations over the windows where neither diverged.
+
+    A model that leaves its envelope may blow up in a few windows (``inf``); comparing on the
+    common finite windows keeps the numbers meaningful (:func:`sindy_ekf.diagnose.pipeline.n_diverged` says how
+    many each left out).
+    """
+    ok = common_windows(before, after)
+    return tuple(PredictionError(
+        pos_err_5s_m=float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else float("nan"),
+        yaw_err_5s_deg=float(np.degrees(np.sqrt(np.mean(r.eps_h[ok, -1] ** 2)))) if ok.any() else float("nan"),
+        n_windows=int(ok.sum())) for r in (before, after))
 
 
 def extension_on_test(before: EvaluationResult, after: EvaluationResult) -> dict:
@@ -28,7 +43,7 @@ def extension_on_test(before: EvaluationResult, after: EvaluationResult) -> dict
     """
     ok = common_windows(before, after)
     b, a = before.eps_p[ok, -1], after.eps_p[ok, -1]
-    rms = [float(np.sqrt(np.mean(v ** 2))) if v.size else float("nan") for v in (b, a)]
+    rms = [e.pos_err_5s_m for e in errors_5s(before, after)]
     k = int(np.argmax(a - b)) if a.size else -1
     return {"lowers": bool(rms[1] < rms[0]), "windows_better": int(np.count_nonzero(a < b)), "n_windows": int(ok.sum()),
             "median_5s_m": [float(np.median(v)) if v.size else float("nan") for v in (b, a)],

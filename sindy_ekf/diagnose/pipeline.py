@@ -54,7 +54,7 @@ from sindy_ekf.diagnose.design import with_input_gains
 from sindy_ekf.diagnose.families import FAMILIES, mechanism_spec
 from sindy_ekf.diagnose.gain_profile import with_gain_profile
 from sindy_ekf.diagnose.measurement import Finding, measurement_findings
-from sindy_ekf.diagnose.on_test import extension_on_test, extension_warning
+from sindy_ekf.diagnose.on_test import errors_5s, extension_on_test, extension_warning
 from sindy_ekf.diagnose.own_terms import alternative_note, own_terms_question, unexplained_notes
 from sindy_ekf.diagnose.per_input import with_per_input, with_response_lag_per_input
 from sindy_ekf.diagnose.rank import (
@@ -183,19 +183,6 @@ class Diagnosis:
                 "n_test_windows_5s": self.before.n_windows, "extension_on_test": self.extension_on_test,
                 "warnings": [w for w in (self.extension_warning(), self.missing_law_warning()) if w],
                 "seconds": self.seconds}
-
-
-def errors_5s(before: EvaluationResult, after: EvaluationResult) -> tuple[PredictionError, PredictionError]:
-    """Return the 5 s RMS errors of two evaluations over the windows where neither diverged.
-
-    A model that leaves its envelope may blow up in a few windows (``inf``); comparing on the
-    common finite windows keeps the numbers meaningful (:func:`n_diverged` says how many each left out).
-    """
-    ok = common_windows(before, after)
-    return tuple(PredictionError(
-        pos_err_5s_m=float(np.sqrt(np.mean(r.eps_p[ok, -1] ** 2))) if ok.any() else float("nan"),
-        yaw_err_5s_deg=float(np.degrees(np.sqrt(np.mean(r.eps_h[ok, -1] ** 2)))) if ok.any() else float("nan"),
-        n_windows=int(ok.sum())) for r in (before, after))
 
 
 def n_diverged(evaluation: EvaluationResult) -> int:
