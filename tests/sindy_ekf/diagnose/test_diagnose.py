@@ -337,9 +337,11 @@ def test_an_extension_that_the_test_runs_contradict_is_said_to_predict_them_wors
     assert d.after.pos_err_5s_m > d.before.pos_err_5s_m, why
     e = d.to_json()["extension_on_test"]
     before, after = d.evaluations["before"].eps_p[:, -1], d.evaluations["after"].eps_p[:, -1]
+    j = np.argmin(after - before)
     assert e == {"lowers": False, "windows_better": int(np.sum(after < before)), "n_windows": len(before),
                  "median_5s_m": [np.median(before), np.median(after)],
-                 "most_worsened_5s_m": [before[np.argmax(after - before)], after[np.argmax(after - before)]]}, why
+                 "most_worsened_5s_m": [before[np.argmax(after - before)], after[np.argmax(after - before)]],
+                 "most_improved_5s_m": [before[j], after[j]] if after[j] < before[j] else None}, why
     assert e["windows_better"] < e["n_windows"] / 2, why  # the delay is wrong in most windows, not in a few
     line = d.extension_warning()
     assert line and "predicts the test runs worse" in line and "input_delay" in line, why
