@@ -50,7 +50,8 @@ def build_parser(load: Iterable[str] = tuple(COMMANDS)) -> tuple[argparse.Argume
     parser = argparse.ArgumentParser(prog="sindy-ekf", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"sindy-ekf {__version__}")
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--quiet", action="store_true", help="no progress bars, only errors")
+    common.add_argument("--quiet", action="store_true",
+                        help="no progress bars, logged warnings or repair counts (the summary and errors still print)")
     common.add_argument("--verbose", action="store_true", help="debug logging and tracebacks")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     modules = {}
