@@ -91,17 +91,22 @@ class ExtendedModel(Dynamics):
         the extension carries both.
 
         For ``lateral_slip`` the mechanism changes the lateral law only: the drift in turns becomes
-        ``slip_gain`` times the base model's. The base model's forward and yaw equations were
-        identified where vy followed the base's drift; whatever they learned as a function of vy
-        is a function of the turn (vy is nearly collinear with ``vx omega`` there), so they keep
-        seeing the lateral velocity at the base's drift, ``vy / slip_gain`` (``vy_scale``).
+        ``slip_gain`` times the base model's (``extension_slip_gain``, the drift the extension's whole
+        vy equation settles at, where ``estimate`` has it: :mod:`sindy_ekf.diagnose.lateral`). The base
+        model's forward and yaw equations were identified where vy followed the base's drift; whatever
+        they learned as a function of vy is a function of the turn (vy is nearly collinear with
+        ``vx omega`` there), so they keep seeing the lateral velocity at the base's drift,
+        ``vy / slip_gain`` (``vy_scale``).
         Feeding them the larger drift instead adds a yaw error the mechanism does not have
         (measured on the hidden-effect campaigns: heading 2.8 -> 5.1 deg, and no position gain).
         A base without a lateral law (eq. 7.8) has no drift to keep: ``vy_scale`` stays 1.
         """
         vy_scale = 1.0
-        if family == "lateral_slip":  # the family's own estimate of the drift ratio (None without a law)
-            gain = FAMILY_SPECS[family].estimate(np.asarray(theta, float), np.asarray(beta, float), base)["slip_gain"]
+        if family == "lateral_slip":  # the drift ratio as the whole vy equations settle it (lateral.py), else
+            # the family's own estimate from two coefficients (None without a law)
+            given = estimate or {}
+            gain = (given.get("extension_slip_gain") if given.get("slip_from") == "settled" else
+                    FAMILY_SPECS[family].estimate(np.asarray(theta, float), np.asarray(beta, float), base)["slip_gain"])
             vy_scale = gain if gain is not None and np.isfinite(gain) and gain > 0 else 1.0
         estimate = dict(estimate or {})
         uniform = np.zeros(0) if uniform is None else np.asarray(uniform, float).reshape(-1)

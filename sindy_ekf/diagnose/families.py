@@ -271,18 +271,18 @@ class Family:
             return {"patch_center_local_m": [float(theta[0]), float(theta[1])],
                     "patch_radius_m": float(theta[2]), "damping_fraction": frac}
         if self.name == "lateral_slip":
-            # In turns vy settles at (c / k) vx omega within 1/k (about 0.1 s): the integral
-            # regression sees the drift ratio c / k well, c and k apart poorly. The slip gain is
-            # the drift relative to the model's own.
+            # In turns vy settles at -(c / k) vx omega (k < 0) within 1/|k| (about 0.1 s): the integral
+            # regression sees the drift ratio well, c and k apart poorly. The slip gain is the drift
+            # relative to the model's own (for a law of more terms: lateral.py).
             c = model_coefficient(model, "vy", "vx omega")
             k = model_coefficient(model, "vy", "vy")
             # A model without a lateral law (eq. 7.8, vy_dot = 0) has no drift to compare with: then
             # the drift itself is the finding and the gain is left undefined (None).
             c_new, k_new = c + beta[0], k + beta[1]
-            drift = float(c_new / k_new) if k_new != 0 else float("nan")
+            drift = float(-c_new / k_new) if k_new != 0 else float("nan")  # vy = drift vx omega, settled
             has_law = c != 0 and k != 0
             out = {"coupling": float(c_new), "damping_1_s": float(-k_new), "drift_s": drift,
-                   "slip_gain": float(drift / (c / k)) if has_law else None, "model_has_lateral_law": has_law}
+                   "slip_gain": float(drift / (-c / k)) if has_law else None, "model_has_lateral_law": has_law}
             if self.mechanism:  # the nonlinear part of the drift relative to its linear part at the references
                 ref = DEMAND_REF_M_S2 ** 2 if self.mechanism == "saturating" else SPEED_REF_M_S ** 2
                 out |= {"mechanism": self.mechanism, "nonlinear_coef": float(beta[2]),

@@ -19,6 +19,7 @@ from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
 from sindy_ekf.diagnose.columns import design_for, null_fit
 from sindy_ekf.diagnose.fitting import FamilyScore, refit_grid, score_family
 from sindy_ekf.diagnose.grids import parabolic_min
+from sindy_ekf.diagnose.lateral import with_settled_drift
 
 
 def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:
@@ -55,9 +56,12 @@ def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: 
 
 def _score_family_task(task) -> FamilyScore:
     """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty,
-    test)``, the lateral law also by its 5 s prediction of the test runs ``test = (states, names)`` when given."""
+    test)``, the lateral law also by its 5 s prediction of the test runs ``test = (states, names)`` when given,
+    its drift and slip gain as its whole lateral equation settles on the train runs (:mod:`.lateral`)."""
     name, model, tr, te, weights, base_pred, uncertainty, test = task
     score = score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+    if name == "lateral_slip":  # its drift as the whole lateral equations settle it on the train runs
+        score = with_settled_drift(score, model, tr)
     if name == "lateral_slip" and test is not None:
         score = drift_score(score, model, *test)
     return score

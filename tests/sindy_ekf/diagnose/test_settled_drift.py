@@ -1,0 +1,87 @@
+"""The lateral law's drift read from a model's whole ``vy`` equation (:mod:`sindy_ekf.diagnose.lateral`).
+
+References computed here independently of the module: the settled root of a cubic lateral law by
+``numpy.roots`` sample by sample, and slip gains from drifts written by hand (a two-term law settles at
+``-c / k vx omega``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from groundfloor.types import BodyStates
+from identification.sindy.model import model_from_terms
+from sindy_ekf.diagnose.data import split_from_states
+from sindy_ekf.diagnose.extend import ExtendedModel
+from sindy_ekf.diagnose.fitting import FamilyScore
+from sindy_ekf.diagnose.lateral import settled_vy, with_settled_drift
+
+K, C = -15.0, -1.0  # the model's lateral law vy' = K vy + C vx omega: it settles at -C / K = -0.0667 s x vx omega
+DATA_DRIFT = -0.2  # the campaign's: vy = -0.2 s x vx omega, 3 x the model's
+
+
+def law(cubic: float = 0.0):
+    """A model whose vy equation is the two-term law (plus ``cubic vy^3``), poly3, unit forward and yaw lags."""
+    vy = {"vy": K, "vx omega": C} | ({"vy^3": cubic} if cubic else {})
+    return model_from_terms({"vx": {"vx": -2.0, "u1": 2.0}, "vy": vy, "omega": {"omega": -3.0, "u2": 3.0}}, "poly3")
+
+
+def turning_runs(n_runs: int = 3, run_s: float = 40.0, rate_hz: float = 25.0, spread: float = 0.0) -> list[BodyStates]:
+    """Runs whose measured vy is exactly ``DATA_DRIFT vx omega`` (run ``r`` times ``1 + spread (r - 1)``;
+    poses unused by the drift)."""
+    out = []
+    for r in range(n_runs):
+        t = np.arange(0.0, run_s, 1.0 / rate_hz)
+        vx = 0.5 + 0.3 * np.sin(0.4 * t + r)
+        om = 0.7 * np.sin(0.25 * t + 2.0 * r)
+        z = np.zeros_like(t)
+        vy = DATA_DRIFT * (1 + spread * (r - 1)) * vx * om
+        out.append(BodyStates(t=t, vx=vx, vy=vy, omega=om, u1=vx, u2=om, x=z, y=z, yaw=z))
+    return out
+
+
+def test_the_settled_lateral_velocity_of_a_cubic_law_is_its_stable_root():
+    model = law(cubic=-2000.0)
+    q = np.linspace(-0.6, 0.6, 13)  # vx omega
+    x6 = np.zeros((len(q), 6))
+    x6[:, 3], x6[:, 5] = 0.6, q / 0.6
+    vy, ok = settled_vy(lambda x, v: model.f(x[:, 3:], v)[:, 1], x6, np.zeros((len(q), 2)))
+    # -2000 vy^3 - 15 vy - q = 0 has one real root (the cubic is monotone): numpy's companion matrix
+    ref = [float(np.real(r[np.abs(np.imag(r)) < 1e-9][0])) for r in (np.roots([-2000.0, 0.0, K, C * v]) for v in q)]
+    assert ok.all() and vy == pytest.approx(ref, abs=1e-9)
+    # -15 (-0.03452) - 0.6 - 2000 (-0.03452)^3 = 0.5178 - 0.6 + 0.0823 = 0.0001: less than the two-term
+    # law's -0.04 (it hardens)
+    assert vy[-1] == pytest.approx(-0.03452, abs=1e-5)
+
+
+def test_the_slip_gain_is_the_datas_drift_over_the_models_and_the_extension_its_own():
+    model = law()
+    runs = turning_runs()
+    split = split_from_states(runs, ["a", "b", "c"], 2.0)
+    # the linear mechanism adds -3 vx omega to the lateral equation: the extension settles at -4 / -15
+    beta = np.array([-3.0, 0.0])
+    score = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5,
+                        {"model_has_lateral_law": True, "slip_gain": -99.0, "drift_s": -99.0})
+    est = with_settled_drift(score, model, split).estimate
+    assert est["slip_from"] == "settled"
+    assert est["drift_s"] == pytest.approx(DATA_DRIFT, rel=1e-9)
+    assert est["slip_gain"] == pytest.approx(DATA_DRIFT / (-C / K), rel=1e-6)  # 3.0: the data's
+    assert est["extension_slip_gain"] == pytest.approx(4.0, rel=1e-6)  # the fitted law's, not the data's
+    # the extension's other equations are shielded from its own drift
+    assert ExtendedModel.added(model, "lateral_slip", np.zeros(0), beta, est).vy_scale == pytest.approx(4.0, rel=1e-6)
+    # a model without a lateral law has no drift to compare with: the score is left as it was
+    bare = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5, {"model_has_lateral_law": False})
+    assert with_settled_drift(bare, model, split) is bare
+
+
+def test_the_slip_gains_uncertainty_is_the_spread_of_the_runs_drifts():
+    model, beta = law(), np.array([-3.0, 0.0])
+    score = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5, {"model_has_lateral_law": True})
+    same = with_settled_drift(score, model, split_from_states(turning_runs(), list("abc"), 2.0))
+    assert same.estimate_std["slip_gain"] == pytest.approx(0.0, abs=1e-9)  # every run drifts alike
+    # runs drifting 0.9, 1.0 and 1.1 x: the slip gain near 3 with a jackknife spread of the order of 0.3 / sqrt(3)
+    apart = with_settled_drift(score, model, split_from_states(turning_runs(spread=0.1), list("abc"), 2.0))
+    assert apart.estimate["slip_gain"] == pytest.approx(3.0, rel=0.05)
+    assert 0.05 < apart.estimate_std["slip_gain"] < 0.5
+    assert apart.estimate_std["extension_slip_gain"] == pytest.approx(0.0, abs=1e-9)  # the law's: no data in it
