@@ -44,12 +44,27 @@ def cli(*args: str) -> None:
         raise RuntimeError(f"sindy-ekf {' '.join(args)}: exit {code}")
 
 
+def estimate_of(effect: str, doc: dict) -> tuple[float, float | None]:
+    """Return the hidden effect's value and the named family's estimate of it (None where the family is not
+    named or its estimate is not comparable: ``bench_diagnose.FORM_ESTIMATE``, the floor patch's damping)."""
+    from bench.bench_diagnose import FORM_ESTIMATE
+    from simulation.effects import parse_effect
+
+    eff = parse_effect(effect)
+    keys = FORM_ESTIMATE.get((eff.name, eff.form), "damping_fraction" if eff.form == "disc" else ())
+    named = [c["estimate"] for c in doc["causes"] if c["name"] == eff.name and doc["verdict"] == eff.name]
+    found = [named[0][k] for k in ((keys,) if isinstance(keys, str) else keys) if named and named[0].get(k) is not None]
+    return eff.value, (float(found[0]) if found else None)
+
+
 def row(effect: str, doc: dict, seconds: float) -> dict:
     """Return what the table shows of one ``diagnose --json`` document."""
     own = doc["cause_evidence"].get("own_terms") or {}
     ext = doc.get("extension_on_test") or {}
     first = doc["causes"][0]
+    truth, estimate = estimate_of(effect, doc)
     return {"effect": effect, "family": effect.split(":")[0], "verdict": doc["verdict"],
+            "truth": truth, "estimate": estimate,
             "instead_of": (doc["cause_evidence"].get("unexplained") or {}).get("instead_of"),
             "against_family": own.get("against_family"), "own_gain_5s": own.get("gain_5s"),
             "before_m": first["pos_err_5s_m"]["before"], "after_m": first["pos_err_5s_m"]["after"],
@@ -97,10 +112,10 @@ def main(argv=None) -> int:
              f"- **named correctly: {len(named)}/{len(rows)}**",
              f"- own terms asked against a named family: {len(asked)}; the family replaced: {len(replaced)}"
              + (" (" + ", ".join(r["effect"] for r in replaced) + ")" if replaced else ""), "",
-             "| effect | verdict | named family against the own terms refitted: test 5 s RMS cm (paired t of the "
-             "log error ratio, refit better above 2) | own terms: 5 s gain | "
+             "| effect | verdict | estimate (hidden) | named family against the own terms refitted: test 5 s RMS cm "
+             "(paired t of the log error ratio, refit better above 2) | own terms: 5 s gain | "
              "5 s error before -> after, cm | windows better | median before -> after, cm | warning |",
-             "|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         vs = r["against_family"]
         vs = "-" if not vs else (f"{100 * vs['test_rms_5s_m'][0]:.2f} / {100 * vs['test_rms_5s_m'][1]:.2f} "
@@ -109,7 +124,8 @@ def main(argv=None) -> int:
         med = "-" if not r["median_5s_m"] else f"{100 * r['median_5s_m'][0]:.2f} -> {100 * r['median_5s_m'][1]:.2f}"
         better = "-" if r["n_windows"] is None else f"{r['windows_better']} / {r['n_windows']}"
         warn = "; ".join(r["warnings"]) or "-"
-        lines.append(f"| {r['effect']} | {r['verdict']} | {vs} | {gain} | {100 * r['before_m']:.2f} -> "
+        est = "-" if r["estimate"] is None else f"{r['estimate']:.4g} ({r['truth']:g})"
+        lines.append(f"| {r['effect']} | {r['verdict']} | {est} | {vs} | {gain} | {100 * r['before_m']:.2f} -> "
                      f"{100 * r['after_m']:.2f} | {better} | {med} | {warn} |")
     atomic_write_json(HERE / "results" / "effects_identified.json", {"model_cv_m": cv, "rows": rows})
     publish(HERE / "results" / "effects_identified.md", lines)
