@@ -7,8 +7,9 @@ coefficients, the ``vx omega`` coupling over the ``vy`` damping (:meth:`Family.e
 two terms. A model ``identify`` selects can hold twenty-five terms there, powers of ``vy`` among them, and
 then the ratio is no drift at all. Measured on ``bench_effects_identified``'s lateral slip (the drift in
 turns made 4 x larger; model ``identify --quick``, poly3): the coefficient ratio gave a slip gain of -0.46,
-while the model's whole equation settles at a drift of 0.0674 s x ``vx omega`` (the truth's 1/15 = 0.0667)
-and the extension's at 0.2662 s (the truth's 0.2667): a gain of 3.95. With the sign wrong the extension
+while the model's whole equation settles at a drift of -0.0674 s x ``vx omega`` (the truth's -1/15) and
+the extension's at -0.2662 s (the truth's -4/15): a gain of 3.95, and the measured ``vy`` drift at 3.88 x
+the model's. With the sign wrong the extension
 fed the larger drift to the forward and yaw equations (``ExtendedModel.vy_scale`` stayed 1), which were
 identified at the smaller one: the heading error at 5 s rose from 3.4 to 5.7 deg.
 
