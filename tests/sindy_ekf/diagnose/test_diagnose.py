@@ -407,3 +407,36 @@ def test_a_model_without_a_lateral_law_is_said_to_miss_one_when_adding_it_clears
     assert d.to_json()["warnings"] == [w for w in (d.extension_warning(), line) if w]
     with_law = diagnose_states(reference_model, train, test, a, b, ekf=False)
     assert with_law.missing_law_warning() is None, why
+
+
+def test_a_family_the_refit_replaces_keeps_its_own_5s_error_in_the_json(reference_model, monkeypatch):
+    """When the model's own terms refitted replace a named family (own_terms.own_terms_question), the verdict's
+    errors are the refit's and the family's entry in the JSON keeps what its own extension reached. The
+    replacement is forced here (the refit stands in as the given model, errors unchanged); the family's own
+    errors are the 5 s errors of the extension the pipeline handed over, recomputed by hand."""
+    import sindy_ekf.diagnose.pipeline as pipeline
+
+    handed = {}
+
+    def replaced(name, extended, res_after, model, *rest):
+        evidence, res_before = rest[-2], rest[-1]
+        handed.update(name=name, after=res_after, before=res_before)
+        evidence["unexplained"] = {"equation": "omega", "regressor": "u2", "eta2": 0.5, "instead_of": name}
+        return "unexplained", extended, res_before
+
+    monkeypatch.setattr(pipeline, "own_terms_question", replaced)
+    seed, value = draw("input_delay", 0)
+    why = f"(SINDY_EKF_TEST_SEED={MASTER_SEED}: campaign seed {seed}, input_delay={value:.4g})"
+    train, test, a, b = simulate_states_campaign(seed, Effect("input_delay", value), run_s=RUN_S, rate_hz=RATE_HZ)
+    d = diagnose_states(reference_model, train, test, a, b, ekf=False)
+    assert handed["name"] == "input_delay" and d.verdict == "unexplained", why
+    # the family's own 5 s RMS over the windows where neither prediction diverged (here: all of them)
+    e_before, e_after = handed["before"].eps_p[:, -1], handed["after"].eps_p[:, -1]
+    assert np.all(np.isfinite(e_before) & np.isfinite(e_after)), why
+    own = float(np.sqrt(np.mean(e_after ** 2)))
+    assert own < 0.8 * float(np.sqrt(np.mean(e_before ** 2))), why  # the delay's extension helps: a real finding
+    doc = d.to_json()
+    entry = next(c for c in doc["causes"] if c["name"] == "input_delay")
+    assert entry["pos_err_5s_m"]["after"] == pytest.approx(own, rel=1e-12), why
+    assert doc["causes"][0]["name"] == "unexplained" and doc["causes"][0]["estimate"]["instead_of"] == "input_delay"
+    assert doc["causes"][0]["pos_err_5s_m"]["after"] == pytest.approx(d.before.pos_err_5s_m, rel=1e-12), why
