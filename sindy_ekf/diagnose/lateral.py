@@ -9,9 +9,9 @@ then the ratio is no drift at all. Measured on ``bench_effects_identified``'s la
 turns made 4 x larger; model ``identify --quick``, poly3): the coefficient ratio gave a slip gain of -0.46,
 while the model's whole equation settles at a drift of -0.0674 s x ``vx omega`` (the truth's -1/15) and
 the extension's at -0.2662 s (the truth's -4/15): a gain of 3.95, and the measured ``vy`` drift at 3.88 x
-the model's. With the sign wrong the extension
-fed the larger drift to the forward and yaw equations (``ExtendedModel.vy_scale`` stayed 1), which were
-identified at the smaller one: the heading error at 5 s rose from 3.4 to 5.7 deg.
+the model's. With the sign wrong the extension fed the larger drift to the forward and yaw equations
+(``ExtendedModel.vy_scale`` stayed 1), which were identified at the smaller one: the heading error at 5 s
+rose from 3.4 to 5.7 deg.
 
 :func:`with_settled_drift` therefore reads drifts where the train runs turn: at each sample the ``vy`` that
 zeroes an equation (Newton's method from the measured ``vy``, the other states and the inputs as recorded),
@@ -43,32 +43,33 @@ NEWTON_STEPS = 30
 MAX_STEP_M_S = 0.05
 #: a sample's ``vy`` counts as settled where the equation's residual is below this, m/s^2, on a stable root
 SETTLED_M_S2 = 1e-3
-#: ``vy`` increment of the numerical derivative, m/s
-D_VY = 1e-6
 #: fewer settled turning samples than this share of the turns: no drift (the law has no stable root there)
 MIN_SETTLED = 0.5
 
 
-def settled_vy(f_vy: Callable[[np.ndarray, np.ndarray], np.ndarray], x6: np.ndarray,
+def settled_vy(f_and_slope: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]], x6: np.ndarray,
                u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the lateral velocity ``(N,)`` at which ``f_vy(x6, u)`` (the ``vy`` equation at full states) is
-    zero for each sample's other states and inputs, and ``(N,)`` where it is a settled, stable root.
+    """Return the lateral velocity ``(N,)`` at which the ``vy`` equation is zero for each sample's other states
+    and inputs, and ``(N,)`` where it is a settled, stable root. ``f_and_slope(x6, u)`` returns the equation
+    ``(N,)`` at full states and its derivative in ``vy`` ``(N,)`` (the model's analytic Jacobian).
 
     Newton's method from the measured ``vy`` (steps at most :data:`MAX_STEP_M_S`); a stable root has a
     negative derivative in ``vy`` (the equation pulls ``vy`` back to it).
     """
     x = np.array(x6, float, copy=True)
-    x_d = x.copy()
     for _ in range(NEWTON_STEPS):
-        f = f_vy(x, u)
-        x_d[:, 4] = x[:, 4] + D_VY
-        slope = (f_vy(x_d, u) - f) / D_VY
+        f, slope = f_and_slope(x, u)
         step = np.where(slope < 0, f / np.where(slope < 0, slope, -1.0), 0.0)
         x[:, 4] -= np.clip(step, -MAX_STEP_M_S, MAX_STEP_M_S)
-    f = f_vy(x, u)
-    x_d[:, 4] = x[:, 4] + D_VY
-    slope = (f_vy(x_d, u) - f) / D_VY
+    f, slope = f_and_slope(x, u)
     return x[:, 4], np.isfinite(f) & (np.abs(f) < SETTLED_M_S2) & (slope < 0)
+
+
+def vy_row(accelerations_and_jacobians: tuple, vy_column: int) -> tuple[np.ndarray, np.ndarray]:
+    """Return the ``vy`` equation ``(N,)`` and its derivative in ``vy`` from ``(a, J_a_x, J_a_u)`` whose state
+    Jacobian holds ``vy`` in column ``vy_column`` (1 of the body velocities, 4 of the six states)."""
+    a, J = accelerations_and_jacobians[:2]
+    return a[:, 1], J[:, 1, vy_column]
 
 
 def drift_ratio(vy: np.ndarray, ok: np.ndarray, q: np.ndarray, turn: np.ndarray) -> float:
@@ -95,8 +96,8 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     q = x6[:, 3] * x6[:, 5]
     turn = np.abs(q) > np.quantile(np.abs(q), TURN_QUANTILE)
     measured = (x6[:, 4], np.isfinite(x6[:, 4]))
-    base = settled_vy(lambda x, v: model.f(x[:, 3:], v)[:, 1], x6, u)
-    more = settled_vy(lambda x, v: ext.accel(x, v)[:, 1], x6, u)
+    base = settled_vy(lambda x, v: vy_row(model.f_and_jacobians(x[:, 3:], v), 1), x6, u)
+    more = settled_vy(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), x6, u)
 
     def drifts(rows: np.ndarray) -> dict:
         data, r0, r1 = (drift_ratio(vy, ok, q, turn & rows) for vy, ok in (measured, base, more))

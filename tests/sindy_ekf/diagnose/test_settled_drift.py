@@ -15,7 +15,7 @@ from identification.sindy.model import model_from_terms
 from sindy_ekf.diagnose.data import split_from_states
 from sindy_ekf.diagnose.extend import ExtendedModel
 from sindy_ekf.diagnose.fitting import FamilyScore
-from sindy_ekf.diagnose.lateral import settled_vy, with_settled_drift
+from sindy_ekf.diagnose.lateral import settled_vy, vy_row, with_settled_drift
 
 K, C = -15.0, -1.0  # the model's lateral law vy' = K vy + C vx omega: it settles at -C / K = -0.0667 s x vx omega
 DATA_DRIFT = -0.2  # the campaign's: vy = -0.2 s x vx omega, 3 x the model's
@@ -46,7 +46,7 @@ def test_the_settled_lateral_velocity_of_a_cubic_law_is_its_stable_root():
     q = np.linspace(-0.6, 0.6, 13)  # vx omega
     x6 = np.zeros((len(q), 6))
     x6[:, 3], x6[:, 5] = 0.6, q / 0.6
-    vy, ok = settled_vy(lambda x, v: model.f(x[:, 3:], v)[:, 1], x6, np.zeros((len(q), 2)))
+    vy, ok = settled_vy(lambda x, v: vy_row(model.f_and_jacobians(x[:, 3:], v), 1), x6, np.zeros((len(q), 2)))
     # -2000 vy^3 - 15 vy - q = 0 has one real root (the cubic is monotone): numpy's companion matrix
     ref = [float(np.real(r[np.abs(np.imag(r)) < 1e-9][0])) for r in (np.roots([-2000.0, 0.0, K, C * v]) for v in q)]
     assert ok.all() and vy == pytest.approx(ref, abs=1e-9)
