@@ -52,6 +52,9 @@ from sindy_ekf.diagnose.fitting import FamilyScore
 # scored on the test runs, and the re-identified and 5 s maxima unchanged. (The additive families scored
 # the same way were measured and not adopted: heading_dependence's maximum fell to 0.007, and effect-free
 # campaigns of the forms suites reached 0.013 to 0.039, two of them named on held-out variants 19, 20.)
+# Recalibrated when the lateral law's coupling was anchored at the data's drift in turns
+# (sindy_ekf.diagnose.lateral.anchored_beta): lateral_slip's largest 5 s gain rose from 0.173 to 0.189
+# (variant 5 against its lab model, as before); every other maximum unchanged.
 NULL_MAX_GAIN = {
     "fixed": {
         "input_delay": 0.0, "heading_dependence": 0.01883, "position_dependence": 0.06378,
@@ -61,7 +64,7 @@ NULL_MAX_GAIN = {
         "input_delay": 0.0, "heading_dependence": 0.13388, "position_dependence": 0.08194,
         "time_dependence": 0.02066, "asymmetry": 0.04714, "deadband": 0.0, "lateral_slip": 0.1018,
     },
-    "multistep": {"lateral_slip": 0.17347},
+    "multistep": {"lateral_slip": 0.18925},
 }
 MARGIN = 2.0
 MIN_THRESHOLD = 0.01

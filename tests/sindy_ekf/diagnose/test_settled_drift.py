@@ -63,13 +63,19 @@ def test_the_slip_gain_is_the_datas_drift_over_the_models_and_the_extension_its_
     beta = np.array([-3.0, 0.0])
     score = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5,
                         {"model_has_lateral_law": True, "slip_gain": -99.0, "drift_s": -99.0})
-    est = with_settled_drift(score, model, split).estimate
+    out = with_settled_drift(score, model, split)
+    est = out.estimate
     assert est["slip_from"] == "settled"
     assert est["drift_s"] == pytest.approx(DATA_DRIFT, rel=1e-9)
     assert est["slip_gain"] == pytest.approx(DATA_DRIFT / (-C / K), rel=1e-6)  # 3.0: the data's
-    assert est["extension_slip_gain"] == pytest.approx(4.0, rel=1e-6)  # the fitted law's, not the data's
+    assert est["law_slip_gain"] == pytest.approx(4.0, rel=1e-6)  # the law as fitted settles at -4 / -15
+    # anchored: the coupling that settles at the data's drift, -K DATA_DRIFT = -3 in all, -2 beside the model's -1
+    assert est["drift_anchored"] is True
+    assert out.beta == pytest.approx([-2.0, 0.0], abs=1e-6)
+    assert est["coupling"] == pytest.approx(-3.0, abs=1e-6) and est["damping_1_s"] == pytest.approx(15.0)
+    assert est["extension_slip_gain"] == pytest.approx(3.0, rel=1e-4)
     # the extension's other equations are shielded from its own drift
-    assert ExtendedModel.added(model, "lateral_slip", np.zeros(0), beta, est).vy_scale == pytest.approx(4.0, rel=1e-6)
+    assert ExtendedModel.added(model, "lateral_slip", np.zeros(0), out.beta, est).vy_scale == pytest.approx(3.0, rel=1e-4)
     # a model without a lateral law has no drift to compare with: the score is left as it was
     bare = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5, {"model_has_lateral_law": False})
     assert with_settled_drift(bare, model, split) is bare
@@ -84,4 +90,28 @@ def test_the_slip_gains_uncertainty_is_the_spread_of_the_runs_drifts():
     apart = with_settled_drift(score, model, split_from_states(turning_runs(spread=0.1), list("abc"), 2.0))
     assert apart.estimate["slip_gain"] == pytest.approx(3.0, rel=0.05)
     assert 0.05 < apart.estimate_std["slip_gain"] < 0.5
-    assert apart.estimate_std["extension_slip_gain"] == pytest.approx(0.0, abs=1e-9)  # the law's: no data in it
+    # the law, anchored on all runs, is the same in every jackknife: a two-term law settles at one drift
+    assert apart.estimate_std["extension_slip_gain"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_nonlinear_law_is_anchored_at_the_datas_drift_where_its_damping_is_kept():
+    """A saturating law (the cubic in the demand) whose fitted damping is a third of the model's, as the noise
+    on vy shrinks it, and whose cubic cancels most of its coupling in the turns: its own settled drift is far
+    from the data's. Anchored, the settled roots (by hand: the equation is linear in vy) give the data's drift,
+    and the law's damping and cubic are as fitted."""
+    model = law()
+    runs = turning_runs()
+    split = split_from_states(runs, ["a", "b", "c"], 2.0)
+    beta = np.array([-0.5, 10.0, 5.0])  # total damping -5 1/s, coupling -1.5, cubic +5
+    score = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5,
+                        {"model_has_lateral_law": True, "mechanism": "saturating"})
+    out = with_settled_drift(score, model, split)
+    assert out.estimate["drift_anchored"] is True and out.beta[1:] == pytest.approx(beta[1:])
+    c = C + out.beta[0]
+    q = np.concatenate([r.vx * r.omega for r in runs])
+    turn = np.abs(q) > np.quantile(np.abs(q), 0.5)
+    # (K + 10) vy + c q + 5 q^3 = 0: the drift's slope on q over the turns
+    vy = -(c * q + 5.0 * q ** 3) / (K + 10.0)
+    assert float(vy[turn] @ q[turn] / (q[turn] @ q[turn])) == pytest.approx(DATA_DRIFT, rel=1e-3)
+    assert out.estimate["extension_slip_gain"] == pytest.approx(3.0, rel=1e-3)
+    assert abs(out.estimate["law_slip_gain"] - 3.0) > 1.0
