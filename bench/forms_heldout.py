@@ -47,7 +47,8 @@ def lines(forms: dict) -> list[str]:
     run_s = float(forms.get("run_s", bd.RUN_S))
     variants = tuple(forms.get("variants", HELD_OUT))
     a, b = variants[0], variants[-1]
-    flags = (f" --run-s {run_s:g}" if run_s != bd.RUN_S else "") + (f" --variants {a}-{b}" if variants != HELD_OUT else "")
+    flags = ((f" --run-s {run_s:g}" if run_s != bd.RUN_S else "")
+             + (f" --variants {a}-{b}" if variants != HELD_OUT else ""))
     text = "\n".join(bd.forms_lines(forms["rows"], run_s))
     text = re.sub(r"`\.venv/bin/python -m bench\.bench_diagnose --jobs 2 --forms[^`]*` \(",
                   f"`.venv/bin/python -m bench.forms_heldout{flags}` ({forms['minutes']:.0f} min; ", text, count=1)

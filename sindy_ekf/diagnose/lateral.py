@@ -45,6 +45,7 @@ import numpy as np
 
 from sindy_ekf.diagnose.data import Split
 from sindy_ekf.diagnose.extend import ExtendedModel
+from sindy_ekf.diagnose.families import mechanism_spec
 from sindy_ekf.diagnose.fitting import FamilyScore, jackknife_std
 
 #: the samples whose ``|vx omega|`` is above this quantile of the train runs' are the turns the drift is read in
@@ -162,11 +163,12 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
 
     def drifts(rows: np.ndarray) -> dict:
         d, m, e = (drift_ratio(vy, ok, q, turn & rows) for vy, ok in (measured, base, more))
-        return {"drift_s": d, "slip_gain": d / m if m else float("nan"), "extension_slip_gain": e / m if m else float("nan")}
+        return {"drift_s": d, "slip_gain": d / m if m else float("nan"),
+                "extension_slip_gain": e / m if m else float("nan")}
 
     est = drifts(np.ones(len(q), bool))
     std = jackknife_std([drifts(run != r) for r in range(len(split.names))]) if len(split.names) > 1 else {}
-    spec = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate)).spec
+    spec = mechanism_spec(score.family, score.estimate.get("mechanism"))
     coefficients = {k: v for k, v in spec.estimate(score.theta, beta, model).items() if k not in est}
     return dataclasses.replace(score, beta=beta, estimate={
         **score.estimate, **coefficients, **est, "law_slip_gain": law / r0, "drift_anchored": anchored,

@@ -75,7 +75,8 @@ def test_the_slip_gain_is_the_datas_drift_over_the_models_and_the_extension_its_
     assert est["coupling"] == pytest.approx(-3.0, abs=1e-6) and est["damping_1_s"] == pytest.approx(15.0)
     assert est["extension_slip_gain"] == pytest.approx(3.0, rel=1e-4)
     # the extension's other equations are shielded from its own drift
-    assert ExtendedModel.added(model, "lateral_slip", np.zeros(0), out.beta, est).vy_scale == pytest.approx(3.0, rel=1e-4)
+    ext = ExtendedModel.added(model, "lateral_slip", np.zeros(0), out.beta, est)
+    assert ext.vy_scale == pytest.approx(3.0, rel=1e-4)
     # a model without a lateral law has no drift to compare with: the score is left as it was
     bare = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5, {"model_has_lateral_law": False})
     assert with_settled_drift(bare, model, split) is bare
