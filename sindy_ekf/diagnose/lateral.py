@@ -102,6 +102,13 @@ def drift_ratio(vy: np.ndarray, ok: np.ndarray, q: np.ndarray, turn: np.ndarray)
     return float(vy[use] @ q[use] / (q[use] @ q[use]))
 
 
+def extension_settled(model, score: FamilyScore, beta: np.ndarray, x6: np.ndarray, u: np.ndarray,
+                      with_slope: bool = False) -> tuple[np.ndarray, ...]:
+    """Return :func:`settled_vy` of the extension ``model`` plus the law ``score`` with coefficients ``beta``."""
+    ext = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate), score.uniform)
+    return settled_vy(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), x6, u, with_slope=with_slope)
+
+
 def anchored_beta(model, score: FamilyScore, x6: np.ndarray, u: np.ndarray, q: np.ndarray, turn: np.ndarray,
                   target: float) -> np.ndarray | None:
     """Return the law's coefficients ``score.beta`` with its ``vx omega`` coupling (``beta[0]``) moved so that the
@@ -115,8 +122,7 @@ def anchored_beta(model, score: FamilyScore, x6: np.ndarray, u: np.ndarray, q: n
     beta = np.array(score.beta, float, copy=True)
     x = np.array(x6, float, copy=True)
     for _ in range(ANCHOR_STEPS + 1):
-        ext = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate), score.uniform)
-        vy, ok, slope = settled_vy(lambda xx, v: vy_row(ext.accel_and_jacobians(xx, v), 4), x, u, with_slope=True)
+        vy, ok, slope = extension_settled(model, score, beta, x, u, with_slope=True)
         drift = drift_ratio(vy, ok, q, turn)
         if not np.isfinite(drift):
             return None
@@ -145,28 +151,24 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     q = split.x6[:, 3] * split.x6[:, 5]
     turns = np.abs(q) > np.quantile(np.abs(q), TURN_QUANTILE)  # only where the drift is read
     x6, u, q, run = split.x6[turns], split.u[turns], q[turns], split.run[turns]
-    turn = np.ones(len(q), bool)
+    every = np.ones(len(q), bool)  # every sample left is a turn
     measured = (x6[:, 4], np.isfinite(x6[:, 4]))
     base = settled_vy(lambda x, v: vy_row(model.f_and_jacobians(x[:, 3:], v), 1), x6, u)
-
-    def law_settled(beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        ext = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate), score.uniform)
-        return settled_vy(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), x6, u)
-
-    data, r0, law = (drift_ratio(vy, ok, q, turn) for vy, ok in (measured, base, law_settled(score.beta)))
+    law_roots = extension_settled(model, score, score.beta, x6, u)
+    data, r0, law = (drift_ratio(vy, ok, q, every) for vy, ok in (measured, base, law_roots))
     if not all(np.isfinite(v) and v != 0 for v in (data, r0, law)):
         return score
-    beta = anchored_beta(model, score, x6, u, q, turn, data)
+    beta = anchored_beta(model, score, x6, u, q, every, data)
     anchored = beta is not None
     beta = beta if anchored else np.asarray(score.beta, float)
-    more = law_settled(beta)
+    more = extension_settled(model, score, beta, x6, u) if anchored else law_roots
 
     def drifts(rows: np.ndarray) -> dict:
-        d, m, e = (drift_ratio(vy, ok, q, turn & rows) for vy, ok in (measured, base, more))
+        d, m, e = (drift_ratio(vy, ok, q, rows) for vy, ok in (measured, base, more))
         return {"drift_s": d, "slip_gain": d / m if m else float("nan"),
                 "extension_slip_gain": e / m if m else float("nan")}
 
-    est = drifts(np.ones(len(q), bool))
+    est = drifts(every)
     std = jackknife_std([drifts(run != r) for r in range(len(split.names))]) if len(split.names) > 1 else {}
     spec = mechanism_spec(score.family, score.estimate.get("mechanism"))
     coefficients = {k: v for k, v in spec.estimate(score.theta, beta, model).items() if k not in est}
