@@ -693,6 +693,16 @@ def own_terms_lines(oc) -> list[str]:
     return lines
 
 
+def summary_text(raw: dict) -> str:
+    """Return ``diagnose.md`` from the raw results: :func:`summarise` and, when it was measured, the own-terms
+    section (every writer of the whole file goes through here, so none drops a section it did not rerun)."""
+    text = summarise(raw.get("suite", []), raw.get("ladder"), raw.get("timing"), raw.get("calibration"),
+                     raw.get("cause_calibration"), raw.get("family_calibration"))
+    if raw.get("own_terms_calibration"):
+        text = text.rstrip("\n") + "\n\n" + "\n".join(own_terms_lines(raw["own_terms_calibration"]))
+    return text
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--calibrate", type=int, default=0, metavar="N")
@@ -725,8 +735,7 @@ def main() -> int:
     if args.summarise_only and (out_dir / f"{forms_stem(args.run_s)}.json").exists():
         write_forms(out_dir, json.loads((out_dir / f"{forms_stem(args.run_s)}.json").read_text()))
     if args.summarise_only:
-        text = summarise(raw.get("suite", []), raw.get("ladder"), raw.get("timing"), raw.get("calibration"),
-                         raw.get("cause_calibration"), raw.get("family_calibration"))
+        text = summary_text(raw)
         (out_dir / "diagnose.md").write_text(text)
         print(text)
         return 0
@@ -793,8 +802,7 @@ def main() -> int:
     if args.timing_only:
         raw["timing"] = timing_default()
         raw_path.write_text(json.dumps(raw, indent=1))
-        text = summarise(raw.get("suite", []), raw.get("ladder"), raw["timing"], raw.get("calibration"),
-                         raw.get("cause_calibration"), raw.get("family_calibration"))
+        text = summary_text(raw)
         (out_dir / "diagnose.md").write_text(text)
         print(text)
         return 0
@@ -808,15 +816,12 @@ def main() -> int:
         for i in range(0, len(jobs), 10 * args.jobs):
             raw["ladder"] += run_jobs(jobs[i:i + 10 * args.jobs], model, workers)
             raw_path.write_text(json.dumps(raw, indent=1))
-            (out_dir / "diagnose.md").write_text(summarise(
-                raw["suite"], raw["ladder"], raw.get("timing"), raw.get("calibration"), raw.get("cause_calibration"),
-                raw.get("family_calibration")))
+            (out_dir / "diagnose.md").write_text(summary_text(raw))
         print(f"ladder done after {time.perf_counter() - t0:.0f} s", flush=True)
     if not args.no_timing:
         raw["timing"] = timing_default()
         raw_path.write_text(json.dumps(raw, indent=1))
-    text = summarise(raw["suite"], raw.get("ladder"), raw.get("timing"), raw.get("calibration"),
-                     raw.get("cause_calibration"), raw.get("family_calibration"))
+    text = summary_text(raw)
     (out_dir / "diagnose.md").write_text(text)
     print(text)
     return 0
