@@ -116,3 +116,24 @@ def test_a_nonlinear_law_is_anchored_at_the_datas_drift_where_its_damping_is_kep
     assert float(vy[turn] @ q[turn] / (q[turn] @ q[turn])) == pytest.approx(DATA_DRIFT, rel=1e-3)
     assert out.estimate["extension_slip_gain"] == pytest.approx(3.0, rel=1e-3)
     assert abs(out.estimate["law_slip_gain"] - 3.0) > 1.0
+
+
+def test_a_law_that_cannot_settle_at_the_datas_drift_is_kept_as_fitted_and_said_not_anchored():
+    """A model whose lateral equation softens (``+800 vy^3``) folds at ``|vy| = sqrt(5 / 800) = 0.079 m/s``
+    (where ``-15 vy + 800 vy^3`` stops growing): the data's ``vy = -0.2 vx omega`` lies beyond the fold on 45 %
+    of the turns (below, by hand), and every coupling that moves the settled drift toward it pushes more turns
+    past the fold. No anchoring is found: the law keeps its fitted coupling, ``drift_anchored`` says so, and the
+    extension settles at the law's own drift."""
+    model = model_from_terms({"vx": {"vx": -2.0, "u1": 2.0}, "vy": {"vy": K, "vx omega": C, "vy^3": 800.0},
+                              "omega": {"omega": -3.0, "u2": 3.0}}, "poly3")
+    runs = turning_runs()
+    q = np.concatenate([r.vx * r.omega for r in runs])
+    turn = np.abs(q) > np.quantile(np.abs(q), 0.5)
+    assert 0.4 < np.mean(-DATA_DRIFT * np.abs(q[turn]) > np.sqrt(5.0 / 800.0)) < 0.5
+    beta = np.array([-0.5, 0.0])
+    score = FamilyScore("lateral_slip", np.zeros(0), beta, 0.5, {}, 0.5, {"model_has_lateral_law": True})
+    out = with_settled_drift(score, model, split_from_states(runs, ["a", "b", "c"], 2.0))
+    est = out.estimate
+    assert est["drift_anchored"] is False and out.beta == pytest.approx(beta, abs=0.0)
+    assert est["extension_slip_gain"] == pytest.approx(est["law_slip_gain"], rel=1e-9)
+    assert est["slip_gain"] > 2.5 and est["law_slip_gain"] < 2.0  # the data drift 3 x, the law as fitted far less
