@@ -43,7 +43,7 @@ from sindy_ekf.diagnose.families import (
     mechanism_spec,
     term_column,
 )
-from sindy_ekf.diagnose.fitting import null_prediction
+from sindy_ekf.diagnose.fitting import null_prediction, refit_support
 from sindy_ekf.estimation.ekf import run_ekf_batch
 from sindy_ekf.estimation.process_models import (
     ProcessModel,
@@ -69,6 +69,7 @@ class ExtendedModel(Dynamics):
     beta: np.ndarray
     estimate: dict = field(default_factory=dict)
     vy_scale: float = 1.0  # the vx and omega equations see vy / vy_scale (see :meth:`added`)
+    vy_rate: float = 1.0  # the whole vy equation times this: its settling time scale (lateral.settling_scale)
 
     def __post_init__(self):
         # the mechanism acts on the recorded inputs; the base's dead time still delays what it sees
@@ -76,9 +77,10 @@ class ExtendedModel(Dynamics):
         self.input_lag_s = tuple(float(v) for v in getattr(self.base, "input_lag_s", (0.0, 0.0)))
         self.theta = np.asarray(self.theta, float).reshape(-1)
         self.beta = np.asarray(self.beta, float).reshape(-1)
-        self.vy_scale = float(self.vy_scale)
-        if not (np.isfinite(self.vy_scale) and self.vy_scale > 0):
-            raise InputError(f"extended model {self.family!r}: vy_scale {self.vy_scale!r} is not a positive number")
+        self.vy_scale, self.vy_rate = float(self.vy_scale), float(self.vy_rate)
+        for key, v in (("vy_scale", self.vy_scale), ("vy_rate", self.vy_rate)):
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"extended model {self.family!r}: {key} {v!r} is not a positive number")
 
     @classmethod
     def added(cls, base: SindyModel, family: str, theta, beta, estimate: dict | None = None,
@@ -99,21 +101,24 @@ class ExtendedModel(Dynamics):
         ``vy / slip_gain`` (``vy_scale``).
         Feeding them the larger drift instead adds a yaw error the mechanism does not have
         (measured on the hidden-effect campaigns: heading 2.8 -> 5.1 deg, and no position gain).
-        A base without a lateral law (eq. 7.8) has no drift to keep: ``vy_scale`` stays 1.
+        A base without a lateral law (eq. 7.8) has no drift to keep: ``vy_scale`` stays 1. The whole vy
+        equation runs ``settling_scale`` times faster where ``estimate`` has it (``vy_rate``: the time scale
+        the lateral velocity settles on, fitted by output error; the settled drift unchanged).
         """
-        vy_scale = 1.0
+        vy_scale, vy_rate = 1.0, 1.0
         if family == "lateral_slip":  # the drift ratio as the whole vy equations settle it (lateral.py), else
             # the family's own estimate from two coefficients (None without a law)
             given = estimate or {}
             gain = (given.get("extension_slip_gain") if given.get("slip_from") == "settled" else
                     FAMILY_SPECS[family].estimate(np.asarray(theta, float), np.asarray(beta, float), base)["slip_gain"])
             vy_scale = gain if gain is not None and np.isfinite(gain) and gain > 0 else 1.0
+            vy_rate = float(given.get("settling_scale", 1.0)) if given.get("slip_from") == "settled" else 1.0
         estimate = dict(estimate or {})
         uniform = np.zeros(0) if uniform is None else np.asarray(uniform, float).reshape(-1)
         if uniform.size:
             base = with_uniform_damping(base, uniform)
             estimate["uniform_damping"] = {"vx": float(uniform[0]), "omega": float(uniform[1])}
-        return cls(base, family, theta, beta, estimate, vy_scale)
+        return cls(base, family, theta, beta, estimate, vy_scale, vy_rate)
 
     @property
     def spec(self) -> Family:
@@ -165,7 +170,12 @@ class ExtendedModel(Dynamics):
         if self.spec.n_columns:
             cols, _ = self._columns(x6, u, False)
             a = a + cols @ self.beta
-        return a
+        return a * self._row_rates if self.vy_rate != 1.0 else a
+
+    @property
+    def _row_rates(self) -> np.ndarray:
+        """``(3,)`` factors of the equations: ``vy_rate`` for the vy equation, 1 for the others."""
+        return np.array([1.0, self.vy_rate, 1.0])
 
     def accel_and_jacobians(self, x6: np.ndarray, u: np.ndarray, t=0.0):
         """Return the accelerations ``(..., 3)``, ``J_a_x (..., 3, 6)`` (pose columns included) and
@@ -188,6 +198,8 @@ class ExtendedModel(Dynamics):
             cols, J = self._columns(np.broadcast_to(x6, a.shape[:-1] + (6,)), u, True)
             a = a + cols @ self.beta
             J_x = J_x + np.einsum("...emk,m->...ek", J, self.beta)
+        if self.vy_rate != 1.0:
+            a, J_x, J_u = a * self._row_rates, J_x * self._row_rates[:, None], J_u * self._row_rates[:, None]
         return a, J_x, J_u
 
     def in_envelope(self, x6: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -212,6 +224,7 @@ class ExtendedModel(Dynamics):
             if j is None:
                 raise InputError(f"extended model {self.family!r}: the base library has no term {term!r}")
             coef[1, j] += b
+        coef[1] *= self.vy_rate
         return SindyModel(library=self.base.library, coef=coef, hyperparameters=dict(self.base.hyperparameters),
                           envelope=dict(self.base.envelope), training=dict(self.base.training))
 
@@ -221,7 +234,7 @@ class ExtendedModel(Dynamics):
         return {"format": FORMAT, "format_version": 1, "family": self.family,
                 "theta": dict(zip(self.spec.theta_names, self.theta.tolist())),
                 "beta": dict(zip(self.spec.column_names, self.beta.tolist())),
-                "estimate": self.estimate, "vy_scale_other_equations": self.vy_scale,
+                "estimate": self.estimate, "vy_scale_other_equations": self.vy_scale, "vy_rate_scale": self.vy_rate,
                 "base": self.base.to_dict()}
 
     def to_json(self, path) -> Path:
@@ -249,11 +262,12 @@ class ExtendedModel(Dynamics):
             beta = [d["beta"][k] for k in spec.column_names]
         except (KeyError, TypeError):
             raise InputError(f"{path}: key theta or beta does not match family {d['family']!r}") from None
-        vy_scale = d.get("vy_scale_other_equations", 1.0)
-        if not isinstance(vy_scale, (int, float)) or isinstance(vy_scale, bool):
-            raise InputError(f"{path}: key vy_scale_other_equations is {vy_scale!r}, not a number")
+        scales = [d.get(k, 1.0) for k in ("vy_scale_other_equations", "vy_rate_scale")]
+        for key, v in zip(("vy_scale_other_equations", "vy_rate_scale"), scales):
+            if not isinstance(v, (int, float)) or isinstance(v, bool):
+                raise InputError(f"{path}: key {key} is {v!r}, not a number")
         return cls(SindyModel.from_dict(d["base"], source=str(path)), d["family"], theta, beta,
-                   dict(d.get("estimate") or {}), vy_scale)
+                   dict(d.get("estimate") or {}), *scales)
 
 
 def with_uniform_damping(base: SindyModel, uniform: np.ndarray) -> SindyModel:
@@ -298,34 +312,6 @@ def reidentify(model: SindyModel, family: str, theta: np.ndarray, train: Split,
                    training={**model.training, "reidentified_with": family, "n_windows": int(train.n_windows),
                              "runs": list(train.names)})
     return ExtendedModel(base, family, theta, mech, dict(estimate or {}))
-
-
-def refit_support(support: np.ndarray, th_int: np.ndarray, X_mech: np.ndarray, delta_v: np.ndarray,
-                  weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return ``(coef (3, k), beta (m,))``: the integral regression (eqs. 5.55 to 5.57) of the window
-    velocity changes ``delta_v (p, 3)`` on the integrated features ``th_int (p, k)`` of each equation's
-    ``support (3, k)`` plus the mechanism's integrated columns ``X_mech (p, 3, m)``, shared by the
-    equations, solved jointly by least squares with the equations weighted by ``weights (3,)``."""
-    idx = [np.flatnonzero(support[e]) for e in range(3)]
-    n_xi, m, p = sum(len(i) for i in idx), X_mech.shape[2], len(delta_v)
-    A = np.zeros((3, p, n_xi + m))
-    col = 0
-    for e in range(3):
-        A[e, :, col:col + len(idx[e])] = th_int[:, idx[e]]
-        col += len(idx[e])
-        A[e, :, n_xi:] = X_mech[:, e, :]
-    sw = np.sqrt(weights)[:, None, None]
-    A_w = (A * sw).reshape(3 * p, -1)
-    y_w = (delta_v.T[:, :, None] * sw).reshape(3 * p)
-    # a whisper of ridge: duplicated columns (a mechanism term the model already has) stay solvable
-    gram = A_w.T @ A_w
-    sol = np.linalg.solve(gram + 1e-10 * np.trace(gram) / len(gram) * np.eye(len(gram)), A_w.T @ y_w)
-    coef = np.zeros(support.shape)
-    col = 0
-    for e in range(3):
-        coef[e, idx[e]] = sol[col:col + len(idx[e])]
-        col += len(idx[e])
-    return coef, sol[n_xi:]
 
 
 def check_extended(ext: ExtendedModel, model: SindyModel, train: Split) -> float:

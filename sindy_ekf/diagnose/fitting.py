@@ -352,3 +352,31 @@ def score_family(family: Family | str, model, train: Split, test: Split, weights
     log.debug("%s: theta %s, beta %s, test gain %.4f, estimate %s", family.name, score.theta, score.beta,
               score.gain, score.estimate)
     return score
+
+
+def refit_support(support: np.ndarray, th_int: np.ndarray, X_mech: np.ndarray, delta_v: np.ndarray,
+                  weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``(coef (3, k), beta (m,))``: the integral regression (eqs. 5.55 to 5.57) of the window
+    velocity changes ``delta_v (p, 3)`` on the integrated features ``th_int (p, k)`` of each equation's
+    ``support (3, k)`` plus the mechanism's integrated columns ``X_mech (p, 3, m)``, shared by the
+    equations, solved jointly by least squares with the equations weighted by ``weights (3,)``."""
+    idx = [np.flatnonzero(support[e]) for e in range(3)]
+    n_xi, m, p = sum(len(i) for i in idx), X_mech.shape[2], len(delta_v)
+    A = np.zeros((3, p, n_xi + m))
+    col = 0
+    for e in range(3):
+        A[e, :, col:col + len(idx[e])] = th_int[:, idx[e]]
+        col += len(idx[e])
+        A[e, :, n_xi:] = X_mech[:, e, :]
+    sw = np.sqrt(weights)[:, None, None]
+    A_w = (A * sw).reshape(3 * p, -1)
+    y_w = (delta_v.T[:, :, None] * sw).reshape(3 * p)
+    # a whisper of ridge: duplicated columns (a mechanism term the model already has) stay solvable
+    gram = A_w.T @ A_w
+    sol = np.linalg.solve(gram + 1e-10 * np.trace(gram) / len(gram) * np.eye(len(gram)), A_w.T @ y_w)
+    coef = np.zeros(support.shape)
+    col = 0
+    for e in range(3):
+        coef[e, idx[e]] = sol[col:col + len(idx[e])]
+        col += len(idx[e])
+    return coef, sol[n_xi:]

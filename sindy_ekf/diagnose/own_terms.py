@@ -36,7 +36,8 @@ from identification.sindy.library import LIBRARY_INPUT_NAMES
 from identification.sindy.model import SindyModel, envelope_from_data
 from sindy_ekf.diagnose.cause import threshold, unexplained_structure
 from sindy_ekf.diagnose.data import Split
-from sindy_ekf.diagnose.extend import common_windows, diverged, median_5s, multistep, refit_support
+from sindy_ekf.diagnose.extend import common_windows, diverged, median_5s, multistep
+from sindy_ekf.diagnose.fitting import refit_support
 from sindy_ekf.stages.evaluation import cv_comparison
 
 

@@ -55,16 +55,27 @@ from sindy_ekf.diagnose.fitting import FamilyScore
 # Recalibrated when the lateral law's coupling was anchored at the data's drift in turns
 # (sindy_ekf.diagnose.lateral.anchored_beta): lateral_slip's largest 5 s gain rose from 0.173 to 0.189
 # (variant 5 against its lab model, as before); every other maximum unchanged.
+# Recalibrated when the lateral law got its settling time scale by output error
+# (sindy_ekf.diagnose.lateral.settling_scale), the law of three chosen by its lateral velocity's output error
+# (sindy_ekf.diagnose.scoring.lateral_law), and the lab models their law as `diagnose` writes it (anchored
+# and on that time scale: damping 12 to 25 1/s where the regression's alone was 0.1 to 4): lateral_slip's
+# largest 5 s gain fell from 0.189 to 0.038 (variant 5 against its lab model, as before: the lab models'
+# drift and settling now agree with the data's), and its window-residual maxima rose from 0.102 to 0.386
+# (the default simulator's short campaigns against the reference model: a law settling within a sample
+# amplifies the noise on vy in the integrated residual, and the window fit buys that back by slowing the
+# law; the 5 s scoring, not this one, names the law now);
+# heading_dependence 0.019 -> 0.028 fixed and 0.134 -> 0.117 refit, time_dependence 0.021 -> 0.026 and
+# asymmetry 0.047 -> 0.067 refit, with the lab models' other equations re-identified beside the new law.
 NULL_MAX_GAIN = {
     "fixed": {
-        "input_delay": 0.0, "heading_dependence": 0.01883, "position_dependence": 0.06378,
-        "time_dependence": 0.05291, "asymmetry": 0.08603, "deadband": 0.0087, "lateral_slip": 0.1018,
+        "input_delay": 0.0, "heading_dependence": 0.02763, "position_dependence": 0.06378,
+        "time_dependence": 0.05314, "asymmetry": 0.08603, "deadband": 0.0087, "lateral_slip": 0.38603,
     },
     "refit": {
-        "input_delay": 0.0, "heading_dependence": 0.13388, "position_dependence": 0.08194,
-        "time_dependence": 0.02066, "asymmetry": 0.04714, "deadband": 0.0, "lateral_slip": 0.1018,
+        "input_delay": 0.0, "heading_dependence": 0.11652, "position_dependence": 0.08194,
+        "time_dependence": 0.02624, "asymmetry": 0.06706, "deadband": 0.0, "lateral_slip": 0.38603,
     },
-    "multistep": {"lateral_slip": 0.18925},
+    "multistep": {"lateral_slip": 0.03796},
 }
 MARGIN = 2.0
 MIN_THRESHOLD = 0.01

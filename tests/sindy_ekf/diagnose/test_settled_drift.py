@@ -72,7 +72,10 @@ def test_the_slip_gain_is_the_datas_drift_over_the_models_and_the_extension_its_
     # anchored: the coupling that settles at the data's drift, -K DATA_DRIFT = -3 in all, -2 beside the model's -1
     assert est["drift_anchored"] is True
     assert out.beta == pytest.approx([-2.0, 0.0], abs=1e-6)
-    assert est["coupling"] == pytest.approx(-3.0, abs=1e-6) and est["damping_1_s"] == pytest.approx(15.0)
+    # these runs' vy follows vx omega without any lag: the fastest settling the scale may give, 50 1/s, so the
+    # equation's coefficients are 50 / 15 times the anchored law's (the drift they settle at the same)
+    assert est["settling_scale"] == pytest.approx(50.0 / 15.0) and est["settling_time_s"] == pytest.approx(0.02)
+    assert est["coupling"] == pytest.approx(-3.0 * 50 / 15, abs=1e-6) and est["damping_1_s"] == pytest.approx(50.0)
     assert est["extension_slip_gain"] == pytest.approx(3.0, rel=1e-4)
     # the extension's other equations are shielded from its own drift
     ext = ExtendedModel.added(model, "lateral_slip", np.zeros(0), out.beta, est)
@@ -137,3 +140,99 @@ def test_a_law_that_cannot_settle_at_the_datas_drift_is_kept_as_fitted_and_said_
     assert est["drift_anchored"] is False and out.beta == pytest.approx(beta, abs=0.0)
     assert est["extension_slip_gain"] == pytest.approx(est["law_slip_gain"], rel=1e-9)
     assert est["slip_gain"] > 2.5 and est["law_slip_gain"] < 2.0  # the data drift 3 x, the law as fitted far less
+
+
+def lagging_runs(k_true: float, n_runs: int = 3, run_s: float = 40.0, rate_hz: float = 25.0) -> list[BodyStates]:
+    """Runs whose vy follows ``DATA_DRIFT vx omega`` through a first-order lag of rate ``k_true`` (1/s),
+    integrated by scipy's adaptive Runge-Kutta at a tolerance far below the sampling (independent of the
+    module's exponential Euler)."""
+    from scipy.integrate import solve_ivp
+
+    out = []
+    for r in range(n_runs):
+        def vx(t, r=r):
+            return 0.5 + 0.3 * np.sin(0.4 * t + r)
+
+        def om(t, r=r):
+            return 0.7 * np.sin(0.9 * t + 2.0 * r)
+
+        t = np.arange(0.0, run_s, 1.0 / rate_hz)
+        sol = solve_ivp(lambda s, y: -k_true * (y - DATA_DRIFT * vx(s) * om(s)), (0.0, t[-1]), [0.0],
+                        t_eval=t, rtol=1e-10, atol=1e-12, method="DOP853")
+        z = np.zeros_like(t)
+        out.append(BodyStates(t=t, vx=vx(t), vy=sol.y[0], omega=om(t), u1=vx(t), u2=om(t), x=z, y=z, yaw=z))
+    return out
+
+
+def test_the_settling_scale_is_the_output_error_time_scale_of_the_measured_lateral_velocity():
+    """The model's lateral law settles at 15 1/s; the runs' vy lags vx omega at 5 1/s. Output error on vy picks
+    the scale 1/3 (the candidate rates hold 5 1/s exactly; one grid step is 12 %), the drift stays anchored,
+    and the extension's vy equation is the anchored law times the scale, term by term, also through its file."""
+    model, runs = law(), lagging_runs(5.0)
+    split = split_from_states(runs, ["a", "b", "c"], 2.0)
+    score = FamilyScore("lateral_slip", np.zeros(0), np.array([-3.0, 0.0]), 0.5, {}, 0.5,
+                        {"model_has_lateral_law": True})
+    out = with_settled_drift(score, model, split)
+    est = out.estimate
+    assert est["settling_scale"] == pytest.approx(1.0 / 3.0, rel=0.13)
+    assert est["settling_time_s"] == pytest.approx(0.2, rel=0.13)
+    scale = est["settling_scale"]
+    c = C + out.beta[0]  # the anchored coupling
+    assert est["damping_1_s"] == pytest.approx(15.0 * scale) and est["coupling"] == pytest.approx(c * scale)
+    ext = ExtendedModel.added(model, "lateral_slip", np.zeros(0), out.beta, est)
+    assert ext.vy_rate == pytest.approx(scale)
+    # by hand: vy' = scale (K vy + (C + beta0) vx omega); the forward and yaw equations as the model's
+    x6 = np.array([[0.0, 0.0, 0.0, 0.6, 0.03, 0.4], [0.0, 0.0, 0.0, -0.2, -0.01, 0.9]])
+    u = np.array([[0.5, 0.2], [-0.1, 0.8]])
+    want = np.column_stack([-2.0 * x6[:, 3] + 2.0 * u[:, 0],
+                            scale * (K * x6[:, 4] + c * x6[:, 3] * x6[:, 5]),
+                            -3.0 * x6[:, 5] + 3.0 * u[:, 1]])
+    assert ext.accel(x6, u)[:, 1] == pytest.approx(want[:, 1], abs=1e-12)
+    a, J_x, _ = ext.accel_and_jacobians(x6, u)
+    assert J_x[:, 1, 4] == pytest.approx(scale * K) and J_x[:, 1, 3] == pytest.approx(scale * c * x6[:, 5])
+
+
+def test_the_settling_scale_survives_the_extensions_file(tmp_path):
+    model = law()
+    ext = ExtendedModel.added(model, "lateral_slip", np.zeros(0), np.array([-2.0, 0.0]),
+                              {"slip_from": "settled", "extension_slip_gain": 1.0, "settling_scale": 0.4})
+    back = ExtendedModel.load(ext.to_json(tmp_path / "ext.json"))
+    x6, u = np.array([[0.0, 0.0, 0.0, 0.6, 0.03, 0.4]]), np.array([[0.5, 0.2]])
+    assert back.vy_rate == pytest.approx(0.4) and back.accel(x6, u) == pytest.approx(ext.accel(x6, u), abs=1e-15)
+    assert back.accel(x6, u)[0, 1] == pytest.approx(0.4 * (K * 0.03 + (C - 2.0) * 0.6 * 0.4))
+    # a plain SINDy model again: the lateral row of coefficients times the scale
+    assert ext.as_sindy().f(x6[:, 3:], u) == pytest.approx(ext.accel(x6, u), abs=1e-12)
+
+
+def test_the_lateral_law_is_the_one_whose_lateral_velocity_matches_the_train_runs_best():
+    """Runs whose vy follows a saturating drift, ``-0.2 q + 0.6 q^3`` (``q = vx omega``), through a lag of 10 1/s
+    (integrated by scipy): of the family's laws the saturating one is kept, the one of the three whose lateral
+    velocity, anchored and integrated along the train runs, misses the measured one least; the linear law
+    cannot bend with the turns and misses more."""
+    from scipy.integrate import solve_ivp
+
+    from sindy_ekf.diagnose import scoring
+
+    def run(r: int, run_s: float = 40.0) -> BodyStates:
+        def vx(t):
+            return 0.5 + 0.3 * np.sin(0.4 * t + r)
+
+        def om(t):
+            return 0.9 * np.sin(0.9 * t + 2.0 * r)
+
+        t = np.arange(0.0, run_s, 0.04)
+        drift = lambda s: -0.2 * vx(s) * om(s) + 0.6 * (vx(s) * om(s)) ** 3  # noqa: E731
+        sol = solve_ivp(lambda s, y: -10.0 * (y - drift(s)), (0.0, t[-1]), [0.0], t_eval=t, rtol=1e-10, atol=1e-12)
+        z = np.zeros_like(t)
+        return BodyStates(t=t, vx=vx(t), vy=sol.y[0], omega=om(t), u1=vx(t), u2=om(t), x=z, y=z, yaw=z)
+
+    model = law()
+    tr = split_from_states([run(r) for r in range(3)], ["a", "b", "c"], 2.0)
+    te = split_from_states([run(3)], ["d"], 2.0)
+    weights = np.ones(3)
+    base = {"train": scoring.null_prediction(model, tr), "test": scoring.null_prediction(model, te)}
+    kept = scoring.lateral_law(model, tr, te, weights, base, uncertainty=False)
+    assert kept.estimate["mechanism"] == "saturating"
+    linear = with_settled_drift(scoring.score_family(scoring.MECHANISMS["lateral_slip"][0], model, tr, te, weights,
+                                                     base, uncertainty=False), model, tr)
+    assert kept.estimate["vy_rms_m_s"] < 0.8 * linear.estimate["vy_rms_m_s"]
