@@ -410,8 +410,16 @@ ROWS = (
         "1 to 10", _diagnose_forms, "-"),
     Row("diagnose_forms_120s", "the same on runs of 120 s instead of 45 s (a slow effect needs time to show)",
         _diagnose_forms, "-"),
+    Row("diagnose_forms_heldout", "the same on held-out simulator variants 11 to 20 (no threshold calibrated, no "
+        "mechanism designed on them)", _diagnose_forms, "-"),
+    Row("diagnose_forms_heldout_120s", "held-out variants 11 to 20, runs of 120 s", _diagnose_forms, "-"),
+    Row("diagnose_forms_heldout_v21-30", "held-out variants 21 to 30, drawn after every change designed on 11 to "
+        "20", _diagnose_forms, "-"),
+    Row("diagnose_forms_heldout_v21-30_120s", "held-out variants 21 to 30, runs of 120 s", _diagnose_forms, "-"),
     Row("identify_variants", "identification on simulator variants 1 to 10 (12-min campaigns through bags; "
         "`identify` then `evaluate`): 5 s position error of the selected model on the test runs", _variants, "-"),
+    Row("identify_variants_heldout", "the same on simulator variants 11 to 20, which no identification choice "
+        "was made on (held out)", _variants, "-"),
     Row("identify_variants_default_length", "the same at the default campaign length (45.4-min campaigns)",
         _variants, "-"),
     Row("identify_speed", "`identify`, full tracker grid (384 points, 5 folds, `--jobs 2`) on the default campaign "

@@ -18,9 +18,13 @@ from pathlib import Path
 from bench import readme_table
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "identification", "lodo_ceiling", "identify_speed", "identify_phases", "scaleout", "estimation", "sensors", "input_checks", "monte_carlo", "monte_carlo_variant", "ekf_speed", "ekf_speed_data", "real", "real_cli",
-         "diagnose", "diagnose_kernels", "diagnose_forms", "diagnose_forms_120s", "diagnose_forms_heldout",
-         "diagnose_forms_heldout_120s", "diagnose_forms_heldout_v21-30_120s", "diagnose_ladder_120s", "inject_real", "real_clean", "new_ground", "effects_identified", "diagnose_notes", "demo"]
+ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "identification", "identify_variants",
+         "identify_variants_heldout", "identify_variants_default_length", "lodo_ceiling", "identify_speed",
+         "identify_phases", "scaleout", "estimation", "sensors", "input_checks", "monte_carlo",
+         "monte_carlo_variant", "ekf_speed", "ekf_speed_data", "real", "real_cli", "diagnose", "diagnose_kernels",
+         "diagnose_forms", "diagnose_forms_120s", "diagnose_forms_heldout", "diagnose_forms_heldout_120s",
+         "diagnose_forms_heldout_v21-30", "diagnose_forms_heldout_v21-30_120s", "diagnose_ladder_120s",
+         "inject_real", "real_clean", "new_ground", "effects_identified", "diagnose_notes", "demo"]
 
 
 def assemble() -> Path:
