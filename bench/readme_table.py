@@ -413,8 +413,8 @@ ROWS = (
     Row("diagnose_forms_heldout", "the same on held-out simulator variants 11 to 20 (no threshold calibrated, no "
         "mechanism designed on them)", _diagnose_forms, "-"),
     Row("diagnose_forms_heldout_120s", "held-out variants 11 to 20, runs of 120 s", _diagnose_forms, "-"),
-    Row("diagnose_forms_heldout_v21-30", "held-out variants 21 to 30, drawn after every change designed on 11 to "
-        "20", _diagnose_forms, "-"),
+    Row("diagnose_forms_heldout_v21-30", "variants 21 to 30, drawn after the changes designed on 11 to 20 (the "
+        "lateral law's time scale was found on their lab models)", _diagnose_forms, "-"),
     Row("diagnose_forms_heldout_v21-30_120s", "held-out variants 21 to 30, runs of 120 s", _diagnose_forms, "-"),
     Row("identify_variants", "identification on simulator variants 1 to 10 (12-min campaigns through bags; "
         "`identify` then `evaluate`): 5 s position error of the selected model on the test runs", _variants, "-"),
