@@ -189,17 +189,16 @@ def lateral_rollouts(f_and_slope: Callable, split: Split, scales: np.ndarray) ->
     return out
 
 
-def settling_scale(f_and_slope: Callable, split: Split, settled_slope: np.ndarray) -> tuple[float, float]:
+def settling_scale(f_and_slope: Callable, split: Split, rate: float) -> tuple[float, float]:
     """Return the factor of the ``vy`` equation that makes its lateral velocity, integrated along the train runs
     (:func:`lateral_rollouts`), best match the measured one in least squares (output error: the noise on the
     measured ``vy`` is on the output, where it biases nothing), and the RMS of that match, m/s; ``(1, nan)``
     where the law settles nowhere.
 
     A factor scales the time the lateral velocity takes to settle and leaves the roots it settles at, the
-    anchored drift, as they are. Candidates: the settling rates :data:`SETTLING_RATES_1_S` over the median
-    ``-d f / d vy`` at the settled turns ``settled_slope``, and 1.
+    anchored drift, as they are. Candidates: the settling rates :data:`SETTLING_RATES_1_S` over ``rate``, the
+    law's own (the median ``-d f / d vy`` at the settled turns), and 1.
     """
-    rate = float(np.median(-settled_slope[settled_slope < 0])) if np.any(settled_slope < 0) else float("nan")
     if not (np.isfinite(rate) and rate > 0):
         return 1.0, float("nan")
     scales = np.concatenate([[1.0], SETTLING_RATES_1_S / rate])
@@ -236,7 +235,9 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     beta = beta if anchored else np.asarray(score.beta, float)
     *more, slope = extension_settled(model, score, beta, x6, u, with_slope=True)
     ext = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate), score.uniform)
-    scale, vy_rms = settling_scale(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), split, slope[more[1]])
+    stable = more[1] & (slope < 0)
+    rate = float(np.median(-slope[stable])) if stable.any() else float("nan")
+    scale, vy_rms = settling_scale(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), split, rate)
 
     def drifts(rows: np.ndarray) -> dict:
         d, m, e = (drift_ratio(vy, ok, q, rows) for vy, ok in (measured, base, more))
@@ -248,7 +249,6 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     spec = mechanism_spec(score.family, score.estimate.get("mechanism"))
     coefficients = {k: v * scale if k in SCALED_KEYS else v
                     for k, v in spec.estimate(score.theta, beta, model).items() if k not in est}
-    rate = float(np.median(-slope[more[1] & (slope < 0)])) if np.any(more[1] & (slope < 0)) else float("nan")
     return dataclasses.replace(score, beta=beta, estimate={
         **score.estimate, **coefficients, **est, "law_slip_gain": law / r0, "drift_anchored": anchored,
         "settling_scale": scale, "settling_time_s": 1.0 / (scale * rate), "vy_rms_m_s": vy_rms, "slip_from": "settled"},

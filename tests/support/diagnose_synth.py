@@ -18,8 +18,8 @@ from simulation.short_campaign import simulate_states_campaign
 from simulation.variants import draw_variant
 from sindy_ekf.diagnose.data import model_split, split_from_states
 from sindy_ekf.diagnose.design import gain_recalibrated
-from sindy_ekf.diagnose.extend import reidentify
-from sindy_ekf.diagnose.families import mechanism_spec, term_column
+from sindy_ekf.diagnose.extend import ExtendedModel, reidentify
+from sindy_ekf.diagnose.families import mechanism_spec
 from sindy_ekf.diagnose.fitting import FamilyScore, equation_weights, score_family
 from sindy_ekf.diagnose.lateral import with_settled_drift
 from sindy_ekf.diagnose.pipeline import load_model
@@ -74,11 +74,8 @@ def settled_lateral_law(model, split):
     they see (no ``vy_scale``)."""
     score = FamilyScore("lateral_slip", np.zeros(0), np.zeros(2), 0.0, {}, 0.0, {"model_has_lateral_law": True})
     est = with_settled_drift(score, model, split)
-    coef = np.array(model.coef, float, copy=True)
-    for term, b in zip(("vx omega", "vy"), est.beta):
-        coef[1, term_column(model.library, term)] += b
-    coef[1] *= est.estimate.get("settling_scale", 1.0)
-    return model.with_coefficients(coef)
+    ext = ExtendedModel(model, "lateral_slip", np.zeros(0), est.beta, vy_rate=est.estimate.get("settling_scale", 1.0))
+    return ext.as_sindy()
 
 
 @functools.lru_cache(maxsize=None)
