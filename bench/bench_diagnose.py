@@ -384,7 +384,7 @@ def calibrate_families(model, models: dict, n_sim: int, workers, variants=tuple(
 def family_maxima(rows) -> dict:
     """Return ``{scoring: {family: largest gain}}`` over the null rows (finite gains; lateral_slip only
     where the model has a lateral law, and never re-identified: its refit entry is its fixed one; its 5 s
-    scoring under ``"multistep"``)."""
+    scoring under ``"multistep"``, its lateral velocity's output error under ``"output_error"``)."""
     from sindy_ekf.diagnose.families import FAMILIES
 
     null = [r for r in rows if r["null"]]
@@ -396,10 +396,12 @@ def family_maxima(rows) -> dict:
                     if r["by_scoring"].get(f) else r["gains"][f]
                     for r in null if f != "lateral_slip" or r["lateral_law"]]
             out[k][f] = round(max([v for v in vals if np.isfinite(v)], default=0.0), 5)
-    # the lateral law by its 5 s prediction of the test runs (sindy_ekf.diagnose.drift): its own null
-    vals = [r["by_scoring"].get("lateral_slip", {}).get("multistep", float("nan")) for r in null if r["lateral_law"]]
-    if any(np.isfinite(v) for v in vals):
-        out["multistep"] = {"lateral_slip": round(max(v for v in vals if np.isfinite(v)), 5)}
+    # the lateral law by its 5 s prediction of the test runs (sindy_ekf.diagnose.drift) and by its lateral
+    # velocity's output error there (sindy_ekf.diagnose.lateral.output_error_score): each its own null
+    for k in ("multistep", "output_error"):
+        vals = [r["by_scoring"].get("lateral_slip", {}).get(k, float("nan")) for r in null if r["lateral_law"]]
+        if any(np.isfinite(v) for v in vals):
+            out[k] = {"lateral_slip": round(max(v for v in vals if np.isfinite(v)), 5)}
     return out
 
 
@@ -424,7 +426,7 @@ def family_lines(fc) -> list[str]:
              "(`sindy_ekf.diagnose.scoring.score_families`: the model with its input gains fitted on the train "
              "runs, a gain nuisance with every input-side mechanism). Each cell: the family's out-of-sample gain "
              "with the model kept fixed / re-identified around the mechanism (`-` not re-identified, `-inf` no "
-             "admissible re-identification; lateral_slip also `5 s`: its 5 s scoring, `sindy_ekf.diagnose.drift`); lateral_slip in brackets where the model has no lateral law "
+             "admissible re-identification; lateral_slip also `5 s`: its 5 s scoring, `sindy_ekf.diagnose.drift`, and `vy`: its lateral velocity's output error, `sindy_ekf.diagnose.lateral.output_error_score`); lateral_slip in brackets where the model has no lateral law "
              "(never named, left out of its maximum).", "",
              "| campaign | kind | in the null | " + " | ".join(short[f] for f in FAMILIES) + " |",
              "|---|---|---|" + "---|" * len(FAMILIES)]
@@ -433,6 +435,7 @@ def family_lines(fc) -> list[str]:
         by = r.get("by_scoring", {}).get(f) or {"fixed": r["gains"][f]}
         text = f"{by['fixed']:.3f} / " + (f"{by['refit']:.3f}" if "refit" in by else "-")
         text += f" / 5 s {by['multistep']:.3f}" if "multistep" in by else ""
+        text += f" / vy {by['output_error']:.3f}" if "output_error" in by else ""
         return f"({text})" if f == "lateral_slip" and not r["lateral_law"] else text
 
     for r in fc["rows"]:

@@ -68,7 +68,7 @@ class FamilyScore:
     estimate: dict
     estimate_std: dict = field(default_factory=dict)
     profile: dict = field(default_factory=dict)  # theta grid and train SSE (1-D families)
-    by_scoring: dict = field(default_factory=dict)  # test gain per scoring: {"fixed": g, "refit": g, "multistep": g}
+    by_scoring: dict = field(default_factory=dict)  # test gain per scoring: {"fixed": g, "refit": g, "multistep": g, ...}
     alternative: FamilyScore | None = None  # the other scoring's score (the lower test gain)
     # coefficients of an additive family's uniform nuisance fitted beside it (Family.uniform_columns:
     # the floor patch's damping changed everywhere); the extension carries them (ExtendedModel.added)
@@ -77,9 +77,11 @@ class FamilyScore:
     @property
     def scoring(self) -> str:
         """Return how the score was made: ``"refit"`` (model re-identified around the mechanism), ``"multistep"``
-        (the lateral law by the 5 s prediction, :mod:`sindy_ekf.diagnose.drift`) or ``"fixed"``."""
+        (the lateral law by the 5 s prediction, :mod:`sindy_ekf.diagnose.drift`), ``"output_error"`` (the lateral
+        law by its lateral velocity on the test runs, :func:`sindy_ekf.diagnose.lateral.output_error_score`) or
+        ``"fixed"``."""
         how = self.estimate.get("scored_with")
-        return how if how in ("refit", "multistep") else "fixed"
+        return how if how in ("refit", "multistep", "output_error") else "fixed"
 
     def to_dict(self) -> dict:
         """Return a JSON-ready dict."""

@@ -20,7 +20,7 @@ from sindy_ekf.diagnose.families import FAMILIES, MECHANISMS
 from sindy_ekf.diagnose.columns import design_for, null_fit
 from sindy_ekf.diagnose.fitting import FamilyScore, refit_grid, score_family
 from sindy_ekf.diagnose.grids import parabolic_min
-from sindy_ekf.diagnose.lateral import with_settled_drift
+from sindy_ekf.diagnose.lateral import output_error_score, with_settled_drift
 
 
 def score_mechanisms(name: str, model, tr, te, weights, base_pred, uncertainty: bool = True) -> FamilyScore:
@@ -80,6 +80,8 @@ def _score_family_task(task) -> FamilyScore:
     name, model, tr, te, weights, base_pred, uncertainty, test = task
     score = lateral_law(model, tr, te, weights, base_pred, uncertainty) if name == "lateral_slip" else None
     score = score or score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
+    if name == "lateral_slip":  # by its lateral velocity on the test runs instead of the window residual
+        score = output_error_score(score, model, tr, te)
     if name == "lateral_slip" and test is not None:
         score = drift_score(score, model, *test)
     return score
