@@ -54,7 +54,8 @@ def drift_gain(model, extended, states: Sequence[BodyStates], names: Sequence[st
 
 
 def drift_score(score: FamilyScore, model, test: Sequence[BodyStates], test_names: Sequence[str]) -> FamilyScore:
-    """Return ``score`` (the lateral law fitted on the train runs with the model kept fixed) with its
+    """Return ``score`` (the lateral law fitted on the train runs with the model kept fixed, scored by the window
+    residual or by its lateral velocity's output error, :func:`sindy_ekf.diagnose.lateral.output_error_score`) with its
     5 s scoring on the test runs beside it (``by_scoring["multistep"]``, the better of the two the
     score, the other its ``alternative``, as :func:`sindy_ekf.diagnose.fitting.score_family` does
     with the refit)."""

@@ -75,8 +75,10 @@ def lateral_law(model, tr, te, weights, base_pred, uncertainty: bool = True) -> 
 
 def _score_family_task(task) -> FamilyScore:
     """Return :func:`score_mechanisms` of one task ``(family, model, tr, te, weights, base_pred, uncertainty,
-    test)``, the lateral law also by its 5 s prediction of the test runs ``test = (states, names)`` when given,
-    its drift and slip gain as its whole lateral equation settles on the train runs (:mod:`.lateral`)."""
+    test)``; the lateral law (:func:`lateral_law`) scored by its lateral velocity's output error on the test
+    runs instead of the window residual (:func:`sindy_ekf.diagnose.lateral.output_error_score`) and also by its
+    5 s prediction of the test runs ``test = (states, names)`` when given, its drift and slip gain as its whole
+    lateral equation settles on the train runs (:mod:`.lateral`)."""
     name, model, tr, te, weights, base_pred, uncertainty, test = task
     score = lateral_law(model, tr, te, weights, base_pred, uncertainty) if name == "lateral_slip" else None
     score = score or score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
