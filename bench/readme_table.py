@@ -416,6 +416,10 @@ ROWS = (
     Row("diagnose_forms_heldout_v21-30", "variants 21 to 30, drawn after the changes designed on 11 to 20 (the "
         "lateral law's time scale was found on their lab models)", _diagnose_forms, "-"),
     Row("diagnose_forms_heldout_v21-30_120s", "held-out variants 21 to 30, runs of 120 s", _diagnose_forms, "-"),
+    Row("diagnose_forms_heldout_v31-40", "variants 31 to 40, drawn after the lateral law's scoring by its lateral "
+        "velocity was designed (on 11 to 20's hardening slips and 21 to 30's effect-free campaigns)",
+        _diagnose_forms, "-"),
+    Row("diagnose_forms_heldout_v31-40_120s", "held-out variants 31 to 40, runs of 120 s", _diagnose_forms, "-"),
     Row("identify_variants", "identification on simulator variants 1 to 10 (12-min campaigns through bags; "
         "`identify` then `evaluate`): 5 s position error of the selected model on the test runs", _variants, "-"),
     Row("identify_variants_heldout", "the same on simulator variants 11 to 20, which no identification choice "

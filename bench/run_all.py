@@ -23,7 +23,8 @@ ORDER = ["simulate", "calibration", "preprocess", "poses", "identify", "identifi
          "identify_phases", "scaleout", "estimation", "sensors", "input_checks", "monte_carlo",
          "monte_carlo_variant", "ekf_speed", "ekf_speed_data", "real", "real_cli", "diagnose", "diagnose_kernels",
          "diagnose_forms", "diagnose_forms_120s", "diagnose_forms_heldout", "diagnose_forms_heldout_120s",
-         "diagnose_forms_heldout_v21-30", "diagnose_forms_heldout_v21-30_120s", "diagnose_ladder_120s",
+         "diagnose_forms_heldout_v21-30", "diagnose_forms_heldout_v21-30_120s", "diagnose_forms_heldout_v31-40",
+         "diagnose_forms_heldout_v31-40_120s", "diagnose_ladder_120s",
          "inject_real", "real_clean", "new_ground", "effects_identified", "diagnose_notes", "demo"]
 
 
