@@ -110,6 +110,18 @@ def vy_row(accelerations_and_jacobians: tuple, vy_column: int) -> tuple[np.ndarr
     return a[:, 1], J[:, 1, vy_column]
 
 
+def model_vy(model) -> Callable:
+    """Return the model's own ``vy`` equation as ``f_and_slope(x6, u)`` (:func:`settled_vy`)."""
+    return lambda x, v: vy_row(model.f_and_jacobians(x[:, 3:], v), 1)
+
+
+def settled_rate(ok: np.ndarray, slope: np.ndarray) -> float:
+    """Return the law's own settling rate, the median ``-d f / d vy`` over the settled stable roots, 1/s (``nan``
+    without one)."""
+    stable = ok & (slope < 0)
+    return float(np.median(-slope[stable])) if stable.any() else float("nan")
+
+
 def drift_ratio(vy: np.ndarray, ok: np.ndarray, q: np.ndarray, turn: np.ndarray) -> float:
     """Return the least-squares slope of the settled ``vy`` on ``q = vx omega`` over the settled turning
     samples, s; ``nan`` where fewer than :data:`MIN_SETTLED` of the turns settled."""
@@ -225,7 +237,7 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     x6, u, q, run = split.x6[turns], split.u[turns], q[turns], split.run[turns]
     every = np.ones(len(q), bool)  # every sample left is a turn
     measured = (x6[:, 4], np.isfinite(x6[:, 4]))
-    base = settled_vy(lambda x, v: vy_row(model.f_and_jacobians(x[:, 3:], v), 1), x6, u)
+    base = settled_vy(model_vy(model), x6, u)
     law_roots = extension_settled(model, score, score.beta, x6, u)
     data, r0, law = (drift_ratio(vy, ok, q, every) for vy, ok in (measured, base, law_roots))
     if not all(np.isfinite(v) and v != 0 for v in (data, r0, law)):
@@ -235,8 +247,7 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     beta = beta if anchored else np.asarray(score.beta, float)
     *more, slope = extension_settled(model, score, beta, x6, u, with_slope=True)
     ext = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate), score.uniform)
-    stable = more[1] & (slope < 0)
-    rate = float(np.median(-slope[stable])) if stable.any() else float("nan")
+    rate = settled_rate(more[1], slope)
     scale, vy_rms = settling_scale(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), split, rate)
 
     def drifts(rows: np.ndarray) -> dict:
@@ -262,15 +273,11 @@ OUTPUT_ERROR = "output_error"
 def own_law(model, split: Split) -> tuple[Callable, float]:
     """Return the model's own ``vy`` equation as ``f_and_slope`` and the factor that puts it on the time scale of
     the measured lateral velocity of ``split`` (:func:`settling_scale`, the rate its settled turns give it)."""
-    def f0(x, v):
-        return vy_row(model.f_and_jacobians(x[:, 3:], v), 1)
-
+    f0 = model_vy(model)
     q = split.x6[:, 3] * split.x6[:, 5]
     turns = np.abs(q) > np.quantile(np.abs(q), TURN_QUANTILE)
     _, ok, slope = settled_vy(f0, split.x6[turns], split.u[turns], with_slope=True)
-    stable = ok & (slope < 0)
-    rate = float(np.median(-slope[stable])) if stable.any() else float("nan")
-    return f0, settling_scale(f0, split, rate)[0]
+    return f0, settling_scale(f0, split, settled_rate(ok, slope))[0]
 
 
 def output_error_score(score: FamilyScore, model, tr: Split, te: Split) -> FamilyScore:
