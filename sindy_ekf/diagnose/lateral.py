@@ -115,6 +115,17 @@ def model_vy(model) -> Callable:
     return lambda x, v: vy_row(model.f_and_jacobians(x[:, 3:], v), 1)
 
 
+def extension_vy(ext: ExtendedModel) -> Callable:
+    """Return an extension's ``vy`` equation as ``f_and_slope(x6, u)`` (its Jacobian over the six states)."""
+    return lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4)
+
+
+def turning(split: Split) -> np.ndarray:
+    """Return ``(N,)`` where the samples of ``split`` turn: ``|vx omega|`` above its :data:`TURN_QUANTILE`."""
+    q = np.abs(split.x6[:, 3] * split.x6[:, 5])
+    return q > np.quantile(q, TURN_QUANTILE)
+
+
 def settled_rate(ok: np.ndarray, slope: np.ndarray) -> float:
     """Return the law's own settling rate, the median ``-d f / d vy`` over the settled stable roots, 1/s (``nan``
     without one)."""
@@ -135,7 +146,7 @@ def extension_settled(model, score: FamilyScore, beta: np.ndarray, x6: np.ndarra
                       with_slope: bool = False) -> tuple[np.ndarray, ...]:
     """Return :func:`settled_vy` of the extension ``model`` plus the law ``score`` with coefficients ``beta``."""
     ext = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate), score.uniform)
-    return settled_vy(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), x6, u, with_slope=with_slope)
+    return settled_vy(extension_vy(ext), x6, u, with_slope=with_slope)
 
 
 def anchored_beta(model, score: FamilyScore, x6: np.ndarray, u: np.ndarray, q: np.ndarray, turn: np.ndarray,
@@ -232,8 +243,7 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     """
     if score.family != "lateral_slip" or not score.estimate.get("model_has_lateral_law"):
         return score
-    q = split.x6[:, 3] * split.x6[:, 5]
-    turns = np.abs(q) > np.quantile(np.abs(q), TURN_QUANTILE)  # only where the drift is read
+    q, turns = split.x6[:, 3] * split.x6[:, 5], turning(split)  # only where the drift is read
     x6, u, q, run = split.x6[turns], split.u[turns], q[turns], split.run[turns]
     every = np.ones(len(q), bool)  # every sample left is a turn
     measured = (x6[:, 4], np.isfinite(x6[:, 4]))
@@ -248,7 +258,7 @@ def with_settled_drift(score: FamilyScore, model, split: Split) -> FamilyScore:
     *more, slope = extension_settled(model, score, beta, x6, u, with_slope=True)
     ext = ExtendedModel.added(model, score.family, score.theta, beta, dict(score.estimate), score.uniform)
     rate = settled_rate(more[1], slope)
-    scale, vy_rms = settling_scale(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), split, rate)
+    scale, vy_rms = settling_scale(extension_vy(ext), split, rate)
 
     def drifts(rows: np.ndarray) -> dict:
         d, m, e = (drift_ratio(vy, ok, q, rows) for vy, ok in (measured, base, more))
@@ -273,9 +283,7 @@ OUTPUT_ERROR = "output_error"
 def own_law(model, split: Split) -> tuple[Callable, float]:
     """Return the model's own ``vy`` equation as ``f_and_slope`` and the factor that puts it on the time scale of
     the measured lateral velocity of ``split`` (:func:`settling_scale`, the rate its settled turns give it)."""
-    f0 = model_vy(model)
-    q = split.x6[:, 3] * split.x6[:, 5]
-    turns = np.abs(q) > np.quantile(np.abs(q), TURN_QUANTILE)
+    f0, turns = model_vy(model), turning(split)
     _, ok, slope = settled_vy(f0, split.x6[turns], split.u[turns], with_slope=True)
     return f0, settling_scale(f0, split, settled_rate(ok, slope))[0]
 
@@ -301,11 +309,11 @@ def output_error_score(score: FamilyScore, model, tr: Split, te: Split) -> Famil
     ext = ExtendedModel.added(model, score.family, score.theta, score.beta, dict(score.estimate), score.uniform)
     f0, scale0 = own_law(model, tr)
     rolled = np.concatenate([lateral_rollouts(f0, te, np.array([scale0])),
-                             lateral_rollouts(lambda x, v: vy_row(ext.accel_and_jacobians(x, v), 4), te, np.ones(1))])
+                             lateral_rollouts(extension_vy(ext), te, np.ones(1))])
     with np.errstate(over="ignore", invalid="ignore"):
         sq = (rolled - te.v_body[:, 1]) ** 2
-    per_run = {name: float(1.0 - sq[1, te.run == r].sum() / sq[0, te.run == r].sum())
-               for r, name in enumerate(te.names) if sq[0, te.run == r].sum() > 0}
+    runs = np.array([np.bincount(te.run, weights=row, minlength=len(te.names)) for row in sq])  # (2, runs)
+    per_run = {name: float(1.0 - runs[1, r] / runs[0, r]) for r, name in enumerate(te.names) if runs[0, r] > 0}
     total = sq.sum(axis=1)
     gain = float(1.0 - total[1] / total[0]) if total[0] > 0 else float("nan")
     if not np.isfinite(gain):

@@ -84,8 +84,8 @@ def _score_family_task(task) -> FamilyScore:
     score = score or score_mechanisms(name, model, tr, te, weights, base_pred, uncertainty=uncertainty)
     if name == "lateral_slip":  # by its lateral velocity on the test runs instead of the window residual
         score = output_error_score(score, model, tr, te)
-    if name == "lateral_slip" and test is not None:
-        score = drift_score(score, model, *test)
+        if test is not None:
+            score = drift_score(score, model, *test)
     return score
 
 
